@@ -1,0 +1,108 @@
+"""SE(3) helpers: rigid checks, exponential map, pose error metrics.
+
+Poses are (4, 4) float64 homogeneous matrices; ``T_a_b`` maps coordinates in frame b
+into frame a. Twists are 6-vectors ``[omega, v]`` (angular part first) in radians and metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from algorithms.errors import AlgorithmError
+
+RIGID_TOL = 1e-6
+
+
+def as_pose(T, name: str = "pose", tol: float = RIGID_TOL) -> np.ndarray:
+    """Return ``T`` as a (4, 4) float64 rigid transform or raise ``AlgorithmError``.
+
+    Rigid means: last row [0, 0, 0, 1], rotation block orthonormal within ``tol`` and det = +1.
+    """
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise AlgorithmError(f"{name} must be a 4x4 matrix, got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise AlgorithmError(f"{name} contains NaN or infinite entries")
+    if np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0])) > tol:
+        raise AlgorithmError(f"{name} last row must be [0, 0, 0, 1], got {T[3].tolist()}")
+    R = T[:3, :3]
+    ortho = np.max(np.abs(R.T @ R - np.eye(3)))
+    if ortho > tol:
+        raise AlgorithmError(
+            f"{name} rotation is not orthonormal (max |R^T R - I| = {ortho:.3g} > {tol:g})"
+        )
+    if np.linalg.det(R) < 0:
+        raise AlgorithmError(f"{name} rotation is a reflection (det = -1); a proper rotation is required")
+    return T
+
+
+def make_pose(R=None, p=None) -> np.ndarray:
+    """Build a (4, 4) pose from a (3, 3) rotation and a (3,) translation [m]."""
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = R
+    if p is not None:
+        T[:3, 3] = p
+    return T
+
+
+def inv_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform, without a general matrix inverse."""
+    R = T[:3, :3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ T[:3, 3]
+    return out
+
+
+def hat(w: np.ndarray) -> np.ndarray:
+    """Skew-symmetric matrix of a 3-vector: ``hat(w) @ x == cross(w, x)``."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def exp_se3(xi) -> np.ndarray:
+    """Exponential map of a twist ``[omega, v]`` to a (4, 4) pose."""
+    xi = np.asarray(xi, dtype=np.float64)
+    w, v = xi[:3], xi[3:]
+    theta = np.linalg.norm(w)
+    W = hat(w)
+    if theta < 1e-9:
+        R = np.eye(3) + W + 0.5 * W @ W
+        V = np.eye(3) + 0.5 * W + W @ W / 6.0
+    else:
+        a = np.sin(theta) / theta
+        b = (1.0 - np.cos(theta)) / theta**2
+        c = (theta - np.sin(theta)) / theta**3
+        R = np.eye(3) + a * W + b * W @ W
+        V = np.eye(3) + b * W + c * W @ W
+    return make_pose(R, V @ v)
+
+
+def log_se3(T: np.ndarray) -> np.ndarray:
+    """Logarithm of a pose: the twist ``[omega, v]`` with ``exp_se3(xi) == T``."""
+    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    theta = np.linalg.norm(w)
+    W = hat(w)
+    if theta < 1e-9:
+        V_inv = np.eye(3) - 0.5 * W + W @ W / 12.0
+    else:
+        half = 0.5 * theta
+        V_inv = np.eye(3) - 0.5 * W + (1.0 - half / np.tan(half)) / theta**2 * (W @ W)
+    return np.concatenate([w, V_inv @ T[:3, 3]])
+
+
+def rotation_error_rad(T_est: np.ndarray, T_true: np.ndarray) -> float:
+    """Document 000's rotation error: the angle of ``R_est^T R_true`` [rad]."""
+    R = T_est[:3, :3].T @ T_true[:3, :3]
+    return float(np.linalg.norm(Rotation.from_matrix(R).as_rotvec()))
+
+
+def translation_error_m(T_est: np.ndarray, T_true: np.ndarray) -> float:
+    """Document 000's translation error: distance between the two origins [m]."""
+    return float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a (4, 4) pose to (N, 3) points."""
+    return points @ T[:3, :3].T + T[:3, 3]
