@@ -1,0 +1,5 @@
+"""Named numeric tolerances used across the tests."""
+
+FK_AGREEMENT_M = 1e-12          # DH product vs MuJoCo forward kinematics
+ON_SURFACE_M = 1e-6             # noise-off reconstructed point to true mesh
+ANALYTIC_DISTANCE_M = 1e-9      # reported distance vs analytic plane/sphere distance

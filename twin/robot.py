@@ -1,0 +1,44 @@
+"""The arm of the cell: a UR5e, its files, published kinematics and limits.
+
+Numbers and their sources are in ``models/ur5e/README.md``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from algorithms.kinematics import DHTable
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+UR5E_DIR = MODELS_DIR / "ur5e"
+SCENE_XML = UR5E_DIR / "scene.xml"
+
+UR5E_DH = DHTable(
+    a=(0.0, -0.425, -0.3922, 0.0, 0.0, 0.0),
+    d=(0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996),
+    alpha=(np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0),
+)
+JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+LINK_BODIES = (
+    "shoulder_pan_link",
+    "shoulder_lift_link",
+    "elbow_link",
+    "wrist_1_link",
+    "wrist_2_link",
+    "wrist_3_link",
+)
+FLANGE_BODY = "wrist_3_link"
+FLANGE_SITE = "flange"
+VELOCITY_LIMIT_RAD_S = np.full(6, np.pi)  # 180 deg/s on every joint (UR5e datasheet)
+ACCELERATION_LIMIT_RAD_S2 = np.full(6, 2.0 * np.pi)  # planning limit chosen for smooth servo tracking
+# Elbow up, wrist pointing down, flange over the table in front of the base.
+HOME_Q = np.array([0.0, -1.9, 1.9, -1.5707963267948966, -1.5707963267948966, 0.0])
