@@ -40,5 +40,5 @@ FLANGE_BODY = "wrist_3_link"
 FLANGE_SITE = "flange"
 VELOCITY_LIMIT_RAD_S = np.full(6, np.pi)  # 180 deg/s on every joint (UR5e datasheet)
 ACCELERATION_LIMIT_RAD_S2 = np.full(6, 2.0 * np.pi)  # planning limit chosen for smooth servo tracking
-# Elbow up, wrist pointing down, flange over the table in front of the base.
-HOME_Q = np.array([0.0, -1.9, 1.9, -1.5707963267948966, -1.5707963267948966, 0.0])
+# Elbow up, wrist pointing down, flange over the table at +x in front of the base.
+HOME_Q = np.array([np.pi, -1.9, 1.9, -1.5707963267948966, -1.5707963267948966, 0.0])

@@ -1,0 +1,393 @@
+"""Scenario files (TOML): load, validate every key and value, and hold them as frozen dataclasses.
+
+A scenario describes one cell: the workpiece and its TRUE and NOMINAL poses, the robot base,
+the laser sensor, the error sources switched on, the scan plan and the seed. Every key is
+documented in ``scenarios/README.md``; unknown keys are an error.
+
+Poses are written either as ``{ xyz = [x, y, z], rpy_deg = [roll, pitch, yaw] }`` (metres,
+degrees, extrinsic x-y-z rotations) or as ``{ matrix = [[...4x4...]] }``.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from algorithms.errors import AlgorithmError
+from algorithms.se3 import as_pose
+from twin.errors import TwinError
+
+SENSOR_WINDOW_M = (0.055, 0.105)  # Keyence IL-065 measuring window
+
+
+def pose_from_table(value: Any, where: str) -> np.ndarray:
+    """Parse a pose table into a (4, 4) rigid transform, or raise TwinError naming ``where``."""
+    if not isinstance(value, dict):
+        raise TwinError(f"{where} must be a table with xyz/rpy_deg or matrix, got {type(value).__name__}")
+    keys = set(value)
+    if "matrix" in keys:
+        if keys != {"matrix"}:
+            raise TwinError(f"{where}: give either 'matrix' or 'xyz'/'rpy_deg', not both ({sorted(keys)})")
+        try:
+            T = np.asarray(value["matrix"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TwinError(f"{where}.matrix must be a 4x4 list of numbers") from None
+        try:
+            return as_pose(T, f"{where}.matrix")
+        except AlgorithmError as exc:
+            raise TwinError(str(exc)) from None
+    unknown = keys - {"xyz", "rpy_deg"}
+    if unknown:
+        raise TwinError(f"{where}: unknown key(s) {sorted(unknown)}; allowed: matrix, or xyz and rpy_deg")
+    xyz = _vector(value.get("xyz", [0.0, 0.0, 0.0]), 3, f"{where}.xyz")
+    rpy = _vector(value.get("rpy_deg", [0.0, 0.0, 0.0]), 3, f"{where}.rpy_deg")
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", rpy, degrees=True).as_matrix()
+    T[:3, 3] = xyz
+    return T
+
+
+def _vector(value: Any, n: int, where: str) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != n or not all(_is_number(v) for v in value):
+        raise TwinError(f"{where} must be a list of {n} numbers, got {value!r}")
+    out = np.asarray(value, dtype=np.float64)
+    if not np.all(np.isfinite(out)):
+        raise TwinError(f"{where} must be finite, got {value!r}")
+    return out
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+class _Section:
+    """Reads one TOML table, checking each key once and refusing the rest."""
+
+    def __init__(self, table: Any, where: str):
+        if not isinstance(table, dict):
+            raise TwinError(f"[{where}] must be a table, got {type(table).__name__}")
+        self.table = dict(table)
+        self.where = where
+        self.allowed: list[str] = []
+
+    def _get(self, key: str, default: Any) -> Any:
+        self.allowed.append(key)
+        return self.table.pop(key, default)
+
+    def number(self, key: str, default: float, lo: float = -np.inf, hi: float = np.inf,
+               lo_open: bool = False) -> float:
+        v = self._get(key, default)
+        if not _is_number(v) or not np.isfinite(v):
+            raise TwinError(f"{self.where}.{key} must be a finite number, got {v!r}")
+        if v < lo or v > hi or (lo_open and v <= lo):
+            rng = f"({lo:g}, {hi:g}]" if lo_open else f"[{lo:g}, {hi:g}]"
+            raise TwinError(f"{self.where}.{key} = {v!r} is outside the allowed range {rng}")
+        return float(v)
+
+    def integer(self, key: str, default: int, lo: int, hi: int) -> int:
+        v = self._get(key, default)
+        if not isinstance(v, int) or isinstance(v, bool) or v < lo or v > hi:
+            raise TwinError(f"{self.where}.{key} must be an integer in [{lo}, {hi}], got {v!r}")
+        return int(v)
+
+    def boolean(self, key: str, default: bool) -> bool:
+        v = self._get(key, default)
+        if not isinstance(v, bool):
+            raise TwinError(f"{self.where}.{key} must be true or false, got {v!r}")
+        return v
+
+    def choice(self, key: str, default: str | None, choices: tuple[str, ...]) -> str | None:
+        v = self._get(key, default)
+        if v is None and default is None:
+            return None
+        if v not in choices:
+            raise TwinError(f"{self.where}.{key} = {v!r} is not one of {', '.join(choices)}")
+        return v
+
+    def string(self, key: str, default: str | None) -> str | None:
+        v = self._get(key, default)
+        if v is not None and not isinstance(v, str):
+            raise TwinError(f"{self.where}.{key} must be a string, got {v!r}")
+        return v
+
+    def pose(self, key: str, default: np.ndarray | None = None) -> np.ndarray:
+        v = self._get(key, None)
+        if v is None:
+            if default is None:
+                raise TwinError(f"{self.where}.{key} is required (a pose: xyz/rpy_deg or matrix)")
+            return default.copy()
+        return pose_from_table(v, f"{self.where}.{key}")
+
+    def vector(self, key: str, default: list[float] | None, n: int) -> np.ndarray | None:
+        v = self._get(key, default)
+        if v is None:
+            return None
+        return _vector(v, n, f"{self.where}.{key}")
+
+    def table_value(self, key: str) -> dict:
+        v = self._get(key, {})
+        if not isinstance(v, dict):
+            raise TwinError(f"{self.where}.{key} must be a table, got {v!r}")
+        return v
+
+    def done(self) -> None:
+        if self.table:
+            bad = sorted(self.table)
+            raise TwinError(
+                f"unknown key(s) {', '.join(self.where + '.' + k for k in bad)}; "
+                f"allowed in [{self.where}]: {', '.join(self.allowed)}"
+            )
+
+
+@dataclass(frozen=True)
+class WorkpieceSpec:
+    """The part: a generated seed part (``shape``) or a user mesh (``mesh`` + ``units``)."""
+
+    shape: str | None
+    mesh: str | None
+    units: str
+    params: dict
+    T_world_workpiece_true: np.ndarray
+    T_world_workpiece_nominal: np.ndarray
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """Laser displacement sensor (defaults: Keyence IL-065).
+
+    Attributes:
+        kind: "point" (one beam) or "line" (a fan of ``beams`` beams, ``fan_deg`` wide).
+        window_m: measuring window [m] along the beam.
+        reference_m: reference distance (stand-off) [m].
+        sample_period_s: sampling period [s].
+        sigma_m: repeatability, 1-sigma Gaussian noise at normal incidence [m].
+        linearity_m: amplitude of the systematic linearity error curve [m].
+        resolution_m: output resolution (quantisation step) [m].
+        max_incidence_deg: beyond this angle between beam and surface normal, no return.
+        baseline_m: triangulation baseline: receiver offset from the emitter along sensor +x [m].
+        T_flange_sensor: (4, 4) true hand-eye transform (sensor frame in the flange frame).
+    """
+
+    kind: str
+    window_m: tuple[float, float]
+    reference_m: float
+    sample_period_s: float
+    sigma_m: float
+    linearity_m: float
+    resolution_m: float
+    max_incidence_deg: float
+    baseline_m: float
+    beams: int
+    fan_deg: float
+    T_flange_sensor: np.ndarray
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    """Error-source switches. Sensor effects default on; robot-side errors default off."""
+
+    gaussian: bool
+    linearity: bool
+    quantization: bool
+    incidence: bool
+    occlusion: bool
+    encoder_sigma_rad: float
+    time_skew_s: float
+    kinematic_sigma_m: float
+    kinematic_sigma_rad: float
+    T_hand_eye_error: np.ndarray
+
+    def all_off(self) -> "NoiseSpec":
+        return NoiseSpec(False, False, False, False, False, 0.0, 0.0, 0.0, 0.0, np.eye(4))
+
+
+@dataclass(frozen=True)
+class ScanSpec:
+    """Raster scan plan, defined on the CAD model at the nominal pose.
+
+    Attributes:
+        region_m: ((xmin, ymin), (xmax, ymax)) in the workpiece frame [m], or None for the
+            part's footprint shrunk by ``margin_m``.
+        line_spacing_m: distance between scan lines [m].
+        speed_m_s: scan speed along a line [m/s].
+        transit_speed_m_s: speed of approach, retract and line-change moves [m/s].
+        standoff_m: sensor-to-surface distance along the beam [m] (default: the reference).
+        beam: "normal" (beam along the surface normal) or "fixed" (along ``direction``).
+        direction: (3,) fixed beam direction in the workpiece frame.
+        retract_m: lift above the stand-off between lines [m].
+        line_axis: "x" or "y": workpiece axis the lines run along.
+    """
+
+    region_m: tuple[tuple[float, float], tuple[float, float]] | None
+    margin_m: float
+    line_spacing_m: float
+    speed_m_s: float
+    transit_speed_m_s: float
+    standoff_m: float
+    beam: str
+    direction: np.ndarray
+    retract_m: float
+    line_axis: str
+    max_lines: int
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    seed: int
+    workpiece: WorkpieceSpec
+    T_world_base: np.ndarray
+    sensor: SensorSpec
+    noise: NoiseSpec
+    scan: ScanSpec
+    source: str = ""
+    raw: dict = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict:
+        """A JSON-ready copy (numpy arrays as nested lists)."""
+        def conv(x):
+            if isinstance(x, np.ndarray):
+                return x.tolist()
+            if isinstance(x, dict):
+                return {k: conv(v) for k, v in x.items() if k != "raw"}
+            if isinstance(x, (list, tuple)):
+                return [conv(v) for v in x]
+            return x
+        return conv(asdict(self))
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file; raise TwinError with one clear line on any problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise TwinError(f"scenario file not found: {path}")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise TwinError(f"scenario {path} is not valid TOML: {exc}") from None
+    return parse_scenario(raw, name=path.stem, base_dir=path.parent, source=str(path))
+
+
+def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = None,
+                   source: str = "") -> Scenario:
+    top = _Section(raw, name)
+    seed = top.integer("seed", 0, 0, 2**63 - 1)
+    title = top.string("name", name)
+    wp = _parse_workpiece(_Section(top.table_value("workpiece"), "workpiece"), base_dir)
+    robot = _Section(top.table_value("robot"), "robot")
+    T_world_base = robot.pose("base_pose", np.eye(4))
+    robot.done()
+    sensor = _parse_sensor(_Section(top.table_value("sensor"), "sensor"))
+    noise = _parse_noise(_Section(top.table_value("noise"), "noise"))
+    scan = _parse_scan(_Section(top.table_value("scan"), "scan"), sensor)
+    top.done()
+    return Scenario(title, seed, wp, T_world_base, sensor, noise, scan, source, raw)
+
+
+def _parse_workpiece(s: _Section, base_dir: Path | None) -> WorkpieceSpec:
+    from twin.workpieces import WORKPIECE_NAMES
+
+    shape = s.string("shape", None)
+    mesh = s.string("mesh", None)
+    units = s.choice("units", "m", ("m", "mm"))
+    params = s.table_value("params")
+    T_true = s.pose("true_pose")
+    T_nominal = s.pose("nominal_pose", T_true)
+    s.done()
+    if (shape is None) == (mesh is None):
+        raise TwinError("workpiece needs exactly one of 'shape' (a generated part) or 'mesh' (a file path)")
+    if shape is not None and shape not in WORKPIECE_NAMES:
+        raise TwinError(f"workpiece.shape = {shape!r} is not one of {', '.join(WORKPIECE_NAMES)}")
+    if mesh is not None:
+        p = Path(mesh)
+        if not p.is_absolute() and base_dir is not None:
+            p = base_dir / p
+        mesh = str(p)
+        if params:
+            raise TwinError("workpiece.params apply to generated shapes only, not to a mesh file")
+    return WorkpieceSpec(shape, mesh, units, dict(params), T_true, T_nominal)
+
+
+def _parse_sensor(s: _Section) -> SensorSpec:
+    kind = s.choice("kind", "point", ("point", "line"))
+    window = s.vector("window_m", list(SENSOR_WINDOW_M), 2)
+    if not (0 < window[0] < window[1]):
+        raise TwinError(f"sensor.window_m must be [near, far] with 0 < near < far, got {window.tolist()}")
+    reference = s.number("reference_m", 0.080, window[0], window[1])
+    period = s.number("sample_period_s", 0.001, 0.0, 1.0, lo_open=True)
+    sigma = s.number("sigma_m", 2e-6, 0.0, 1e-2)
+    linearity = s.number("linearity_m", 10e-6, 0.0, 1e-2)
+    resolution = s.number("resolution_m", 1e-6, 0.0, 1e-2)
+    max_inc = s.number("max_incidence_deg", 60.0, 0.0, 90.0, lo_open=True)
+    baseline = s.number("baseline_m", 0.020, 0.0, 0.5)
+    beams = s.integer("beams", 1024 if kind == "line" else 1, 1, 8192)
+    fan = s.number("fan_deg", 20.0, 0.0, 120.0)
+    T_fs = s.pose("hand_eye", _default_hand_eye())
+    s.done()
+    if period != 0.001:
+        # Samples pair with the 1 ms physics step; other periods would need resampling.
+        raise TwinError(f"sensor.sample_period_s must be 0.001 (the cell's 1 ms step), got {period!r}")
+    if kind == "point" and beams != 1:
+        raise TwinError("sensor.beams applies to kind = 'line' only")
+    return SensorSpec(kind, (float(window[0]), float(window[1])), reference, period, sigma,
+                      linearity, resolution, max_inc, baseline, beams, fan, T_fs)
+
+
+def _default_hand_eye() -> np.ndarray:
+    """Sensor 40 mm below the flange face, beam parallel to the flange z, 30 mm off axis."""
+    T = np.eye(4)
+    T[:3, 3] = [0.0, 0.030, 0.040]
+    return T
+
+
+def _parse_noise(s: _Section) -> NoiseSpec:
+    n = NoiseSpec(
+        gaussian=s.boolean("gaussian", True),
+        linearity=s.boolean("linearity", True),
+        quantization=s.boolean("quantization", True),
+        incidence=s.boolean("incidence", True),
+        occlusion=s.boolean("occlusion", True),
+        encoder_sigma_rad=s.number("encoder_sigma_rad", 0.0, 0.0, 0.1),
+        time_skew_s=s.number("time_skew_s", 0.0, -0.1, 0.1),
+        kinematic_sigma_m=s.number("kinematic_sigma_m", 0.0, 0.0, 0.01),
+        kinematic_sigma_rad=s.number("kinematic_sigma_rad", 0.0, 0.0, 0.05),
+        T_hand_eye_error=s.pose("hand_eye_error", np.eye(4)),
+    )
+    s.done()
+    return n
+
+
+def _parse_scan(s: _Section, sensor: SensorSpec) -> ScanSpec:
+    region = s._get("region_m", None)
+    if region is not None:
+        ok = (isinstance(region, list) and len(region) == 2
+              and all(isinstance(r, list) and len(r) == 2 and all(_is_number(v) for v in r) for r in region))
+        if not ok or not (region[0][0] < region[1][0] and region[0][1] < region[1][1]):
+            raise TwinError(f"scan.region_m must be [[xmin, ymin], [xmax, ymax]] with min < max, got {region!r}")
+        region = ((float(region[0][0]), float(region[0][1])), (float(region[1][0]), float(region[1][1])))
+    margin = s.number("margin_m", 0.003, 0.0, 1.0)
+    spacing = s.number("line_spacing_m", 0.004, 0.0, 1.0, lo_open=True)
+    speed = s.number("speed_m_s", 0.05, 0.0, 1.0, lo_open=True)
+    transit = s.number("transit_speed_m_s", 0.10, 0.0, 1.0, lo_open=True)
+    standoff = s.number("standoff_m", sensor.reference_m, 0.0, 10.0, lo_open=True)
+    beam = s.choice("beam", "normal", ("normal", "fixed"))
+    direction = s.vector("direction", [0.0, 0.0, -1.0], 3)
+    retract = s.number("retract_m", 0.020, 0.0, 0.5)
+    axis = s.choice("line_axis", "x", ("x", "y"))
+    max_lines = s.integer("max_lines", 1000, 1, 100000)
+    s.done()
+    lo, hi = sensor.window_m
+    if not (lo <= standoff <= hi):
+        raise TwinError(
+            f"scan.standoff_m = {standoff:g} m is outside the sensor window [{lo:g}, {hi:g}] m"
+        )
+    norm = np.linalg.norm(direction)
+    if norm < 1e-9:
+        raise TwinError("scan.direction must be a non-zero vector")
+    return ScanSpec(region, margin, spacing, speed, transit, standoff, beam, direction / norm,
+                    retract, axis, max_lines)
