@@ -25,7 +25,13 @@ from twin.errors import TwinError
 PLAN_STEP_M = 0.001          # ray spacing along a line on the CAD model
 NORMAL_SMOOTHING_M = 0.003   # Gaussian smoothing of the normals along a line (sigma)
 ACCELERATION_M_S2 = 0.5      # trapezoidal profile acceleration of every segment
+# Where the beam follows a curved normal the sensor also turns; the path slows down so that it
+# turns at most this fast (the wrist joints of the UR5e reach pi rad/s; IK needs headroom).
+ANGULAR_SPEED_RAD_S = 0.5
 WORKPIECE_GROUPS = np.array([0, 0, 0, 1, 0, 0], dtype=np.uint8)
+# MuJoCo's ray-triangle test can let a ray slip through a shared edge or vertex; generated
+# meshes sit on regular grids, so the planning grid is shifted off round numbers.
+GRID_SHIFT_M = 1.2345e-4
 
 
 @dataclass(frozen=True)
@@ -144,10 +150,10 @@ def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
     (x0, y0), (x1, y1) = scan_region(cell)
     axis = spec.line_axis
     (u0, u1), (v0, v1) = ((x0, x1), (y0, y1)) if axis == "x" else ((y0, y1), (x0, x1))
-    v_lines = np.arange(v0, v1 + 1e-9, spec.line_spacing_m)
+    v_lines = np.arange(v0, v1 - GRID_SHIFT_M, spec.line_spacing_m) + GRID_SHIFT_M
     if len(v_lines) > spec.max_lines:
         v_lines = v_lines[: spec.max_lines]
-    u = np.arange(u0, u1 + 1e-9, PLAN_STEP_M)
+    u = np.arange(u0, u1 - GRID_SHIFT_M, PLAN_STEP_M) + GRID_SHIFT_M
     plan_dir_wp = np.array([0.0, 0.0, -1.0]) if spec.beam == "normal" else spec.direction
     batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
     T_wp = cell.T_world_workpiece
@@ -179,7 +185,13 @@ def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
         T_line[:] = np.eye(4)
         T_line[:, :3, :3] = T_wp[:3, :3] @ R_wp
         T_line[:, :3, 3] = transform_points(T_wp, origin_wp)
-        s_path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        # Path parameter: surface arc length, stretched where the sensor must turn faster
+        # than ANGULAR_SPEED_RAD_S at the scan speed.
+        ds = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        dtheta = np.linalg.norm(Rotation.from_matrix(
+            np.einsum("nji,njk->nik", R_wp[:-1], R_wp[1:])).as_rotvec(), axis=1)
+        ds_eff = np.maximum(ds, dtheta * spec.speed_m_s / ANGULAR_SPEED_RAD_S)
+        s_path = np.concatenate([[0.0], np.cumsum(ds_eff)])
         lines.append((i, float(v), T_line, s_path))
     if not lines:
         raise TwinError("the scan region does not cover the part: no scan line hits the nominal CAD model")
