@@ -389,17 +389,23 @@ class MeshIndex:
             self._smooth = _corner_normals(self.vertices, self.faces, self.face_normals)
         face = np.asarray(face, dtype=np.int64)
         g = self._data[face]
-        a, ab, ac = g[:, 0:3], g[:, 3:6], g[:, 6:9]
-        ap = np.asarray(foot, dtype=np.float64) - a
-        v, w = _barycentric(
-            np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap), g[:, 9], g[:, 10], g[:, 11]
-        )
+        ap = np.asarray(foot, dtype=np.float64) - g[:, 0:3]
+        # the foot lies on the face: solve the 2x2 Gram system for its barycentrics
+        d1 = np.einsum("ij,ij->i", g[:, 3:6], ap)
+        d2 = np.einsum("ij,ij->i", g[:, 6:9], ap)
+        abab, acac, abac = g[:, 9], g[:, 10], g[:, 11]
+        det = abab * acac - abac * abac
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = (acac * d1 - abac * d2) / det
+            w = (abab * d2 - abac * d1) / det
+        ok = np.isfinite(v) & np.isfinite(w)
+        v = np.where(ok, np.clip(v, 0.0, 1.0), 0.0)
+        w = np.where(ok, np.clip(w, 0.0, 1.0), 0.0)
         cn = self._smooth[face]  # (N, 3 corners, 3)
         n = (1.0 - v - w)[:, None] * cn[:, 0] + v[:, None] * cn[:, 1] + w[:, None] * cn[:, 2]
-        norm = np.linalg.norm(n, axis=1)
-        ok = norm > 1e-12
-        out = self.face_normals[face].copy()
-        out[ok] = n[ok] / norm[ok, None]
+        norm = np.sqrt(np.einsum("ij,ij->i", n, n))
+        good = norm > 1e-12
+        out = np.where(good[:, None], n / np.where(good, norm, 1.0)[:, None], self.face_normals[face])
         return out
 
 

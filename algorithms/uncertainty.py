@@ -1,0 +1,207 @@
+"""Uncertainty of a workpiece localization: Fisher information, Cramer-Rao bound,
+observability, and document 000's accuracy metrics.
+
+Conventions (shared with :mod:`algorithms.localization`):
+
+* The pose is ``T_world_workpiece`` (maps workpiece/model coordinates to world coordinates).
+* A pose error is the twist ``xi = [omega, v]`` (angular part first, radians and metres) of
+  the *right* perturbation in the **workpiece frame**: ``T_est = T_true @ exp_se3(xi)``, i.e.
+  ``xi = log_se3(inv(T_true) @ T_est)`` (:func:`pose_error_twist`). Covariances are of this
+  twist, 6x6, order ``[omega_x, omega_y, omega_z, v_x, v_y, v_z]``.
+* Measurement model: a measured point is the model point ``p_i`` (workpiece frame) moved
+  along its unit surface normal ``n_i`` by Gaussian noise ``N(0, sigma^2)``, then mapped to
+  the world by the true pose. The point-to-surface residual then changes by
+  ``-(p_i x n_i) . omega - n_i . v`` under a perturbation ``xi``, so each point contributes
+  the row ``g_i = [p_i x n_i, n_i]`` and the Fisher information is
+  ``F = (1 / sigma^2) sum g_i g_i^T``. The Cramer-Rao lower bound on the covariance of any
+  unbiased estimate is ``F^-1 = sigma^2 (sum g_i g_i^T)^-1``; least squares on the
+  point-to-surface distance attains it asymptotically, so the same expression, evaluated at
+  the estimate with the given or estimated sigma, is the covariance reported with a result.
+
+Observability: the information is analysed in consistent units. Twists are taken about the
+centroid ``c`` of the points and the angular part is multiplied by the characteristic length
+``L = sqrt(mean |p_i - c|^2)`` (a rotation ``omega`` moves a typical point by about
+``L |omega|``), so every coordinate is a displacement in metres. The eigenvalues of
+``H = (1/N) sum h_i h_i^T`` with ``h_i = [(p_i - c) x n_i / L, n_i]`` are then dimensionless
+(between 0 and about 1: the mean squared normal displacement per unit motion). A direction
+is *weakly constrained* when its eigenvalue is below ``OBSERVABILITY_TOL`` times the largest;
+the pose is *observable* when no direction is weak. Points on one plane give three zero
+eigenvalues, on a cylinder two, on a sphere three (exactly zero when the normals are those of
+the ideal surface; use smooth normals, :meth:`MeshIndex.smooth_normals`, on tessellated
+models so facets do not fake information).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from algorithms.errors import AlgorithmError
+from algorithms.se3 import inv_pose, log_se3, rotation_error_rad, translation_error_m
+
+__all__ = [
+    "OBSERVABILITY_TOL",
+    "Observability",
+    "information_rows",
+    "fisher_information",
+    "crlb",
+    "observability",
+    "estimate_sigma",
+    "pose_error_twist",
+    "whitened_error",
+    "rotation_error_rad",
+    "translation_error_m",
+]
+
+#: A direction whose scaled information eigenvalue is below this fraction of the strongest
+#: is weakly constrained (its standard deviation is more than 1/sqrt(tol) = 100 times that
+#: of the best-constrained direction, in the scaled units above).
+OBSERVABILITY_TOL = 1e-4
+
+
+@dataclass(frozen=True)
+class Observability:
+    """Which rigid motions a point set constrains.
+
+    Attributes:
+        observable: True when all six directions are constrained (no weak direction).
+        relative_eigenvalues: (6,) eigenvalues of the scaled information, ascending, divided
+            by the largest (1.0 for the strongest direction).
+        eigenvalues: (6,) the scaled information eigenvalues themselves, ascending.
+        weak_directions: (k, 6) twists ``[omega, v]`` about the workpiece origin (workpiece
+            frame) spanning the weakly constrained motions; each has unit norm in the scaled
+            units (``L^2 |omega|^2 + |v_c|^2 = 1`` with ``v_c`` the velocity of the centroid).
+        characteristic_length_m: L, the RMS distance of the points from their centroid [m].
+        centroid: (3,) [m] centroid of the points (workpiece frame).
+        tol: the tolerance used.
+    """
+
+    observable: bool
+    relative_eigenvalues: np.ndarray
+    eigenvalues: np.ndarray
+    weak_directions: np.ndarray
+    characteristic_length_m: float
+    centroid: np.ndarray
+    tol: float
+
+
+def _check(points, normals):
+    p = np.asarray(points, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
+        raise AlgorithmError(f"points and normals must both be (N, 3), got {p.shape} and {n.shape}")
+    if len(p) < 6:
+        raise AlgorithmError(f"at least 6 points are needed to fix 6 DOF, got {len(p)}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n))):
+        raise AlgorithmError("points and normals must be finite")
+    return p, n
+
+
+def information_rows(points, normals) -> np.ndarray:
+    """Rows ``[p_i x n_i, n_i]`` (N, 6) of the point-to-plane Jacobian (workpiece frame).
+
+    Args:
+        points: (N, 3) [m] model points (feet) in the workpiece frame.
+        normals: (N, 3) unit surface normals there.
+    """
+    p, n = _check(points, normals)
+    return np.hstack([np.cross(p, n), n])
+
+
+def fisher_information(points, normals, sigma: float) -> np.ndarray:
+    """Fisher information (6, 6) of the twist ``[omega, v]`` for normal noise ``sigma`` [m]."""
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise AlgorithmError(f"sigma must be a positive finite length [m], got {sigma}")
+    J = information_rows(points, normals)
+    return (J.T @ J) / sigma**2
+
+
+def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observability:
+    """Eigen-analysis of the information in consistent units (see the module docstring).
+
+    Args:
+        points: (N, 3) [m] model points in the workpiece frame.
+        normals: (N, 3) unit normals (preferably of the ideal surface, not facets).
+        tol: relative eigenvalue below which a direction is weak.
+    """
+    p, n = _check(points, normals)
+    c = p.mean(axis=0)
+    d = p - c
+    L = float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d))))
+    if not L > 0:
+        L = 1.0
+    H = np.hstack([np.cross(d, n) / L, n])
+    M = (H.T @ H) / len(p)
+    w, V = np.linalg.eigh(M)
+    w = np.clip(w, 0.0, None)
+    wmax = w[-1] if w[-1] > 0 else 1.0
+    rel = w / wmax
+    weak = rel < tol
+    S = V[:, weak].T  # (k, 6) scaled twists about the centroid [L omega, v_c]
+    omega = S[:, :3] / L
+    v = S[:, 3:] - np.cross(omega, c)  # velocity of the workpiece origin: v_c = v + omega x c
+    return Observability(
+        observable=not bool(weak.any()),
+        relative_eigenvalues=rel,
+        eigenvalues=w,
+        weak_directions=np.hstack([omega, v]),
+        characteristic_length_m=L,
+        centroid=c,
+        tol=float(tol),
+    )
+
+
+def crlb(points, normals, sigma: float, tol: float = OBSERVABILITY_TOL) -> np.ndarray:
+    """Cramer-Rao lower bound (6, 6) on the covariance of the pose twist ``[omega, v]``.
+
+    ``sigma^2 (sum g_i g_i^T)^-1`` with ``g_i = [p_i x n_i, n_i]``, for Gaussian noise of
+    standard deviation ``sigma`` [m] along the normals; units rad^2, rad m, m^2.
+
+    Raises:
+        AlgorithmError: when the points do not fix all six DOF (the bound is infinite).
+    """
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise AlgorithmError(f"sigma must be a positive finite length [m], got {sigma}")
+    obs = observability(points, normals, tol)
+    if not obs.observable:
+        raise AlgorithmError(
+            f"the points do not fix all six DOF ({len(obs.weak_directions)} weakly constrained "
+            "direction(s)): the Cramer-Rao bound is infinite"
+        )
+    J = information_rows(points, normals)
+    return _sym_inverse(J.T @ J) * sigma**2
+
+
+def _sym_inverse(A: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive-definite matrix, scaled for conditioning."""
+    s = 1.0 / np.sqrt(np.diag(A))
+    B = A * s[:, None] * s[None, :]
+    Binv = np.linalg.inv(B)
+    out = Binv * s[:, None] * s[None, :]
+    return 0.5 * (out + out.T)
+
+
+def estimate_sigma(residuals, n_params: int = 6) -> float:
+    """Noise estimate [m] from point-to-surface residuals: ``sqrt(sum r^2 / (N - n_params))``."""
+    r = np.asarray(residuals, dtype=np.float64).reshape(-1)
+    dof = len(r) - n_params
+    if dof <= 0:
+        raise AlgorithmError(f"need more than {n_params} residuals to estimate sigma, got {len(r)}")
+    return float(np.sqrt(np.sum(r * r) / dof))
+
+
+def pose_error_twist(T_est, T_true) -> np.ndarray:
+    """The error twist ``[omega, v]`` (workpiece frame) with ``T_est = T_true exp(xi)``."""
+    return log_se3(inv_pose(np.asarray(T_true, dtype=np.float64)) @ np.asarray(T_est, dtype=np.float64))
+
+
+def whitened_error(xi, covariance) -> np.ndarray:
+    """Squared Mahalanobis norms ``xi^T C^-1 xi`` of error twists (M, 6) (or one (6,)).
+
+    For an efficient estimator with covariance ``C`` their mean is 6 (chi-square, 6 DOF), so
+    ``sqrt(mean / 6)`` is the RMS pose error in units of the bound: 1.0 attains it.
+    """
+    X = np.atleast_2d(np.asarray(xi, dtype=np.float64))
+    Cinv = _sym_inverse(np.asarray(covariance, dtype=np.float64))
+    return np.einsum("ij,jk,ik->i", X, Cinv, X)
