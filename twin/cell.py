@@ -186,12 +186,12 @@ def _add_line_camera(sensor_body, scenario: Scenario) -> None:
     """A fan of beams in the sensor's x-z plane: a 1-pixel-high perspective camera looking along +z."""
     n = scenario.sensor.beams
     half = np.radians(scenario.sensor.fan_deg) / 2
-    focal = 0.01
-    width = max(2 * focal * np.tan(half), 1e-9)
+    # An N x 1 image: the vertical field of view fovy makes the horizontal one
+    # 2 atan(N tan(fovy / 2)), so choose fovy for the fan's full width.
+    fovy_deg = float(np.degrees(2 * np.arctan(np.tan(half) / n)))
     # Cameras look along their -z: turn 180 deg about x so the camera's -z is the sensor's +z.
     sensor_body.add_camera(name="laser_fan", pos=[0, 0, 0], quat=[0, 1, 0, 0],
-                           resolution=[n, 1], sensor_size=[width, width / n],
-                           focal_length=[focal, focal])
+                           resolution=[n, 1], fovy=fovy_deg)
 
 
 def build_cell(scenario: Scenario, which: str = "true", mesh: trimesh.Trimesh | None = None,
