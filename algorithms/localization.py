@@ -57,7 +57,10 @@ Robustness: rows with NaN or infinite coordinates are dropped and counted; fewer
 finite points is an error. Outliers (spurious returns, fixture points) are rejected at every
 iteration, by default (``outlier="mad"``) when their distance to the model exceeds
 ``max(4 * 1.4826 * median(distance), 1e-6 * model size)`` (a robust 4-sigma cut for Gaussian
-noise along the normals, with a floor so exact data lose nothing); ``outlier=<float>`` is a
+noise along the normals, with a floor so exact data lose nothing). Until the iteration first
+converges the cut is 8 sigma instead: from a poor start the far points are the ones that
+carry the correction, and cutting them early was seen to trap the iteration in a wrong
+minimum. ``outlier=<float>`` is a
 fixed maximum distance [m]; ``outlier=None`` keeps every point. Point sets spanning more
 than 20 times the model's bounding-box diagonal, or less than 1/1000 of it, raise an error
 that the units look wrong.
@@ -72,7 +75,7 @@ import numpy as np
 
 from algorithms.closest_point import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import as_pose, exp_se3, hat, inv_pose, make_pose, transform_points
+from algorithms.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose, transform_points
 from algorithms.uncertainty import OBSERVABILITY_TOL, _sym_inverse, observability
 
 __all__ = [
@@ -95,11 +98,14 @@ TOLERANCE = {"hong_tan": 1e-9, "tangent": 1e-9, "menq": 1e-9, "va": 1e-12, "icp"
 FLOOR_REL = 1e-12
 #: Outlier cut: ``OUTLIER_K`` robust sigmas (sigma = 1.4826 median distance), floored.
 OUTLIER_K = 4.0
+OUTLIER_K_COARSE = 8.0
 OUTLIER_FLOOR_REL = 1e-6
 #: Units check: point spread relative to the model's bounding-box diagonal.
 UNITS_MAX_RATIO = 20.0
 UNITS_MIN_RATIO = 1e-3
 MIN_POINTS = 6
+#: Initial (and smallest) Levenberg-Marquardt damping of "menq", relative to diag(J^T J).
+LM_LAMBDA0 = 1e-8
 
 
 @dataclass(frozen=True)
@@ -353,12 +359,12 @@ def _spread_bits(x: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------ iteration
-def _inlier_mask(d: np.ndarray, cfg, floor: float) -> np.ndarray:
+def _inlier_mask(d: np.ndarray, cfg, floor: float, k: float = None) -> np.ndarray:
     if cfg is None:
         return np.ones(len(d), dtype=bool)
     if cfg == "mad":
         # distances are |noise| for Gaussian noise along the normals: sigma = 1.4826 median
-        thr = max(OUTLIER_K * 1.4826 * _median(d), floor)
+        thr = max((OUTLIER_K if k is None else k) * 1.4826 * _median(d), floor)
     else:
         thr = cfg
     mask = d <= thr
@@ -374,101 +380,133 @@ def _median(d: np.ndarray) -> float:
 
 
 def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
+    """Algorithm 1: alternate exact closest points and the method's pose update.
+
+    Outliers ("mad") are cut at OUTLIER_K_COARSE robust sigmas until the iteration first
+    converges, then at OUTLIER_K; if that changes the inlier set the iteration goes on. (A
+    tight cut from a poor start throws away the far points that carry the correction.)
+    """
     size = index.extent
     floor2 = (FLOOR_REL * size) ** 2
     out_floor = OUTLIER_FLOOR_REL * size
+    k_out = OUTLIER_K_COARSE
+
+    def mse(cp_, mask_):
+        d = cp_.distance[mask_]
+        return float(np.dot(d, d) / len(d))
+
     T = T0
     cp = index.query(transform_points(inv_pose(T), Y))
-    mask = _inlier_mask(cp.distance, outlier_cfg, out_floor)
-    e_prev = float(np.mean(cp.distance[mask] ** 2))
+    mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
+    e_prev = mse(cp, mask)
     history = [float(np.sqrt(e_prev))]
-    lm_lambda = 1e-4
+    lm_lambda = LM_LAMBDA0
     converged = False
-    status = ""
-    it = 0
-    for it in range(1, max_it + 1):
+    status = f"not converged: reached max_iterations = {max_it}"
+    n_updates = 0
+    n_fallback = 0
+    for _ in range(max_it + 1):
+        done = False
         if e_prev <= floor2:
-            converged = True
+            done, converged = True, True
             status = f"converged: residual at the numerical floor (RMS {np.sqrt(e_prev):.3g} m)"
-            it -= 1
+        elif n_updates >= max_it:
             break
-        Ym = transform_points(inv_pose(T), Y)
-        step = None
-        if method == "menq":
-            T_new, cp_new, e_new, lm_lambda, ok = _menq_step(T, Ym, Y, cp, mask, index, e_prev, lm_lambda)
-            if not ok:
-                converged = True
-                status = "converged: no Levenberg-Marquardt step lowers the residual"
-                it -= 1
-                break
         else:
-            T_new, step = _UPDATES[method](T, Ym, cp, mask)
-            cp_new = index.query(transform_points(inv_pose(T_new), Y), hint=cp.face)
-            e_new = float(np.mean(cp_new.distance[mask] ** 2))
-            if e_new > e_prev * (1.0 + 1e-6) and method != "fine_001":
-                # overshoot far from the minimum: halve the motion (a safeguard the paper's
-                # linearised updates need from large initial errors)
-                D = inv_pose(T) @ T_new
-                xi = _log(D)
-                for _ in range(8):
-                    xi = 0.5 * xi
-                    T_try = T @ exp_se3(xi)
-                    cp_try = index.query(transform_points(inv_pose(T_try), Y), hint=cp.face)
-                    e_try = float(np.mean(cp_try.distance[mask] ** 2))
-                    if e_try < e_prev:
-                        T_new, cp_new, e_new = T_try, cp_try, e_try
-                        break
-        if e_new > e_prev:
-            # no decrease at all: keep the previous pose
-            it -= 1
-            if e_new <= e_prev * (1.0 + 1e-6):
-                converged = True
-                status = (
-                    f"converged: no further decrease (1 - e_k/e_(k-1) = {1.0 - e_new / e_prev:.3g})"
-                )
+            Ym = transform_points(inv_pose(T), Y)
+            step = None
+            if method == "menq":
+                T_new, cp_new, e_new, lm_lambda, ok = _menq_step(T, Ym, Y, cp, mask, index, e_prev, lm_lambda)
+                if not ok:
+                    e_new = np.inf
+                    cp_new = cp
+                elif lm_lambda > 1e-3:
+                    # heavily damped: the local model is poor and the steps are tiny; a
+                    # point-to-point step may go further (it never raises the residual)
+                    T_icp, _ = _update_icp(T, Ym, cp, mask)
+                    cp_icp = index.query(transform_points(inv_pose(T_icp), Y), hint=cp.face)
+                    e_icp = mse(cp_icp, mask)
+                    if e_icp < e_new:
+                        T_new, cp_new, e_new = T_icp, cp_icp, e_icp
+                        n_fallback += 1
             else:
-                status = (
-                    f"not converged: stalled, no step along the update lowers the residual "
-                    f"(1 - e_k/e_(k-1) = {1.0 - e_new / e_prev:.3g})"
-                )
+                T_new, step = _UPDATES[method](T, Ym, cp, mask)
+                cp_new = index.query(transform_points(inv_pose(T_new), Y), hint=cp.face)
+                e_new = mse(cp_new, mask)
+                if e_new > e_prev * (1.0 + 1e-6) and method != "fine_001":
+                    # overshoot far from the minimum: halve the motion (a safeguard the
+                    # linearised updates need from large initial errors)
+                    xi = log_se3(inv_pose(T) @ T_new)
+                    for _ in range(8):
+                        xi = 0.5 * xi
+                        T_try = T @ exp_se3(xi)
+                        cp_try = index.query(transform_points(inv_pose(T_try), Y), hint=cp.face)
+                        e_try = mse(cp_try, mask)
+                        if e_try < e_prev:
+                            T_new, cp_new, e_new = T_try, cp_try, e_try
+                            break
+            if not e_new <= e_prev * (1.0 + 1e-6) and method != "icp":
+                # The linearised model is wrong here (far from the minimum, feet on edges):
+                # take one closed-form point-to-point step, which never raises the residual.
+                T_icp, _ = _update_icp(T, Ym, cp, mask)
+                cp_icp = index.query(transform_points(inv_pose(T_icp), Y), hint=cp.face)
+                e_icp = mse(cp_icp, mask)
+                if e_icp < e_prev:
+                    T_new, cp_new, e_new, step = T_icp, cp_icp, e_icp, np.inf
+                    n_fallback += 1
+            if not e_new <= e_prev:
+                # no decrease: keep the previous pose
+                done = True
+                if e_new <= e_prev * (1.0 + 1e-6):
+                    converged = True
+                    status = f"converged: no further decrease (1 - e_k/e_(k-1) = {1.0 - e_new / e_prev:.3g})"
+                else:
+                    converged = False
+                    status = (
+                        "not converged: stalled, no step along the update lowers the residual "
+                        f"(1 - e_k/e_(k-1) = {1.0 - e_new / e_prev:.3g})"
+                    )
+            else:
+                n_updates += 1
+                T, cp = T_new, cp_new
+                history.append(float(np.sqrt(e_new)))
+                rel = 1.0 - e_new / e_prev if e_prev > 0 else 0.0
+                new_mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
+                mask_changed = not np.array_equal(new_mask, mask)
+                mask = new_mask
+                e_prev = mse(cp, mask)
+                if e_prev <= floor2:
+                    done, converged = True, True
+                    status = f"converged: residual at the numerical floor (RMS {np.sqrt(e_prev):.3g} m)"
+                elif mask_changed:
+                    pass
+                elif method == "fine_001":
+                    if step < tol:
+                        done, converged = True, True
+                        status = f"converged: step sum dtheta^2 + sum dDelta^2 = {step:.3g} < d = {tol:g}"
+                elif rel < tol:
+                    done, converged = True, True
+                    status = f"converged: relative decrease 1 - e_k/e_(k-1) = {rel:.3g} < delta = {tol:g}"
+        if done:
+            if converged and outlier_cfg == "mad" and k_out != OUTLIER_K:
+                k_out = OUTLIER_K
+                new_mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
+                if not np.array_equal(new_mask, mask):
+                    mask = new_mask
+                    e_prev = mse(cp, mask)
+                    converged = False
+                    status = f"not converged: reached max_iterations = {max_it}"
+                    continue
             break
-        T, cp = T_new, cp_new
-        history.append(float(np.sqrt(e_new)))
-        rel = 1.0 - e_new / e_prev if e_prev > 0 else 0.0
-        new_mask = _inlier_mask(cp.distance, outlier_cfg, out_floor)
-        mask_changed = not np.array_equal(new_mask, mask)
-        mask = new_mask
-        e_prev = float(np.mean(cp.distance[mask] ** 2))
-        if e_prev <= floor2:
-            converged = True
-            status = f"converged: residual at the numerical floor (RMS {np.sqrt(e_prev):.3g} m)"
-            break
-        if method == "fine_001":
-            if step < tol and not mask_changed:
-                converged = True
-                status = f"converged: step sum dtheta^2 + sum dDelta^2 = {step:.3g} < d = {tol:g}"
-                break
-        elif rel < tol and not mask_changed:
-            converged = True
-            status = f"converged: relative decrease 1 - e_k/e_(k-1) = {rel:.3g} < delta = {tol:g}"
-            break
-    else:
-        status = f"not converged: reached max_iterations = {max_it}"
     return {
         "T": T,
         "cp": cp,
         "mask": mask,
         "history": history,
-        "iterations": max(it, 0),
+        "iterations": n_updates,
         "converged": converged,
-        "status": status,
+        "status": status + (f" ({n_fallback} point-to-point fallback step(s))" if n_fallback else ""),
     }
-
-
-def _log(T):
-    from algorithms.se3 import log_se3
-
-    return log_se3(T)
 
 
 def _solve(A: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -587,20 +625,27 @@ def _update_fine_001(T, Ym, cp, mask):
 
 
 def _menq_step(T, Ym, Y, cp, mask, index, e_prev, lam):
+    """One accepted Levenberg-Marquardt step on the true point-to-surface distances.
+
+    Returns (T, closest points, e, next lambda, ok). The damping ``lam`` (relative to the
+    diagonal of J^T J) grows tenfold after each rejected trial, shrinks tenfold after an
+    accepted one; ok is False when no trial up to lam = 1e8 lowers the residual.
+    """
     c = Ym[mask].mean(axis=0)
     J, s = _plane_rows(Ym, cp, mask, c)
     A = J.T @ J
     g = J.T @ s
     diag = np.diag(np.diag(A))
-    for _ in range(12):
+    while lam <= 1e8:
         xi = _solve(A + lam * diag, g)
         T_try = _centered(T, c, xi)
         cp_try = index.query(transform_points(inv_pose(T_try), Y), hint=cp.face)
-        e_try = float(np.mean(cp_try.distance[mask] ** 2))
+        d = cp_try.distance[mask]
+        e_try = float(np.dot(d, d) / len(d))
         if e_try <= e_prev:
-            return T_try, cp_try, e_try, max(lam * 0.1, 1e-12), True
+            return T_try, cp_try, e_try, max(lam * 0.1, LM_LAMBDA0), True
         lam *= 10.0
-    return T, cp, e_prev, lam, False
+    return T, cp, e_prev, LM_LAMBDA0, False
 
 
 _UPDATES = {
