@@ -2,24 +2,14 @@
 
 from __future__ import annotations
 
-import copy
 import tomllib
 from pathlib import Path
 
-from twin.scenario import parse_scenario
+from twin.scenario import load_scenario, merge_tables
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "scenarios"
-
-
-def merge(base: dict, over: dict) -> dict:
-    out = copy.deepcopy(base)
-    for k, v in over.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict) and not ({"xyz", "rpy_deg", "matrix"} & set(v)):
-            out[k] = merge(out[k], v)
-        else:
-            out[k] = copy.deepcopy(v)
-    return out
+merge = merge_tables
 
 
 def raw_scenario(name: str) -> dict:
@@ -27,5 +17,5 @@ def raw_scenario(name: str) -> dict:
 
 
 def scenario(name: str = "s_surface", **over):
-    """Parse a scenario file with nested overrides, e.g. ``scan={"max_lines": 2}``."""
-    return parse_scenario(merge(raw_scenario(name), over), name=name, base_dir=SCENARIOS)
+    """Load a scenario file with nested overrides, e.g. ``scan={"max_lines": 2}``."""
+    return load_scenario(SCENARIOS / f"{name}.toml", over)

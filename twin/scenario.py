@@ -10,6 +10,7 @@ degrees, extrinsic x-y-z rotations) or as ``{ matrix = [[...4x4...]] }``.
 
 from __future__ import annotations
 
+import copy
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -261,8 +262,15 @@ class Scenario:
         return conv(asdict(self))
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario TOML file; raise TwinError with one clear line on any problem."""
+def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
+    """Read and validate a scenario TOML file; raise TwinError with one clear line on any problem.
+
+    Args:
+        path: the TOML file.
+        overrides: nested tables merged over the file before validation, e.g.
+            ``{"scan": {"max_lines": 3}, "noise": {"gaussian": False}}``; a pose table
+            replaces the file's pose as a whole.
+    """
     path = Path(path)
     if not path.is_file():
         raise TwinError(f"scenario file not found: {path}")
@@ -270,7 +278,20 @@ def load_scenario(path: str | Path) -> Scenario:
         raw = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise TwinError(f"scenario {path} is not valid TOML: {exc}") from None
+    if overrides:
+        raw = merge_tables(raw, overrides)
     return parse_scenario(raw, name=path.stem, base_dir=path.parent, source=str(path))
+
+
+def merge_tables(base: dict, over: dict) -> dict:
+    """``base`` with ``over`` merged in, table by table (pose tables are replaced whole)."""
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict) and not ({"xyz", "rpy_deg", "matrix"} & set(v)):
+            out[k] = merge_tables(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
 
 
 def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = None,
