@@ -58,9 +58,10 @@ finite points is an error. Outliers (spurious returns, fixture points) are rejec
 iteration, by default (``outlier="mad"``) when their distance to the model exceeds
 ``max(4 * 1.4826 * median(distance), 1e-6 * model size)`` (a robust 4-sigma cut for Gaussian
 noise along the normals, with a floor so exact data lose nothing). Until the iteration first
-converges the cut is 8 sigma instead: from a poor start the far points are the ones that
-carry the correction, and cutting them early was seen to trap the iteration in a wrong
-minimum. ``outlier=<float>`` is a
+converges the cut is looser, ``max(8 * 1.4826 * median(distance), 0.01 * model size)``:
+only gross outliers go. Far from the minimum the residuals are systematic misfit, not noise,
+and the far points are the ones that carry the correction; cutting them early was seen to
+trap the iteration in wrong minima and to slow the point-to-point methods a hundredfold. ``outlier=<float>`` is a
 fixed maximum distance [m]; ``outlier=None`` keeps every point. Point sets spanning more
 than 20 times the model's bounding-box diagonal, or less than 1/1000 of it, raise an error
 that the units look wrong.
@@ -99,6 +100,9 @@ FLOOR_REL = 1e-12
 #: Outlier cut: ``OUTLIER_K`` robust sigmas (sigma = 1.4826 median distance), floored.
 OUTLIER_K = 4.0
 OUTLIER_K_COARSE = 8.0
+#: Until the first convergence no point within this fraction of the model size is cut
+#: (systematic misfit is not noise: cutting it slows or traps the iteration).
+OUTLIER_COARSE_FLOOR_REL = 1e-2
 OUTLIER_FLOOR_REL = 1e-6
 #: Units check: point spread relative to the model's bounding-box diagonal.
 UNITS_MAX_RATIO = 20.0
@@ -388,8 +392,8 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
     """
     size = index.extent
     floor2 = (FLOOR_REL * size) ** 2
-    out_floor = OUTLIER_FLOOR_REL * size
     k_out = OUTLIER_K_COARSE
+    out_floor = OUTLIER_COARSE_FLOOR_REL * size
 
     def mse(cp_, mask_):
         d = cp_.distance[mask_]
@@ -490,6 +494,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
         if done:
             if converged and outlier_cfg == "mad" and k_out != OUTLIER_K:
                 k_out = OUTLIER_K
+                out_floor = OUTLIER_FLOOR_REL * size
                 new_mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
                 if not np.array_equal(new_mask, mask):
                     mask = new_mask
