@@ -56,7 +56,7 @@ to more iterations and a smaller ``delta``.
 Robustness: rows with NaN or infinite coordinates are dropped and counted; fewer than 6
 finite points is an error. Outliers (spurious returns, fixture points) are rejected at every
 iteration, by default (``outlier="mad"``) when their distance to the model exceeds
-``max(4 * 1.4826 * median(distance), 1e-6 * model size)`` (a robust 4-sigma cut for Gaussian
+``max(5 * 1.4826 * median(distance), 1e-6 * model size)`` (a robust 5-sigma cut for Gaussian
 noise along the normals, with a floor so exact data lose nothing). Until the iteration first
 converges the cut is looser, ``max(8 * 1.4826 * median(distance), 0.01 * model size)``:
 only gross outliers go. Far from the minimum the residuals are systematic misfit, not noise,
@@ -98,7 +98,7 @@ TOLERANCE = {"hong_tan": 1e-9, "tangent": 1e-9, "menq": 1e-9, "va": 1e-12, "icp"
 #: RMS residual below ``FLOOR_REL * model size`` counts as an exact fit.
 FLOOR_REL = 1e-12
 #: Outlier cut: ``OUTLIER_K`` robust sigmas (sigma = 1.4826 median distance), floored.
-OUTLIER_K = 4.0
+OUTLIER_K = 5.0
 OUTLIER_K_COARSE = 8.0
 #: Until the first convergence no point within this fraction of the model size is cut
 #: (systematic misfit is not noise: cutting it slows or traps the iteration).
@@ -272,7 +272,7 @@ def localize(
         J = np.empty((n_used, 6))
         _cross_into(feet, normals, J)
         J[:, 3:] = normals
-        covariance = _sym_inverse(J.T @ J) * sigma_used**2
+        covariance = _sym_inverse(np.einsum("ij,ik->jk", J, J)) * sigma_used**2
     status = state["status"]
     if not obs.observable:
         status = (
@@ -397,7 +397,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
 
     def mse(cp_, mask_):
         d = cp_.distance[mask_]
-        return float(np.dot(d, d) / len(d))
+        return float((d * d).sum() / len(d))  # no BLAS: its threads contend with numba's
 
     T = T0
     cp = index.query(transform_points(inv_pose(T), Y))
@@ -514,6 +514,11 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
     }
 
 
+def _normal_equations(J: np.ndarray, b: np.ndarray):
+    """J^T J and J^T b without BLAS threads (they contend with the closest-point threads)."""
+    return np.einsum("ij,ik->jk", J, J), np.einsum("ij,i->j", J, b)
+
+
 def _solve(A: np.ndarray, g: np.ndarray) -> np.ndarray:
     """Solve the symmetric 6x6 system A x = g, minimum-norm where A is singular."""
     d = np.sqrt(np.diag(A))
@@ -549,7 +554,7 @@ def _update_icp(T, Ym, cp, mask):
     x = cp.foot[mask]
     yc = y.mean(axis=0)
     xc = x.mean(axis=0)
-    H = (y - yc).T @ (x - xc)
+    H = np.einsum("ij,ik->jk", y - yc, x - xc)
     U, _, Vt = np.linalg.svd(H)
     S = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
     R = Vt.T @ S @ U.T
@@ -567,15 +572,16 @@ def _update_va(T, Ym, cp, mask):
         e = np.zeros(3)
         e[k] = 1.0
         Jk = np.hstack([np.cross(y, e), np.broadcast_to(e, y.shape)])
-        A += Jk.T @ Jk
-        g += Jk.T @ r[:, k]
+        Ak, gk = _normal_equations(Jk, r[:, k])
+        A += Ak
+        g += gk
     xi = _solve(A, g)
     return T @ exp_se3(xi), None
 
 
 def _update_tangent(T, Ym, cp, mask):
     J, s = _plane_rows(Ym, cp, mask, np.zeros(3))
-    xi = _solve(J.T @ J, J.T @ s)
+    xi = _solve(*_normal_equations(J, s))
     M = np.eye(3) - hat(xi[:3])
     U, _, Vt = np.linalg.svd(M)
     R = U @ Vt
@@ -592,7 +598,7 @@ def _centered(T, c, xi):
 def _update_hong_tan(T, Ym, cp, mask):
     c = Ym[mask].mean(axis=0)
     J, s = _plane_rows(Ym, cp, mask, c)
-    xi = _solve(J.T @ J, J.T @ s)
+    xi = _solve(*_normal_equations(J, s))
     return _centered(T, c, xi), None
 
 
@@ -618,8 +624,9 @@ def _update_fine_001(T, Ym, cp, mask):
         e = np.zeros(3)
         e[k] = 1.0
         Jk = np.hstack([np.cross(u, e), np.broadcast_to(e, u.shape)])
-        A += Jk.T @ Jk
-        g += Jk.T @ b[:, k]
+        Ak, gk = _normal_equations(Jk, b[:, k])
+        A += Ak
+        g += gk
     p = _solve(A, g)
     theta, delta = p[:3], p[3:]
     Td = make_pose(_rot_xyz(theta), delta)
@@ -638,15 +645,14 @@ def _menq_step(T, Ym, Y, cp, mask, index, e_prev, lam):
     """
     c = Ym[mask].mean(axis=0)
     J, s = _plane_rows(Ym, cp, mask, c)
-    A = J.T @ J
-    g = J.T @ s
+    A, g = _normal_equations(J, s)
     diag = np.diag(np.diag(A))
     while lam <= 1e8:
         xi = _solve(A + lam * diag, g)
         T_try = _centered(T, c, xi)
         cp_try = index.query(transform_points(inv_pose(T_try), Y), hint=cp.face)
         d = cp_try.distance[mask]
-        e_try = float(np.dot(d, d) / len(d))
+        e_try = float((d * d).sum() / len(d))
         if e_try <= e_prev:
             return T_try, cp_try, e_try, max(lam * 0.1, LM_LAMBDA0), True
         lam *= 10.0

@@ -114,7 +114,7 @@ def fisher_information(points, normals, sigma: float) -> np.ndarray:
     if not (np.isfinite(sigma) and sigma > 0):
         raise AlgorithmError(f"sigma must be a positive finite length [m], got {sigma}")
     J = information_rows(points, normals)
-    return (J.T @ J) / sigma**2
+    return np.einsum("ij,ik->jk", J, J) / sigma**2
 
 
 def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observability:
@@ -132,7 +132,7 @@ def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observabil
     if not L > 0:
         L = 1.0
     H = np.hstack([np.cross(d, n) / L, n])
-    M = (H.T @ H) / len(p)
+    M = np.einsum("ij,ik->jk", H, H) / len(p)  # no BLAS threads (see localization)
     w, V = np.linalg.eigh(M)
     w = np.clip(w, 0.0, None)
     wmax = w[-1] if w[-1] > 0 else 1.0
@@ -170,7 +170,7 @@ def crlb(points, normals, sigma: float, tol: float = OBSERVABILITY_TOL) -> np.nd
             "direction(s)): the Cramer-Rao bound is infinite"
         )
     J = information_rows(points, normals)
-    return _sym_inverse(J.T @ J) * sigma**2
+    return _sym_inverse(np.einsum("ij,ik->jk", J, J)) * sigma**2
 
 
 def _sym_inverse(A: np.ndarray) -> np.ndarray:

@@ -50,7 +50,7 @@ def add_parser(sub) -> None:
     p.add_argument("--tolerance", type=float, default=None,
                    help="delta of 1 - e_k/e_(k-1) < delta (d of the step rule for fine_001)")
     p.add_argument("--outlier", default="mad",
-                   help="'mad' (robust 4-sigma cut, default), 'none', or a maximum distance in --units")
+                   help="'mad' (robust 5-sigma cut, default), 'none', or a maximum distance in --units")
     p.add_argument("--seed", type=int, default=0, help="seed of the global search (with --init global)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(run=run)
