@@ -313,8 +313,7 @@ class MeshIndex:
         dist = np.empty(n)
         normal = np.empty((n, 3))
         kernel = _nb_query_parallel if n >= _PARALLEL_MIN else _nb_query_serial
-        lo, hi, left, right, start, count, perm = self._bvh
-        kernel(np.ascontiguousarray(q), hints, self._data, lo, hi, left, right, start, count, perm,
+        kernel(np.ascontiguousarray(q), hints, self._data, *self._bvh,
                self.face_normals, face, foot, dist, normal)
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal)
 
@@ -621,22 +620,24 @@ if _nb is not None:
             stack[sp] = lft
             stack[sp + 1] = rgt
             sp += 2
-        return lo[:n_nodes].copy(), hi[:n_nodes].copy(), left[:n_nodes].copy(), right[:n_nodes].copy(), start[:n_nodes].copy(), count[:n_nodes].copy(), perm
+        up = np.full(n_nodes, -1, np.int64)
+        leaf_of = np.empty(nf, np.int64)
+        for node in range(n_nodes):
+            if left[node] >= 0:
+                up[left[node]] = node
+                up[right[node]] = node
+            else:
+                for j in range(start[node], start[node] + count[node]):
+                    leaf_of[perm[j]] = node
+        return (lo[:n_nodes].copy(), hi[:n_nodes].copy(), left[:n_nodes].copy(), right[:n_nodes].copy(),
+                start[:n_nodes].copy(), count[:n_nodes].copy(), perm, up, leaf_of)
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, normals,
-                out_face, out_foot, out_dist, out_normal, stack, stack_lb):  # pragma: no cover
-        px = q[i, 0]
-        py = q[i, 1]
-        pz = q[i, 2]
-        best = np.inf
-        bestf = -1
-        h = hints[i]
-        if h >= 0:
-            best, _v, _w = _nb_tri(px, py, pz, data, h)
-            bestf = h
-        stack[0] = 0
-        stack_lb[0] = _nb_box_d2(px, py, pz, lo, hi, 0)
+    def _nb_descend(px, py, pz, root, best, bestf, data, lo, hi, left, right, start, count, perm,
+                    stack, stack_lb):  # pragma: no cover - compiled
+        """Best-first search of the subtree at ``root``; returns the improved (best, face)."""
+        stack[0] = root
+        stack_lb[0] = _nb_box_d2(px, py, pz, lo, hi, root)
         sp = 1
         while sp > 0:
             sp -= 1
@@ -675,6 +676,34 @@ if _nb is not None:
                         stack[sp] = rgt
                         stack_lb[sp] = dr
                         sp += 1
+        return best, bestf
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
+                out_face, out_foot, out_dist, out_normal, stack, stack_lb):  # pragma: no cover
+        px = q[i, 0]
+        py = q[i, 1]
+        pz = q[i, 2]
+        h = hints[i]
+        if h >= 0:
+            # Bottom-up from the hint's leaf: every subtree off the leaf-to-root path is the
+            # sibling of a node on it, so visiting each sibling (pruned by its box) is exact,
+            # and with the hint's distance as the bound most siblings cost one box test.
+            best, _v, _w = _nb_tri(px, py, pz, data, h)
+            bestf = h
+            node = leaf_of[h]
+            best, bestf = _nb_descend(px, py, pz, node, best, bestf, data, lo, hi, left, right,
+                                      start, count, perm, stack, stack_lb)
+            while node != 0:
+                par = up[node]
+                sib = right[par] if left[par] == node else left[par]
+                if _nb_box_d2(px, py, pz, lo, hi, sib) < best:
+                    best, bestf = _nb_descend(px, py, pz, sib, best, bestf, data, lo, hi, left,
+                                              right, start, count, perm, stack, stack_lb)
+                node = par
+        else:
+            best, bestf = _nb_descend(px, py, pz, 0, np.inf, -1, data, lo, hi, left, right,
+                                      start, count, perm, stack, stack_lb)
         d2, v, w = _nb_tri(px, py, pz, data, bestf)
         out_face[i] = bestf
         out_dist[i] = np.sqrt(d2)
@@ -683,16 +712,16 @@ if _nb is not None:
             out_normal[i, k] = normals[bestf, k]
 
     @_nb.njit(cache=True, nogil=True)
-    def _nb_query_serial(q, hints, data, lo, hi, left, right, start, count, perm, normals,
+    def _nb_query_serial(q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
                          out_face, out_foot, out_dist, out_normal):  # pragma: no cover
         stack = np.empty(_STACK, np.int64)
         stack_lb = np.empty(_STACK)
         for i in range(q.shape[0]):
-            _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, normals,
+            _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
                     out_face, out_foot, out_dist, out_normal, stack, stack_lb)
 
     @_nb.njit(cache=True, nogil=True, parallel=True)
-    def _nb_query_parallel(q, hints, data, lo, hi, left, right, start, count, perm, normals,
+    def _nb_query_parallel(q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
                            out_face, out_foot, out_dist, out_normal):  # pragma: no cover
         n = q.shape[0]
         chunk = 256
@@ -701,5 +730,5 @@ if _nb is not None:
             stack = np.empty(_STACK, np.int64)
             stack_lb = np.empty(_STACK)
             for i in range(c * chunk, min(n, (c + 1) * chunk)):
-                _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, normals,
+                _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
                         out_face, out_foot, out_dist, out_normal, stack, stack_lb)

@@ -108,6 +108,7 @@ OUTLIER_FLOOR_REL = 1e-6
 UNITS_MAX_RATIO = 20.0
 UNITS_MIN_RATIO = 1e-3
 MIN_POINTS = 6
+OBSERVABILITY_MAX_POINTS = 4096
 #: Initial (and smallest) Levenberg-Marquardt damping of "menq", relative to diag(J^T J).
 LM_LAMBDA0 = 1e-8
 
@@ -250,19 +251,25 @@ def localize(
 
     state = _iterate(method, Y, index, T0, int(max_iterations), float(tolerance), outlier_cfg)
     T, cp, mask = state["T"], state["cp"], state["mask"]
-    if mask.sum() < MIN_POINTS:
+    n_used = _count(mask, len(Y))
+    if n_used < MIN_POINTS:
         raise AlgorithmError(
-            f"only {int(mask.sum())} points lie within the outlier distance of the model; "
+            f"only {n_used} points lie within the outlier distance of the model; "
             f"at least {MIN_POINTS} are needed"
         )
 
     # Uncertainty at the result (workpiece frame).
-    Ym = transform_points(inv_pose(T), Y)
+    Ym = _apply(inv_pose(T), Y)
     feet = cp.foot[mask]
     normals = cp.normal[mask]
     s = np.einsum("ij,ij->i", Ym[mask] - feet, normals)
-    obs = observability(feet, index.smooth_normals(cp.face[mask], feet), OBSERVABILITY_TOL)
-    n_used = int(mask.sum())
+    # Observability is a property of where the points are; a regular subsample of at most
+    # OBSERVABILITY_MAX_POINTS estimates the same normalised information (exactly so for
+    # symmetric sets) at a fraction of the cost of the smooth normals.
+    stride = max(1, -(-n_used // OBSERVABILITY_MAX_POINTS))
+    sub_feet = feet[::stride]
+    sub_faces = cp.face[mask][::stride]
+    obs = observability(sub_feet, index.smooth_normals(sub_faces, sub_feet), OBSERVABILITY_TOL)
     if sigma is None:
         sigma_used = float(np.sqrt(np.sum(s * s) / max(n_used - 6, 1)))
     else:
@@ -272,7 +279,7 @@ def localize(
         J = np.empty((n_used, 6))
         _cross_into(feet, normals, J)
         J[:, 3:] = normals
-        covariance = _sym_inverse(np.einsum("ij,ik->jk", J, J)) * sigma_used**2
+        covariance = _sym_inverse(_gram(J)) * sigma_used**2
     status = state["status"]
     if not obs.observable:
         status = (
@@ -365,17 +372,42 @@ def _spread_bits(x: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------ iteration
 def _inlier_mask(d: np.ndarray, cfg, floor: float, k: float = None) -> np.ndarray:
     if cfg is None:
-        return np.ones(len(d), dtype=bool)
+        return _ALL
     if cfg == "mad":
         # distances are |noise| for Gaussian noise along the normals: sigma = 1.4826 median
         thr = max((OUTLIER_K if k is None else k) * 1.4826 * _median(d), floor)
     else:
         thr = cfg
     mask = d <= thr
+    if mask.all():
+        return _ALL  # a view, not a copy, of every array it indexes
     if mask.sum() < MIN_POINTS:
         # e.g. a fixed distance and a poor start: keep the closest half to get going
         mask = d <= _median(d)
     return mask
+
+
+_ALL = slice(None)
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, slice) or isinstance(b, slice):
+        return isinstance(a, slice) and isinstance(b, slice)
+    return np.array_equal(a, b)
+
+
+def _count(mask, n: int) -> int:
+    return n if isinstance(mask, slice) else int(mask.sum())
+
+
+def _apply(T: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """T applied to (N, 3) points, without BLAS (see _gram): same as se3.transform_points."""
+    R = T[:3, :3]
+    out = np.empty_like(P)
+    x, y, z = P[:, 0], P[:, 1], P[:, 2]
+    for k in range(3):
+        out[:, k] = R[k, 0] * x + R[k, 1] * y + R[k, 2] * z + T[k, 3]
+    return out
 
 
 def _median(d: np.ndarray) -> float:
@@ -400,7 +432,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
         return float((d * d).sum() / len(d))  # no BLAS: its threads contend with numba's
 
     T = T0
-    cp = index.query(transform_points(inv_pose(T), Y))
+    cp = index.query(_apply(inv_pose(T), Y))
     mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
     e_prev = mse(cp, mask)
     history = [float(np.sqrt(e_prev))]
@@ -417,7 +449,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
         elif n_updates >= max_it:
             break
         else:
-            Ym = transform_points(inv_pose(T), Y)
+            Ym = _apply(inv_pose(T), Y)
             step = None
             if method == "menq":
                 T_new, cp_new, e_new, lm_lambda, ok = _menq_step(T, Ym, Y, cp, mask, index, e_prev, lm_lambda)
@@ -428,14 +460,14 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                     # heavily damped: the local model is poor and the steps are tiny; a
                     # point-to-point step may go further (it never raises the residual)
                     T_icp, _ = _update_icp(T, Ym, cp, mask)
-                    cp_icp = index.query(transform_points(inv_pose(T_icp), Y), hint=cp.face)
+                    cp_icp = index.query(_apply(inv_pose(T_icp), Y), hint=cp.face)
                     e_icp = mse(cp_icp, mask)
                     if e_icp < e_new:
                         T_new, cp_new, e_new = T_icp, cp_icp, e_icp
                         n_fallback += 1
             else:
                 T_new, step = _UPDATES[method](T, Ym, cp, mask)
-                cp_new = index.query(transform_points(inv_pose(T_new), Y), hint=cp.face)
+                cp_new = index.query(_apply(inv_pose(T_new), Y), hint=cp.face)
                 e_new = mse(cp_new, mask)
                 if e_new > e_prev * (1.0 + 1e-6) and method != "fine_001":
                     # overshoot far from the minimum: halve the motion (a safeguard the
@@ -444,7 +476,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                     for _ in range(8):
                         xi = 0.5 * xi
                         T_try = T @ exp_se3(xi)
-                        cp_try = index.query(transform_points(inv_pose(T_try), Y), hint=cp.face)
+                        cp_try = index.query(_apply(inv_pose(T_try), Y), hint=cp.face)
                         e_try = mse(cp_try, mask)
                         if e_try < e_prev:
                             T_new, cp_new, e_new = T_try, cp_try, e_try
@@ -453,7 +485,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                 # The linearised model is wrong here (far from the minimum, feet on edges):
                 # take one closed-form point-to-point step, which never raises the residual.
                 T_icp, _ = _update_icp(T, Ym, cp, mask)
-                cp_icp = index.query(transform_points(inv_pose(T_icp), Y), hint=cp.face)
+                cp_icp = index.query(_apply(inv_pose(T_icp), Y), hint=cp.face)
                 e_icp = mse(cp_icp, mask)
                 if e_icp < e_prev:
                     T_new, cp_new, e_new, step = T_icp, cp_icp, e_icp, np.inf
@@ -476,7 +508,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                 history.append(float(np.sqrt(e_new)))
                 rel = 1.0 - e_new / e_prev if e_prev > 0 else 0.0
                 new_mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
-                mask_changed = not np.array_equal(new_mask, mask)
+                mask_changed = not _same(new_mask, mask)
                 mask = new_mask
                 e_prev = mse(cp, mask)
                 if e_prev <= floor2:
@@ -496,7 +528,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                 k_out = OUTLIER_K
                 out_floor = OUTLIER_FLOOR_REL * size
                 new_mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
-                if not np.array_equal(new_mask, mask):
+                if not _same(new_mask, mask):
                     mask = new_mask
                     e_prev = mse(cp, mask)
                     converged = False
@@ -514,9 +546,19 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
     }
 
 
+def _gram(J: np.ndarray) -> np.ndarray:
+    """J^T J in row blocks small enough that BLAS stays on one thread: BLAS worker threads
+    spin after a call and contend with the closest-point threads on small machines."""
+    A = np.zeros((J.shape[1], J.shape[1]))
+    for i in range(0, len(J), 2048):
+        Jc = J[i : i + 2048]
+        A += Jc.T @ Jc
+    return A
+
+
 def _normal_equations(J: np.ndarray, b: np.ndarray):
-    """J^T J and J^T b without BLAS threads (they contend with the closest-point threads)."""
-    return np.einsum("ij,ik->jk", J, J), np.einsum("ij,i->j", J, b)
+    """J^T J and J^T b (see _gram)."""
+    return _gram(J), np.einsum("ij,i->j", J, b)
 
 
 def _solve(A: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -650,7 +692,7 @@ def _menq_step(T, Ym, Y, cp, mask, index, e_prev, lam):
     while lam <= 1e8:
         xi = _solve(A + lam * diag, g)
         T_try = _centered(T, c, xi)
-        cp_try = index.query(transform_points(inv_pose(T_try), Y), hint=cp.face)
+        cp_try = index.query(_apply(inv_pose(T_try), Y), hint=cp.face)
         d = cp_try.distance[mask]
         e_try = float((d * d).sum() / len(d))
         if e_try <= e_prev:

@@ -1,0 +1,202 @@
+"""Speed and accuracy of the localization inner loop and of localization itself.
+
+    python benchmarks/bench_closest_point.py                 # every section
+    python benchmarks/bench_closest_point.py --section closest
+    python benchmarks/bench_closest_point.py --section localize --repeats 30
+    python benchmarks/bench_closest_point.py --section crlb --trials 100
+    python benchmarks/bench_closest_point.py --section basin --trials 20
+
+Sections:
+  closest   MeshIndex.query (numba and numpy backends) against trimesh.proximity.closest_point
+            on the documents' workpieces (metres): time per query of points 0.05 mm off the
+            surface, in Z-order as localize() passes them, and the largest error on points
+            sampled ON the mesh (exact answer: distance 0).
+  localize  wall time of localize() (hong_tan and every other method) for 150, 1,000 and
+            20,000 points, from a start 0.5 degree / 1 mm off, with noise 0.05 mm.
+  crlb      RMS pose error over trials in units of the Cramer-Rao bound, whitened
+            (sqrt(mean xi^T C^-1 xi / 6): 1.0 attains the bound) and per component, for
+            sigma 0.05 mm and 0.005 mm at 150, 1,000 and 20,000 points.
+  basin     success rate of each method from random starts up to 45 degrees (about the
+            part) and 20 % of the part size, 150 noise-free points.
+
+Timings are medians over repeats after a warm-up call (numba compiles on first use); they
+depend on the machine and its load: the project's machines have 2 cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+
+import trimesh  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from algorithms.closest_point import HAVE_NUMBA, MeshIndex  # noqa: E402
+from algorithms.localization import METHODS, _morton_order, localize  # noqa: E402
+from algorithms.se3 import make_pose, rotation_error_rad, transform_points, translation_error_m  # noqa: E402
+from algorithms.uncertainty import crlb, pose_error_twist, whitened_error  # noqa: E402
+from twin.workpieces import make_workpiece  # noqa: E402
+
+PARTS = ("s_surface", "hemisphere_punch", "bottle_punch")
+
+
+def sample_surface(mesh, n, rng, min_nz=-0.3):
+    w = mesh.area_faces * (mesh.face_normals[:, 2] > min_nz)
+    f = rng.choice(len(w), size=n, p=w / w.sum())
+    u = rng.uniform(size=(n, 2))
+    flip = u.sum(axis=1) > 1
+    u[flip] = 1 - u[flip]
+    t = mesh.triangles[f]
+    return t[:, 0] + u[:, :1] * (t[:, 1] - t[:, 0]) + u[:, 1:] * (t[:, 2] - t[:, 0]), f
+
+
+def random_pose(rng, center, size, max_deg=45.0, max_frac=0.2):
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    R = Rotation.from_rotvec(axis * np.radians(max_deg) * rng.uniform(0.3, 1.0)).as_matrix()
+    t = rng.normal(size=3)
+    t *= max_frac * size * rng.uniform(0.3, 1.0) / np.linalg.norm(t)
+    return make_pose(R, center - R @ center + t)
+
+
+def median_time(fn, repeats):
+    fn()
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
+def section_closest(parts, repeats):
+    print("\n== closest points: time per query [ms], largest distance of on-mesh points [m] ==")
+    print(f"{'part':18s} {'faces':>6s} {'N':>6s} {'numba':>9s} {'numpy':>9s} {'trimesh':>9s}"
+          f" {'err ours':>9s} {'err trimesh':>11s}")
+    rng = np.random.default_rng(0)
+    for name in parts:
+        mesh = make_workpiece(name)
+        backends = {"numpy": MeshIndex(mesh, backend="numpy")}
+        if HAVE_NUMBA:
+            backends["numba"] = MeshIndex(mesh, backend="numba")
+        for n in (150, 1000, 20000):
+            on, _ = sample_surface(mesh, n, rng)
+            on = on[_morton_order(on)]  # spatially coherent order, as localize() uses
+            pts = on + rng.normal(size=on.shape) * 5e-5  # a scan: 0.05 mm off the surface
+            row = {}
+            for b, idx in backends.items():
+                row[b] = median_time(lambda: idx.query(pts), repeats if n < 20000 else max(3, repeats // 5))
+            tm_reps = 1 if n >= 20000 else 3
+            row["trimesh"] = median_time(lambda: trimesh.proximity.closest_point(mesh, pts), tm_reps)
+            ours = max(b.query(on).distance.max() for b in backends.values())
+            _, d_tm, _ = trimesh.proximity.closest_point(mesh, on)
+            print(f"{name:18s} {len(mesh.faces):6d} {n:6d} "
+                  f"{row.get('numba', float('nan')) * 1e3:9.3f} {row['numpy'] * 1e3:9.3f} "
+                  f"{row['trimesh'] * 1e3:9.1f} {ours:9.1e} {d_tm.max():11.1e}")
+
+
+def _noisy_scan(mesh, n, sigma, rng, T_true):
+    X, f = sample_surface(mesh, n, rng)
+    nrm = mesh.face_normals[f]
+    return X, nrm
+
+
+def section_localize(parts, repeats):
+    print("\n== localize(): median wall time [ms], start 0.5 deg / 1 mm off, noise 0.05 mm ==")
+    rng = np.random.default_rng(1)
+    for name in parts:
+        mesh = make_workpiece(name)
+        idx = MeshIndex(mesh)
+        for n in (150, 1000, 20000):
+            X, f = sample_surface(mesh, n, rng)
+            nrm = mesh.face_normals[f]
+            T_true = random_pose(rng, X.mean(axis=0), float(mesh.extents.max()), max_deg=30)
+            Y = transform_points(T_true, X + nrm * rng.normal(size=(n, 1)) * 5e-5)
+            T0 = T_true @ make_pose(Rotation.from_rotvec(rng.normal(size=3) * np.radians(0.5) / np.sqrt(3)).as_matrix(),
+                                    rng.normal(size=3) * 1e-3 / np.sqrt(3))
+            cells = []
+            for method in METHODS:
+                if method in ("icp", "va", "fine_001") and n == 20000:
+                    continue
+                reps = repeats if method in ("hong_tan", "tangent", "menq") else 3
+                res = localize(Y, index=idx, init=T0, method=method)
+                t = median_time(lambda: localize(Y, index=idx, init=T0, method=method), reps)
+                cells.append(f"{method} {t * 1e3:.1f} ({res.iterations} it)")
+            print(f"{name:18s} N={n:6d}: " + ", ".join(cells))
+
+
+def section_crlb(parts, trials):
+    print("\n== accuracy vs Cramer-Rao bound (hong_tan): RMS error / bound, whitened and per component ==")
+    rng = np.random.default_rng(2)
+    for name in parts:
+        mesh = make_workpiece(name)
+        idx = MeshIndex(mesh)
+        for n in (150, 1000, 20000):
+            X, f = sample_surface(mesh, n, rng)
+            nrm = mesh.face_normals[f]
+            T_true = random_pose(rng, X.mean(axis=0), float(mesh.extents.max()), max_deg=30)
+            for sigma in (5e-5, 5e-6):
+                C = crlb(X, nrm, sigma)
+                errs, times = [], []
+                k = trials if n < 20000 else max(10, trials // 4)
+                for _ in range(k):
+                    Y = transform_points(T_true, X + nrm * rng.normal(size=(n, 1)) * sigma)
+                    T0 = T_true @ make_pose(Rotation.from_rotvec(rng.normal(size=3) * 0.01).as_matrix(),
+                                            rng.normal(size=3) * 1e-3)
+                    res = localize(Y, index=idx, init=T0)
+                    errs.append(pose_error_twist(res.T_world_workpiece, T_true))
+                    times.append(res.time_s)
+                E = np.array(errs)
+                ratio = np.sqrt(whitened_error(E, C).mean() / 6.0)
+                comp = np.sqrt((E**2).mean(axis=0) / np.diag(C))
+                print(f"{name:18s} N={n:6d} sigma={sigma * 1e3:.3f} mm trials={k:4d}: "
+                      f"whitened {ratio:.3f}, per component [{' '.join(f'{c:.2f}' for c in comp)}], "
+                      f"bound 1-sigma rot {np.sqrt(np.trace(C[:3, :3])) * 1e6:.2f} urad, "
+                      f"trans {np.sqrt(np.trace(C[3:, 3:])) * 1e6:.3f} um, median {np.median(times) * 1e3:.1f} ms")
+
+
+def section_basin(parts, trials):
+    print("\n== convergence from random starts (<= 45 deg about the part, <= 20 % size), 150 points ==")
+    for name in parts:
+        mesh = make_workpiece(name)
+        idx = MeshIndex(mesh)
+        rng = np.random.default_rng(3)
+        ok = {m: 0 for m in METHODS}
+        for _ in range(trials):
+            X, _ = sample_surface(mesh, 150, rng)
+            T_true = random_pose(rng, X.mean(axis=0), float(mesh.extents.max()))
+            Y = transform_points(T_true, X)
+            for m in METHODS:
+                r = localize(Y, index=idx, method=m)
+                ok[m] += (rotation_error_rad(r.T_world_workpiece, T_true) < 1e-6
+                          and translation_error_m(r.T_world_workpiece, T_true) < 1e-6)
+        print(f"{name:18s} " + ", ".join(f"{m} {ok[m]}/{trials}" for m in METHODS))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--section", choices=["all", "closest", "localize", "crlb", "basin"], default="all")
+    ap.add_argument("--parts", default=",".join(PARTS))
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--trials", type=int, default=100)
+    args = ap.parse_args(argv)
+    parts = args.parts.split(",")
+    print(f"numba backend: {'yes' if HAVE_NUMBA else 'no (numpy only)'}; cores: {os.cpu_count()}")
+    if args.section in ("all", "closest"):
+        section_closest(parts, args.repeats)
+    if args.section in ("all", "localize"):
+        section_localize(parts, args.repeats)
+    if args.section in ("all", "crlb"):
+        section_crlb(parts, args.trials)
+    if args.section in ("all", "basin"):
+        section_basin(parts, max(1, args.trials // 5))
+
+
+if __name__ == "__main__":
+    main()
