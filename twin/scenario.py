@@ -238,6 +238,72 @@ class ScanSpec:
 
 
 @dataclass(frozen=True)
+class PathSpec:
+    """Process path, from the scan (document 004) or from the CAD model (document 003 step 5).
+
+    The process is a contact process (polishing, deburring) with a ball-end tool on the
+    flange: the tool tip touches the surface at the contact points. Every key of the
+    ``[path]`` table is optional; the defaults are below.
+
+    Attributes:
+        T_flange_tool: (4, 4) tool frame (TCP: the tip of the tool on its axis) in the flange
+            frame, ``tool`` key (default 100 mm along the flange z, turned 180 deg about x
+            so that the tool z points back out of the surface, as eq. 11's normal does).
+        tip_radius_m: ball-end radius [m] (0 for a point tip).
+        shank_radius_m: radius of the shank between the holder and the ball [m].
+        holder_radius_m: radius of the holder at the flange [m].
+        holder_length_m: length of the holder from the flange face [m].
+        feed_m_s: feed rate along the contact lines [m/s].
+        transit_speed_m_s: speed of approach, retract and transit moves [m/s].
+        acceleration_m_s2: path acceleration limit of every segment [m/s^2].
+        point_spacing_m: spacing of the contact points along a line [m].
+        line_spacing_m: spacing of the lines of the CAD raster path [m].
+        margin_m: the CAD raster stays this far inside the part's footprint [m].
+        line_axis: "x" or "y": workpiece axis the CAD raster lines run along.
+        retract_m: lift along the tool axis before and after each line [m].
+        heading: "fixed" (tool x along ``heading_direction`` projected on the tangent plane,
+            constant along the path) or "travel" (eq. 11: along the travel direction).
+        heading_direction: (3,) in the workpiece frame.
+        axis: "normal" (tool axis along the surface normal, eq. 11) or "fixed".
+        axis_direction: (3,) tool axis in the workpiece frame for ``axis = "fixed"``.
+        lead_deg: tilt of the tool axis towards +x of the contact frame [deg].
+        tilt_deg: tilt of the tool axis towards +y of the contact frame [deg].
+        knot_spacing_m: arc length per knot span of the per-line B-spline fits [m].
+        simplify_spacing_m: bin length of the even-spacing simplification [m].
+        outlier_window_m: window of the robust outlier filter [m].
+        outlier_k: rejection threshold in robust sigmas.
+        max_gap_m: a gap wider than this splits a scan line (part boundary) [m].
+        empty_lines: "error" (a scan line without valid points is an error) or "drop".
+    """
+
+    T_flange_tool: np.ndarray
+    tip_radius_m: float
+    shank_radius_m: float
+    holder_radius_m: float
+    holder_length_m: float
+    feed_m_s: float
+    transit_speed_m_s: float
+    acceleration_m_s2: float
+    point_spacing_m: float
+    line_spacing_m: float
+    margin_m: float
+    line_axis: str
+    retract_m: float
+    heading: str
+    heading_direction: np.ndarray
+    axis: str
+    axis_direction: np.ndarray
+    lead_deg: float
+    tilt_deg: float
+    knot_spacing_m: float
+    simplify_spacing_m: float
+    outlier_window_m: float
+    outlier_k: float
+    max_gap_m: float
+    empty_lines: str
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     seed: int
@@ -248,6 +314,7 @@ class Scenario:
     scan: ScanSpec
     source: str = ""
     raw: dict = field(default_factory=dict, repr=False)
+    path: PathSpec = field(default_factory=lambda: _parse_path(_Section({}, "path")))
 
     def to_dict(self) -> dict:
         """A JSON-ready copy (numpy arrays as nested lists)."""
@@ -306,8 +373,9 @@ def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = No
     sensor = _parse_sensor(_Section(top.table_value("sensor"), "sensor"))
     noise = _parse_noise(_Section(top.table_value("noise"), "noise"))
     scan = _parse_scan(_Section(top.table_value("scan"), "scan"), sensor)
+    path = _parse_path(_Section(top.table_value("path"), "path"))
     top.done()
-    return Scenario(title, seed, wp, T_world_base, sensor, noise, scan, source, raw)
+    return Scenario(title, seed, wp, T_world_base, sensor, noise, scan, source, raw, path)
 
 
 def _parse_workpiece(s: _Section, base_dir: Path | None) -> WorkpieceSpec:
@@ -412,3 +480,48 @@ def _parse_scan(s: _Section, sensor: SensorSpec) -> ScanSpec:
         raise TwinError("scan.direction must be a non-zero vector")
     return ScanSpec(region, margin, spacing, speed, transit, standoff, beam, direction / norm,
                     retract, axis, max_lines)
+
+
+def default_tool_pose() -> np.ndarray:
+    """Tool tip 100 mm along the flange z; tool z = -flange z (out of the surface, like eq. 11's normal)."""
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    T[2, 3] = 0.100
+    return T
+
+
+def _parse_path(s: _Section) -> PathSpec:
+    T_ft = s.pose("tool", default_tool_pose())
+    tip = s.number("tip_radius_m", 0.004, 0.0, 0.1)
+    shank = s.number("shank_radius_m", 0.004, 0.0, 0.1)
+    holder = s.number("holder_radius_m", 0.015, 0.0, 0.2)
+    holder_len = s.number("holder_length_m", 0.050, 0.0, 1.0)
+    feed = s.number("feed_m_s", 0.03, 0.0, 1.0, lo_open=True)
+    transit = s.number("transit_speed_m_s", 0.05, 0.0, 1.0, lo_open=True)
+    acc = s.number("acceleration_m_s2", 0.5, 0.0, 10.0, lo_open=True)
+    point_spacing = s.number("point_spacing_m", 0.001, 1e-5, 0.1)
+    line_spacing = s.number("line_spacing_m", 0.004, 0.0, 1.0, lo_open=True)
+    margin = s.number("margin_m", 0.005, 0.0, 1.0)
+    axis_name = s.choice("line_axis", "x", ("x", "y"))
+    retract = s.number("retract_m", 0.02, 0.0, 0.5, lo_open=True)
+    heading = s.choice("heading", "fixed", ("fixed", "travel"))
+    heading_dir = s.vector("heading_direction", [1.0, 0.0, 0.0], 3)
+    axis = s.choice("axis", "normal", ("normal", "fixed"))
+    axis_dir = s.vector("axis_direction", [0.0, 0.0, 1.0], 3)
+    lead = s.number("lead_deg", 0.0, -60.0, 60.0)
+    tilt = s.number("tilt_deg", 0.0, -60.0, 60.0)
+    knots = s.number("knot_spacing_m", 0.002, 1e-5, 1.0)
+    simplify = s.number("simplify_spacing_m", 0.0002, 1e-6, 0.1)
+    window = s.number("outlier_window_m", 0.001, 1e-6, 0.1)
+    k = s.number("outlier_k", 5.0, 1.0, 100.0)
+    gap = s.number("max_gap_m", 0.002, 0.0, 1.0, lo_open=True)
+    empty = s.choice("empty_lines", "error", ("error", "drop"))
+    s.done()
+    for name, v in (("heading_direction", heading_dir), ("axis_direction", axis_dir)):
+        if np.linalg.norm(v) < 1e-9:
+            raise TwinError(f"path.{name} must be a non-zero vector")
+    if np.linalg.norm(T_ft[:3, 3]) <= tip:
+        raise TwinError(f"path.tool: the tool tip must lie farther from the flange than tip_radius_m = {tip:g} m")
+    return PathSpec(T_ft, tip, shank, holder, holder_len, feed, transit, acc, point_spacing, line_spacing,
+                    margin, axis_name, retract, heading, heading_dir / np.linalg.norm(heading_dir), axis,
+                    axis_dir / np.linalg.norm(axis_dir), lead, tilt, knots, simplify, window, k, gap, empty)

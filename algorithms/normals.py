@@ -1,0 +1,140 @@
+"""Normals of scan-line clouds (document 004, section 3.2, eqs. 8-10) and k-NN PCA normals.
+
+Cross-line triangulation (document 004): a point ``p = p_i,j`` of line ``i`` has its
+neighbours ``a = p_i,j+1`` and ``b = p_i,j-1`` on its own line and the nearest points
+``n+ `` and ``n-`` on the adjacent lines ``i + 1`` and ``i - 1``. The four triangles of the
+fan around ``p``,
+
+    (p, a, n+),  (p, n+, b),  (p, b, n-),  (p, n-, a),
+
+all wound the same way (right-handed about the normal), give eq. (8)'s cross products; the
+normal is their area-weighted mean (the sum of the cross products, each twice its triangle's
+area, normalised: eqs. 9-10). On the first and last line (one adjacent line) or at a line end
+(one neighbour on the line) the triangles that exist are used: two on a boundary, as the
+document says, one at a corner. (The document lists the four triangles with one index
+garbled; the fan above is the reading whose sum is the central difference
+``(a - b) x (n+ - n-)``: second-order accurate when the neighbours sit symmetrically.)
+
+Orientation: with lines ordered across the part by ``across`` and points along each line by
+``direction`` (as :func:`algorithms.pointcloud.organize_scan_lines` orders them), the fan's
+normal is ``direction x across``; ``orient`` (a direction the normals should face, e.g.
+towards the sensor) flips the whole set when most of it faces away.
+
+PCA (the usual method, for comparison): the eigenvector of the smallest eigenvalue of the
+covariance of the ``k`` nearest neighbours (the point included). Document 004 says it fails on
+scan-line clouds because the neighbours all lie on one line; ``benchmarks/results_normals.md``
+measures when.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from algorithms.errors import AlgorithmError
+
+
+class NormalsError(AlgorithmError):
+    """Bad input to normal estimation."""
+
+
+def _check_lines(lines) -> list[np.ndarray]:
+    out = []
+    for i, l in enumerate(lines):
+        a = np.asarray(l, dtype=np.float64)
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise NormalsError(f"line {i} must be (n, 3), got shape {a.shape}")
+        if len(a) == 0:
+            raise NormalsError(f"line {i} is empty")
+        if not np.all(np.isfinite(a)):
+            raise NormalsError(f"line {i} contains NaN or infinite coordinates")
+        out.append(a)
+    if len(out) < 2:
+        raise NormalsError(f"cross-line triangulation needs at least 2 lines, got {len(out)}")
+    return out
+
+
+def triangulation_normals(lines, orient=None) -> tuple:
+    """Unit normals of every point of a scan-line cloud by cross-line triangulation.
+
+    Args:
+        lines: L >= 2 arrays (n_i, 3) [m], ordered along the lines and across (see module).
+        orient: optional (3,) direction the normals should face on the whole.
+
+    Returns:
+        L arrays (n_i, 3) of unit normals, aligned with ``lines``.
+
+    Raises:
+        NormalsError: fewer than 2 lines, an empty line, non-finite points, or a point whose
+            triangles are all degenerate (coincident or collinear neighbours).
+    """
+    L = _check_lines(lines)
+    trees = [cKDTree(l) for l in L]
+    out = []
+    total = np.zeros(3)
+    for i, p in enumerate(L):
+        n = len(p)
+        acc = np.zeros((n, 3))
+        has_a = np.arange(n) < n - 1
+        has_b = np.arange(n) > 0
+        a = np.vstack([p[1:], p[-1:]]) - p
+        b = np.vstack([p[:1], p[:-1]]) - p
+        for adj, sign in ((i + 1, 1.0), (i - 1, -1.0)):
+            if adj < 0 or adj >= len(L):
+                continue
+            _, m = trees[adj].query(p)
+            c = L[adj][m] - p
+            # Next line (sign +1): (p, a, n+) and (p, n+, b); previous line: (p, b, n-), (p, n-, a).
+            # Both pairs reduce to sign * (a x c) and sign * (c x b).
+            acc += sign * has_a[:, None] * np.cross(a, c)
+            acc += sign * has_b[:, None] * np.cross(c, b)
+        norm = np.linalg.norm(acc, axis=1)
+        bad = np.flatnonzero(norm <= 1e-300)
+        if len(bad):
+            raise NormalsError(f"line {i}, point {int(bad[0])}: all triangles degenerate (coincident neighbours)")
+        nn = acc / norm[:, None]
+        out.append(nn)
+        total += nn.sum(axis=0)
+    if orient is not None:
+        o = np.asarray(orient, dtype=np.float64)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise NormalsError(f"orient must be a finite (3,) vector, got {o!r}")
+        if total @ o < 0:
+            out = [-n for n in out]
+    return tuple(out)
+
+
+def pca_normals(points, k: int = 16, orient=None) -> np.ndarray:
+    """k-nearest-neighbour PCA normals.
+
+    Args:
+        points: (N, 3) [m].
+        k: neighbours, the point itself included (3 <= k <= N).
+        orient: optional (3,) direction; each normal is flipped to face it (PCA has no sign).
+
+    Returns:
+        (N, 3) unit normals.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or not np.all(np.isfinite(P)):
+        raise NormalsError(f"points must be finite (N, 3), got shape {P.shape}")
+    if not (isinstance(k, (int, np.integer)) and 3 <= k <= len(P)):
+        raise NormalsError(f"k must be an integer in [3, {len(P)}], got {k!r}")
+    _, nb = cKDTree(P).query(P, k=int(k))
+    Q = P[nb]
+    Q = Q - Q.mean(axis=1, keepdims=True)
+    C = np.einsum("nki,nkj->nij", Q, Q)
+    _, V = np.linalg.eigh(C)
+    n = V[:, :, 0]
+    if orient is not None:
+        o = np.asarray(orient, dtype=np.float64)
+        n = np.where((n @ o)[:, None] < 0, -n, n)
+    return n
+
+
+def angle_deg(a, b, unsigned: bool = False) -> np.ndarray:
+    """(N,) angles [deg] between unit vectors; ``unsigned`` ignores the sign (PCA normals)."""
+    c = np.einsum("ij,ij->i", np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
+    if unsigned:
+        c = np.abs(c)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))

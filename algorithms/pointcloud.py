@@ -1,0 +1,307 @@
+"""Scan-line point clouds (document 004, section 3.1): organise, filter, bound and simplify.
+
+A laser displacement sensor swept along parallel passes gives a *scan-line* cloud: points
+dense along each line (0.05 mm apart at 50 mm/s and 1 kHz) and sparse across (the line
+spacing, 4 mm in document 004). Every step here keeps that structure: a :class:`LineCloud`
+holds one ordered (n_i, 3) array per line, lines ordered across the part.
+
+The steps and their parameters (the defaults are the ones ``twin run`` uses):
+
+1. :func:`organize_scan_lines`: group the samples by their scan-line label, drop invalid
+   (NaN/inf) samples and the samples between lines (label < 0), order each line along a
+   common along-line direction (the principal direction of all line points, so that every
+   line runs the same way) and the lines across it. A line with no valid point, or fewer
+   than two lines, is an error naming the line (``empty="drop"`` drops empty lines instead).
+2. :func:`remove_outliers`: a robust local-polynomial (Hampel-type) filter per line on the two
+   coordinates across the line (``across`` and the height ``direction x across``, both
+   functions of the position along the line): a Savitzky-Golay quadratic over ``window_m``
+   of line is fitted to the current inliers, every point's residual from it is measured, and
+   points whose residual norm exceeds ``k * sigma`` are rejected, with
+   ``sigma = 1.4826 * median(|residual|)`` of the inliers (a robust Gaussian sigma) but a
+   threshold never below ``min_residual_m``. Three passes, each re-testing every point
+   against a fit made without the previous pass's outliers, so that a large spike pulls
+   its neighbours out only for one pass. A moving median alone would not do: on a sloped,
+   densely sampled line each coordinate is monotone and the median returns the point itself.
+3. :func:`extract_boundary`: split each line where consecutive points are more than
+   ``max_gap_m`` apart (the beam leaving the part for the table, a hole, an occluded stretch)
+   and keep the longest run: the part. The boundary polygon (:func:`boundary_polygon`) joins
+   the first points of the lines and the last points in reverse order.
+4. :func:`simplify_lines`: even spacing by bin averaging along the arc length: one point per
+   ``spacing_m`` of line (the mean of the points in the bin). High-frequency noise is left to
+   the per-line B-spline least-squares fit (:mod:`algorithms.spline`), which is document
+   004's smoothing step.
+
+All points are in one frame (the robot base frame for a scan), in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from algorithms.errors import AlgorithmError
+
+# Outlier filter (Hampel) defaults.
+OUTLIER_WINDOW_M = 0.001
+OUTLIER_K = 5.0
+OUTLIER_MIN_RESIDUAL_M = 5e-6
+OUTLIER_PASSES = 3
+# A gap wider than this splits a line (boundary extraction).
+MAX_GAP_M = 0.002
+# Bin length of the even-spacing simplification.
+SIMPLIFY_SPACING_M = 0.0002
+MIN_LINE_POINTS = 4
+MAD_TO_SIGMA = 1.4826
+
+
+class PointCloudError(AlgorithmError):
+    """Bad scan-line input: empty lines, a single line, wrong shapes."""
+
+
+@dataclass(frozen=True)
+class LineCloud:
+    """A scan-line cloud: ordered lines, ordered across the part.
+
+    Attributes:
+        lines: L arrays (n_i, 3) [m], each ordered along ``direction``.
+        line_ids: (L,) the scan-line label each line came from.
+        index: L arrays (n_i,) of row indices into the input points (-1 for points made by
+            averaging or resampling).
+        direction: (3,) unit along-line direction shared by all lines.
+        across: (3,) unit direction in which the lines follow each other.
+        removed: counts of dropped samples by reason (``invalid``, ``between_lines``,
+            ``outliers``, ``off_part``, ``merged``), accumulated over the steps.
+    """
+
+    lines: tuple
+    line_ids: np.ndarray
+    index: tuple
+    direction: np.ndarray
+    across: np.ndarray
+    removed: dict = field(default_factory=dict)
+
+    @property
+    def n_points(self) -> int:
+        return int(sum(len(l) for l in self.lines))
+
+    def stacked(self) -> np.ndarray:
+        """(N, 3) all points, line after line."""
+        return np.concatenate(self.lines) if self.lines else np.empty((0, 3))
+
+    def line_of_point(self) -> np.ndarray:
+        """(N,) position of each stacked point's line in ``lines`` (0..L-1)."""
+        return np.concatenate([np.full(len(l), i) for i, l in enumerate(self.lines)])
+
+
+def _count(removed: dict, key: str, n: int) -> dict:
+    out = dict(removed)
+    out[key] = out.get(key, 0) + int(n)
+    return out
+
+
+def organize_scan_lines(points, line, empty: str = "error", min_points: int = MIN_LINE_POINTS) -> LineCloud:
+    """Group samples by scan line and order them along and across the lines.
+
+    Args:
+        points: (N, 3) [m] samples, NaN rows where the sensor gave no valid distance.
+        line: (N,) int scan-line label per sample; negative between lines.
+        empty: ``"error"`` (default): a line with fewer than ``min_points`` valid samples is
+            an error naming it; ``"drop"``: such lines are dropped (and counted).
+        min_points: fewest valid points a line must have.
+
+    Returns:
+        LineCloud with at least two lines.
+
+    Raises:
+        PointCloudError: shapes, no labelled line, an empty line (``empty="error"``), or
+            fewer than two lines.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    lab = np.asarray(line)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise PointCloudError(f"points must be (N, 3), got shape {P.shape}")
+    if lab.shape != (len(P),) or not np.issubdtype(lab.dtype, np.integer):
+        raise PointCloudError(f"line must be (N,) integers pairing with points (N = {len(P)}), got {lab.shape} {lab.dtype}")
+    if empty not in ("error", "drop"):
+        raise PointCloudError(f"empty must be 'error' or 'drop', got {empty!r}")
+    finite = np.all(np.isfinite(P), axis=1)
+    on_line = lab >= 0
+    labels = np.unique(lab[on_line])
+    if len(labels) == 0:
+        raise PointCloudError("no scan line: every sample has a negative line label")
+    removed = {"invalid": int((~finite & on_line).sum()), "between_lines": int((~on_line).sum())}
+    keep_idx, keep_ids = [], []
+    for lid in labels:
+        rows = np.flatnonzero((lab == lid) & finite)
+        if len(rows) < min_points:
+            total = int((lab == lid).sum())
+            if empty == "error":
+                raise PointCloudError(
+                    f"scan line {int(lid)} has {len(rows)} valid points of {total} samples "
+                    f"(at least {min_points} needed); drop it with empty='drop' or rescan"
+                )
+            removed = _count(removed, "empty_line_points", len(rows))
+            continue
+        keep_idx.append(rows)
+        keep_ids.append(int(lid))
+    if len(keep_idx) < 2:
+        which = f"scan line {keep_ids[0]}" if keep_ids else "no line"
+        raise PointCloudError(
+            f"a scan-line cloud needs at least 2 lines with valid points, got {len(keep_idx)} "
+            f"({which}): normals across lines cannot be formed"
+        )
+    allp = P[np.concatenate(keep_idx)]
+    centred = allp - allp.mean(axis=0)
+    # Along-line direction: principal direction of the per-line spreads (pooled covariance
+    # of the lines about their own means), robust to the across-line spread of the raster.
+    C = np.zeros((3, 3))
+    for rows in keep_idx:
+        q = P[rows] - P[rows].mean(axis=0)
+        C += q.T @ q
+    w, V = np.linalg.eigh(C)
+    direction = V[:, -1]
+    # Across: the spread of the line means, orthogonal to the direction.
+    means = np.array([P[r].mean(axis=0) for r in keep_idx])
+    dm = means - means.mean(axis=0)
+    dm -= np.outer(dm @ direction, direction)
+    if np.linalg.norm(dm) == 0:
+        across = V[:, -2]
+    else:
+        _, _, vt = np.linalg.svd(dm, full_matrices=False)
+        across = vt[0]
+    # Deterministic signs: direction along the first line's travel, across from line 0 on.
+    first = P[keep_idx[0]]
+    if (first[-1] - first[0]) @ direction < 0:
+        direction = -direction
+    if (means[-1] - means[0]) @ across < 0:
+        across = -across
+    del centred
+    order = np.argsort(means @ across, kind="stable")
+    lines, idx = [], []
+    for k in order:
+        rows = keep_idx[k]
+        o = np.argsort(P[rows] @ direction, kind="stable")
+        lines.append(P[rows][o])
+        idx.append(rows[o])
+    return LineCloud(tuple(lines), np.array(keep_ids)[order], tuple(idx), direction, across, removed)
+
+
+def _robust_mask(c: np.ndarray, u: np.ndarray, half: int, k: float, floor: float, passes: int) -> np.ndarray:
+    """Inliers of the (n, 2) cross-line coordinates ``c`` sampled at along-line positions ``u``."""
+    ok = np.ones(len(c), dtype=bool)
+    for _ in range(passes):
+        ci, ui = c[ok], u[ok]
+        w = min(2 * half + 1, len(ci) if len(ci) % 2 == 1 else len(ci) - 1)
+        if w < 3:
+            break
+        smooth = savgol_filter(ci, w, polyorder=min(2, w - 1), axis=0, mode="interp")
+        fit = np.column_stack([np.interp(u, ui, smooth[:, j]) for j in range(c.shape[1])])
+        r = np.linalg.norm(c - fit, axis=1)
+        sigma = MAD_TO_SIGMA * np.median(r[ok])
+        new = r <= max(k * sigma, floor)
+        if np.array_equal(new, ok):
+            break
+        ok = new
+    return ok
+
+
+def remove_outliers(cloud: LineCloud, window_m: float = OUTLIER_WINDOW_M, k: float = OUTLIER_K,
+                    min_residual_m: float = OUTLIER_MIN_RESIDUAL_M, passes: int = OUTLIER_PASSES) -> LineCloud:
+    """Robust local-quadratic outlier filter per line (see the module docstring)."""
+    if not (window_m > 0 and k > 0 and min_residual_m >= 0 and passes >= 1):
+        raise PointCloudError(
+            f"outlier filter needs window_m > 0, k > 0, min_residual_m >= 0, passes >= 1; got "
+            f"{window_m}, {k}, {min_residual_m}, {passes}"
+        )
+    a = cloud.across - (cloud.across @ cloud.direction) * cloud.direction
+    a /= np.linalg.norm(a)
+    cross = np.stack([a, np.cross(cloud.direction, a)])
+    lines, idx = [], []
+    n_out = 0
+    for p, ix in zip(cloud.lines, cloud.index):
+        if len(p) >= 5:
+            u = p @ cloud.direction
+            spacing = np.median(np.diff(u))
+            half = int(max(2, round(0.5 * window_m / max(spacing, 1e-12))))
+            ok = _robust_mask(p @ cross.T, u, half, k, min_residual_m, passes)
+            n_out += int((~ok).sum())
+            p, ix = p[ok], ix[ok]
+        lines.append(p)
+        idx.append(ix)
+    return replace(cloud, lines=tuple(lines), index=tuple(idx), removed=_count(cloud.removed, "outliers", n_out))
+
+
+def extract_boundary(cloud: LineCloud, max_gap_m: float = MAX_GAP_M, min_points: int = MIN_LINE_POINTS) -> LineCloud:
+    """Keep, per line, the longest run of points with no gap above ``max_gap_m``.
+
+    Raises:
+        PointCloudError: a line keeps fewer than ``min_points`` points.
+    """
+    if not max_gap_m > 0:
+        raise PointCloudError(f"max_gap_m must be > 0, got {max_gap_m}")
+    lines, idx = [], []
+    off = 0
+    for lid, p, ix in zip(cloud.line_ids, cloud.lines, cloud.index):
+        gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) > max_gap_m
+        cuts = np.flatnonzero(gaps) + 1
+        starts = np.concatenate([[0], cuts])
+        ends = np.concatenate([cuts, [len(p)]])
+        j = int(np.argmax(ends - starts))
+        a, b = starts[j], ends[j]
+        if b - a < min_points:
+            raise PointCloudError(
+                f"scan line {int(lid)} keeps only {b - a} points after splitting at gaps > {max_gap_m:g} m"
+            )
+        off += len(p) - (b - a)
+        lines.append(p[a:b])
+        idx.append(ix[a:b])
+    return replace(cloud, lines=tuple(lines), index=tuple(idx), removed=_count(cloud.removed, "off_part", off))
+
+
+def boundary_polygon(cloud: LineCloud) -> np.ndarray:
+    """(2L + 1, 3) closed boundary: the first points of the lines, then the last points backwards."""
+    first = np.array([l[0] for l in cloud.lines])
+    last = np.array([l[-1] for l in cloud.lines])
+    ring = np.concatenate([first, last[::-1]])
+    return np.vstack([ring, ring[:1]])
+
+
+def simplify_lines(cloud: LineCloud, spacing_m: float = SIMPLIFY_SPACING_M) -> LineCloud:
+    """Even spacing: the mean of the points in each ``spacing_m`` bin of arc length, per line."""
+    if not spacing_m > 0:
+        raise PointCloudError(f"spacing_m must be > 0, got {spacing_m}")
+    lines, idx = [], []
+    merged = 0
+    for p in cloud.lines:
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        b = np.floor(s / spacing_m).astype(np.int64)
+        _, inv, counts = np.unique(b, return_inverse=True, return_counts=True)
+        sums = np.zeros((len(counts), 3))
+        np.add.at(sums, inv, p)
+        q = sums / counts[:, None]
+        merged += len(p) - len(q)
+        lines.append(q)
+        idx.append(np.full(len(q), -1))
+    return replace(cloud, lines=tuple(lines), index=tuple(idx), removed=_count(cloud.removed, "merged", merged))
+
+
+@dataclass(frozen=True)
+class CloudParams:
+    """Parameters of :func:`prepare_scan_lines` (SI units)."""
+
+    outlier_window_m: float = OUTLIER_WINDOW_M
+    outlier_k: float = OUTLIER_K
+    outlier_min_residual_m: float = OUTLIER_MIN_RESIDUAL_M
+    max_gap_m: float = MAX_GAP_M
+    simplify_spacing_m: float = SIMPLIFY_SPACING_M
+    empty: str = "error"
+
+
+def prepare_scan_lines(points, line, params: CloudParams = CloudParams()) -> LineCloud:
+    """Steps 1-4 of the module docstring in order: organise, outliers, boundary, simplify."""
+    cloud = organize_scan_lines(points, line, empty=params.empty)
+    cloud = remove_outliers(cloud, params.outlier_window_m, params.outlier_k, params.outlier_min_residual_m)
+    cloud = extract_boundary(cloud, params.max_gap_m)
+    return simplify_lines(cloud, params.simplify_spacing_m)

@@ -1,0 +1,460 @@
+"""Tool frames, flange poses and process paths (document 004, eqs. 11-13; document 003, step 5).
+
+Contact frame (eq. 11): at a cutter-contact point ``p`` with unit surface normal ``v_n`` and
+unit tangent ``v_t`` towards the next point, ``T_base_contact = [v_t v_e v_n p]``. Document
+004 writes ``v_e = v_t x v_n``; with the columns in that order this is a reflection
+(det = -1), so we take ``v_e = v_n x v_t``, the right-handed choice with the same axes.
+``v_t`` is the chord to the next point projected onto the tangent plane (the last point of a
+line takes the previous chord).
+
+Options the process may need (``heading``, ``axis``, ``lead``/``tilt``):
+
+* ``heading="travel"`` (eq. 11): x along the travel direction; ``"fixed"``: x along a fixed
+  reference direction projected onto the tangent plane, so the tool keeps its orientation
+  about its axis along the whole path (no half turn of the wrist at each raster line change;
+  the default for rotationally symmetric tools such as a polishing spindle).
+* ``axis="normal"`` (eq. 11): tool z along the surface normal; ``"fixed"``: tool z along a
+  fixed direction (a 3-axis process), constant along the path.
+* ``lead`` (rad) tilts the tool axis towards +x (the travel or heading direction), ``tilt``
+  (rad) towards +y (sideways): ``R_tool = R_contact Ry(lead) Rx(-tilt)``.
+* ``tip_radius_m``: a ball-end tool of that radius touches the surface at ``p`` whatever the
+  lead and tilt: its centre is ``p + r v_n`` and the tool frame origin (the TCP, the tip of
+  the tool on its axis) is ``p + r (v_n - z_tool)``. With ``r = 0`` the TCP is ``p``.
+
+Flange pose (eq. 13): ``T_base_flange = T_base_tool @ inv(T_flange_tool)`` (document 004's
+tool frame coincides with the contact frame, ``T_tool_contact = I``).
+
+A process path (:class:`ProcessPath`) strings the lines together: approach along the tool
+axis from ``retract_m`` above the first point, the line in contact, retract, a straight
+transit in the air to the next approach point. Lines alternate direction (zig-zag).
+
+CAD paths (:func:`cad_raster`): a raster of contact points on the CAD mesh (workpiece frame),
+found by parallel ray casts, with the mesh's smooth normals; document 003's step 5 moves
+them by the localization estimate (:func:`transform_frames`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation, Slerp
+
+from algorithms.errors import AlgorithmError
+from algorithms.se3 import as_pose, inv_pose
+
+# Rotation-only moves count this many metres per radian when a length is needed.
+ROTATION_LENGTH_M_PER_RAD = 0.1
+# The planning raster is shifted off round numbers so that rays do not run exactly along the
+# shared edges of grid-tessellated meshes.
+GRID_SHIFT_M = 1.2345e-4
+SEGMENT_KINDS = ("approach", "process", "retract", "transit")
+
+
+class ToolPathError(AlgorithmError):
+    """Bad input to tool-frame or path construction."""
+
+
+def _unit(v: np.ndarray, what: str) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    if np.any(n < 1e-12):
+        i = int(np.flatnonzero(n.ravel() < 1e-12)[0])
+        raise ToolPathError(f"{what} has zero length at index {i}")
+    return v / n
+
+
+def _fixed_vector(v, name: str) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-12:
+        raise ToolPathError(f"{name} must be a finite non-zero (3,) vector, got {v!r}")
+    return a / np.linalg.norm(a)
+
+
+def contact_frames(points, normals, heading: str = "travel", heading_direction=None,
+                   axis: str = "normal", axis_direction=None) -> np.ndarray:
+    """Eq. (11) frames along one line of contact points.
+
+    Args:
+        points: (K, 3) [m] contact points in travel order, K >= 2.
+        normals: (K, 3) unit outward surface normals.
+        heading: ``"travel"`` or ``"fixed"`` (see module).
+        heading_direction: (3,) reference x for ``heading="fixed"`` (same frame as points).
+        axis: ``"normal"`` or ``"fixed"``.
+        axis_direction: (3,) tool z for ``axis="fixed"``.
+
+    Returns:
+        (K, 4, 4) ``T_frame_contact`` poses, z = the tool axis direction (outward).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2 or n.shape != p.shape:
+        raise ToolPathError(f"points and normals must both be (K, 3) with K >= 2, got {p.shape} and {n.shape}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n))):
+        raise ToolPathError("points or normals contain NaN or infinite values")
+    if heading not in ("travel", "fixed") or axis not in ("normal", "fixed"):
+        raise ToolPathError(f"heading must be travel|fixed and axis normal|fixed, got {heading!r}, {axis!r}")
+    z = _unit(n, "normal") if axis == "normal" else np.broadcast_to(_fixed_vector(axis_direction, "axis_direction"), p.shape)
+    if heading == "travel":
+        d = np.diff(p, axis=0)
+        d = np.vstack([d, d[-1:]])
+    else:
+        d = np.broadcast_to(_fixed_vector(heading_direction, "heading_direction"), p.shape)
+    x = d - np.einsum("ij,ij->i", d, z)[:, None] * z
+    norm = np.linalg.norm(x, axis=1)
+    bad = np.flatnonzero(norm < 1e-9 * np.maximum(np.linalg.norm(d, axis=1), 1e-300))
+    if len(bad):
+        raise ToolPathError(
+            f"tangent undefined at point {int(bad[0])} {p[bad[0]].round(6).tolist()}: the "
+            f"{'chord to the next point' if heading == 'travel' else 'heading direction'} is parallel to the tool axis"
+        )
+    x = x / norm[:, None]
+    y = np.cross(z, x)
+    T = np.zeros((len(p), 4, 4))
+    T[:, :3, 0], T[:, :3, 1], T[:, :3, 2], T[:, :3, 3] = x, y, z, p
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def tool_frames(T_contact, lead_rad: float = 0.0, tilt_rad: float = 0.0, tip_radius_m: float = 0.0) -> np.ndarray:
+    """Tool (TCP) frames from contact frames: lead/tilt and the ball-end offset (see module).
+
+    Args:
+        T_contact: (K, 4, 4) contact frames (z = outward normal or the fixed axis).
+        lead_rad, tilt_rad: tool inclination [rad], |angle| < pi/2.
+        tip_radius_m: ball-end radius [m] (0 for a point or flat tip).
+
+    Returns:
+        (K, 4, 4) ``T_frame_tool``.
+    """
+    T = np.asarray(T_contact, dtype=np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise ToolPathError(f"T_contact must be (K, 4, 4), got {T.shape}")
+    for name, v in (("lead", lead_rad), ("tilt", tilt_rad)):
+        if not (np.isfinite(v) and abs(v) < np.pi / 2):
+            raise ToolPathError(f"{name} must be a finite angle below 90 degrees, got {v!r} rad")
+    if not (np.isfinite(tip_radius_m) and tip_radius_m >= 0):
+        raise ToolPathError(f"tip_radius_m must be >= 0, got {tip_radius_m!r}")
+    R_off = Rotation.from_euler("yx", [lead_rad, -tilt_rad]).as_matrix()
+    out = T.copy()
+    out[:, :3, :3] = T[:, :3, :3] @ R_off
+    out[:, :3, 3] = T[:, :3, 3] + tip_radius_m * (T[:, :3, 2] - out[:, :3, 2])
+    return out
+
+
+def flange_poses(T_base_tool, T_flange_tool) -> np.ndarray:
+    """Eq. (13): ``T_base_flange = T_base_tool @ inv(T_flange_tool)``.
+
+    Raises:
+        ToolPathError: the tool transform is not a rigid (4, 4) transform.
+    """
+    try:
+        T_ft = as_pose(T_flange_tool, "tool transform T_flange_tool")
+    except AlgorithmError as exc:
+        raise ToolPathError(str(exc)) from None
+    T = np.asarray(T_base_tool, dtype=np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise ToolPathError(f"T_base_tool must be (K, 4, 4), got {T.shape}")
+    return T @ inv_pose(T_ft)
+
+
+def transform_frames(T_a_b, T_b_frames) -> np.ndarray:
+    """(K, 4, 4) frames given in b expressed in a (document 003 step 5: CAD path by the estimate)."""
+    T = as_pose(T_a_b, "T_a_b")
+    return T @ np.asarray(T_b_frames, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class ProcessPath:
+    """A process program as poses to visit, in one frame (the robot base frame).
+
+    Attributes:
+        T_tool: (K, 4, 4) tool (TCP) poses.
+        contact: (K, 3) [m] contact points; NaN on poses in the air.
+        normal: (K, 3) unit surface normals at the contact points; NaN in the air.
+        segment: (K,) segment index of each pose; a pose shared by two segments (their
+            junction) is stored once and labelled with the earlier one; ``segments`` gives
+            the inclusive index ranges, which share their junctions.
+        segments: tuple of (start, end, kind, line) with ``end`` inclusive, ``kind`` in
+            SEGMENT_KINDS and ``line`` the process line (-1 for moves in the air).
+        s: (K,) [m] path parameter within the pose's segment (position arc length plus
+            ROTATION_LENGTH_M_PER_RAD per radian turned).
+        tip_radius_m: the ball-end radius the poses were made for.
+    """
+
+    T_tool: np.ndarray
+    contact: np.ndarray
+    normal: np.ndarray
+    segment: np.ndarray
+    segments: tuple
+    s: np.ndarray
+    tip_radius_m: float = 0.0
+    info: dict = field(default_factory=dict)
+
+    @property
+    def n_lines(self) -> int:
+        return sum(1 for s in self.segments if s[2] == "process")
+
+    def process_mask(self) -> np.ndarray:
+        return np.isfinite(self.contact[:, 0])
+
+
+def _path_length(T: np.ndarray) -> np.ndarray:
+    dp = np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1)
+    if len(T) > 1:
+        rel = np.einsum("nji,njk->nik", T[:-1, :3, :3], T[1:, :3, :3])
+        da = np.linalg.norm(Rotation.from_matrix(rel).as_rotvec(), axis=1)
+    else:
+        da = np.zeros(0)
+    return np.concatenate([[0.0], np.cumsum(dp + ROTATION_LENGTH_M_PER_RAD * da)])
+
+
+def _straight(T_a: np.ndarray, T_b: np.ndarray, step_m: float, turn_sign: float = 0.0) -> np.ndarray:
+    """Poses from T_a to T_b: linear position, slerp rotation, about ``step_m`` apart.
+
+    ``turn_sign`` picks the direction of an (ambiguous) half turn about T_a's z.
+    """
+    R_rel = T_a[:3, :3].T @ T_b[:3, :3]
+    rv = Rotation.from_matrix(R_rel).as_rotvec()
+    ang = float(np.linalg.norm(rv))
+    if ang > np.pi - 1e-3 and turn_sign != 0.0:
+        # Half turn: go about the tool axis in the requested sense.
+        z_local = np.array([0.0, 0.0, 1.0])
+        if abs(rv @ z_local) > 0.9 * ang:
+            rv = np.sign(turn_sign) * ang * z_local
+    length = float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3])) + ROTATION_LENGTH_M_PER_RAD * ang
+    n = max(1, int(np.ceil(length / step_m)))
+    f = np.linspace(0.0, 1.0, n + 1)
+    out = np.repeat(np.eye(4)[None], n + 1, axis=0)
+    out[:, :3, 3] = T_a[:3, 3] + f[:, None] * (T_b[:3, 3] - T_a[:3, 3])
+    out[:, :3, :3] = T_a[:3, :3] @ Rotation.from_rotvec(f[:, None] * rv).as_matrix()
+    out[-1] = T_b
+    return out
+
+
+def assemble_path(lines_T_tool, lines_contact, lines_normal, retract_m: float = 0.02,
+                  transit_step_m: float = 0.002, tip_radius_m: float = 0.0) -> ProcessPath:
+    """String process lines into one program (see module docstring).
+
+    Args:
+        lines_T_tool: L arrays (n_i, 4, 4) tool poses per line, each in its travel order
+            (:func:`build_path` reverses every other line for a zig-zag).
+        lines_contact: L arrays (n_i, 3) contact points, same order.
+        lines_normal: L arrays (n_i, 3) normals, same order.
+        retract_m: lift along the tool axis before and after each line [m].
+        transit_step_m: pose spacing of moves in the air [m].
+        tip_radius_m: recorded with the path.
+    """
+    if len(lines_T_tool) == 0:
+        raise ToolPathError("a process path needs at least one line")
+    if not (np.isfinite(retract_m) and retract_m > 0):
+        raise ToolPathError(f"retract_m must be > 0, got {retract_m!r}")
+    if not (np.isfinite(transit_step_m) and transit_step_m > 0):
+        raise ToolPathError(f"transit_step_m must be > 0, got {transit_step_m!r}")
+    pieces = []
+    prev_up = None
+    for i, T in enumerate(lines_T_tool):
+        T = np.asarray(T, dtype=np.float64)
+        if T.ndim != 3 or T.shape[1:] != (4, 4) or len(T) < 2:
+            raise ToolPathError(f"line {i}: tool poses must be (n, 4, 4) with n >= 2, got {T.shape}")
+        up_start = T[0].copy()
+        up_start[:3, 3] += retract_m * T[0, :3, 2]
+        up_end = T[-1].copy()
+        up_end[:3, 3] += retract_m * T[-1, :3, 2]
+        if prev_up is not None:
+            pieces.append(("transit", _straight(prev_up, up_start, transit_step_m, turn_sign=(-1.0) ** i), -1))
+        pieces.append(("approach", _straight(up_start, T[0], transit_step_m), -1))
+        pieces.append(("process", T, i))
+        pieces.append(("retract", _straight(T[-1], up_end, transit_step_m), -1))
+        prev_up = up_end
+    T_parts, s_parts, seg_ids, segs = [], [], [], []
+    k = 0
+    for kind, P, line in pieces:
+        # Consecutive pieces share their junction pose; it is stored once, with the earlier piece.
+        Pk = P if k == 0 else P[1:]
+        start = 0 if k == 0 else k - 1
+        T_parts.append(Pk)
+        s_parts.append(_path_length(P)[len(P) - len(Pk):])
+        seg_ids.append(np.full(len(Pk), len(segs)))
+        k += len(Pk)
+        segs.append((start, k - 1, kind, line))
+    T_all = np.concatenate(T_parts)
+    contact = np.full((len(T_all), 3), np.nan)
+    normal = np.full((len(T_all), 3), np.nan)
+    for (start, end, kind, line) in segs:
+        if kind == "process":
+            contact[start:end + 1] = np.asarray(lines_contact[line], dtype=np.float64)
+            normal[start:end + 1] = np.asarray(lines_normal[line], dtype=np.float64)
+    return ProcessPath(T_all, contact, normal, np.concatenate(seg_ids), tuple(segs),
+                       np.concatenate(s_parts), float(tip_radius_m))
+
+
+@dataclass(frozen=True)
+class ToolSettings:
+    """How contact points become tool poses (see the module docstring; angles in radians)."""
+
+    heading: str = "fixed"
+    heading_direction: tuple = (1.0, 0.0, 0.0)
+    axis: str = "normal"
+    axis_direction: tuple = (0.0, 0.0, 1.0)
+    lead_rad: float = 0.0
+    tilt_rad: float = 0.0
+    tip_radius_m: float = 0.0
+    retract_m: float = 0.02
+    transit_step_m: float = 0.002
+    zigzag: bool = True
+
+
+def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSettings(), T_frame_ref=None) -> ProcessPath:
+    """Contact points and normals per line -> a zig-zag :class:`ProcessPath` of tool poses.
+
+    Args:
+        lines_contact: L arrays (n_i, 3) [m], all lines in the same direction.
+        lines_normal: L arrays (n_i, 3) unit outward normals.
+        settings: tool orientation options.
+        T_frame_ref: optional (4, 4) pose of the frame the fixed directions are given in
+            (e.g. ``T_base_workpiece``: heading along the part's x); default: the points' frame.
+    """
+    R_ref = np.eye(3) if T_frame_ref is None else as_pose(T_frame_ref, "T_frame_ref")[:3, :3]
+    hd = R_ref @ _fixed_vector(settings.heading_direction, "heading_direction")
+    ad = R_ref @ _fixed_vector(settings.axis_direction, "axis_direction")
+    Ts, cs, ns = [], [], []
+    for i, (c, n) in enumerate(zip(lines_contact, lines_normal)):
+        c = np.asarray(c, dtype=np.float64)
+        n = np.asarray(n, dtype=np.float64)
+        rev = settings.zigzag and i % 2 == 1
+        if rev:
+            c, n = c[::-1], n[::-1]
+        try:
+            Tc = contact_frames(c, n, settings.heading, hd, settings.axis, ad)
+        except ToolPathError as exc:
+            raise ToolPathError(f"line {i}: {exc}") from None
+        T = tool_frames(Tc, settings.lead_rad, settings.tilt_rad, settings.tip_radius_m)
+        Ts.append(T)
+        cs.append(c)
+        ns.append(n)
+    return assemble_path(Ts, cs, ns, settings.retract_m, settings.transit_step_m, settings.tip_radius_m)
+
+
+def raycast_parallel(vertices, faces, origins, direction) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First hits of parallel rays on a triangle mesh (exact, vectorised).
+
+    Args:
+        vertices: (V, 3), faces: (F, 3) the mesh.
+        origins: (N, 3) ray origins.
+        direction: (3,) common ray direction.
+
+    Returns:
+        hit (N,) bool, points (N, 3) (NaN where no hit), face (N,) int (-1 where no hit).
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    O = np.asarray(origins, dtype=np.float64)
+    d = _fixed_vector(direction, "direction")
+    # Project onto the plane orthogonal to d: a 2-D point-in-triangle problem.
+    e1 = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(d, e1)
+    B = np.column_stack([e1, e2])
+    tri = V[F]
+    t2 = tri @ B
+    o2 = O @ B
+    cen = t2.mean(axis=1)
+    rad = np.max(np.linalg.norm(t2 - cen[:, None, :], axis=2), axis=1)
+    tree = cKDTree(cen)
+    # Candidate triangles: centroid within the largest circumradius of the query.
+    cand = tree.query_ball_point(o2, r=float(rad.max()) * (1 + 1e-9) + 1e-12)
+    hit = np.zeros(len(O), dtype=bool)
+    pts = np.full((len(O), 3), np.nan)
+    face = np.full(len(O), -1, dtype=np.int64)
+    counts = np.array([len(c) for c in cand])
+    if counts.sum() == 0:
+        return hit, pts, face
+    qi = np.repeat(np.arange(len(O)), counts)
+    fi = np.concatenate([np.asarray(c, dtype=np.int64) for c in cand if len(c)])
+    a, b, c = t2[fi, 0], t2[fi, 1], t2[fi, 2]
+    p = o2[qi]
+    v0, v1, v2 = b - a, c - a, p - a
+    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+        v = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+    eps = 1e-12
+    inside = (np.abs(den) > 0) & (u >= -eps) & (v >= -eps) & (u + v <= 1 + eps)
+    qi, fi, u, v = qi[inside], fi[inside], u[inside], v[inside]
+    T3 = tri[fi]
+    X = T3[:, 0] + u[:, None] * (T3[:, 1] - T3[:, 0]) + v[:, None] * (T3[:, 2] - T3[:, 0])
+    t = (X - O[qi]) @ d
+    front = t >= 0
+    qi, fi, X, t = qi[front], fi[front], X[front], t[front]
+    order = np.lexsort((t, qi))
+    qi, fi, X = qi[order], fi[order], X[order]
+    first = np.concatenate([[True], qi[1:] != qi[:-1]]) if len(qi) else np.zeros(0, dtype=bool)
+    hit[qi[first]] = True
+    pts[qi[first]] = X[first]
+    face[qi[first]] = fi[first]
+    return hit, pts, face
+
+
+def cad_raster(mesh, line_spacing_m: float = 0.004, point_spacing_m: float = 0.001, margin_m: float = 0.005,
+               line_axis: str = "x", region=None, normals=None) -> tuple[list, list]:
+    """A raster of contact points on the CAD model, seen from +z (workpiece frame).
+
+    Lines run along ``line_axis``, ``line_spacing_m`` apart, points ``point_spacing_m``
+    apart, inside the footprint shrunk by ``margin_m`` (or ``region`` ((xmin, ymin),
+    (xmax, ymax))), shifted by GRID_SHIFT_M off round numbers. Each line keeps its longest
+    run of hits.
+
+    Args:
+        mesh: object with ``vertices`` (V, 3) and ``faces`` (F, 3) [m], workpiece frame.
+        normals: optional callable ``(face (N,), points (N, 3)) -> (N, 3)`` smooth unit
+            normals (e.g. ``MeshIndex.smooth_normals``); default: the face normals.
+
+    Returns:
+        (lines, normals): lists of (n_i, 3) arrays, lines in increasing cross coordinate,
+        all in the +line_axis direction.
+    """
+    for name, v in (("line_spacing_m", line_spacing_m), ("point_spacing_m", point_spacing_m)):
+        if not (np.isfinite(v) and v > 0):
+            raise ToolPathError(f"{name} must be > 0, got {v!r}")
+    if line_axis not in ("x", "y"):
+        raise ToolPathError(f"line_axis must be 'x' or 'y', got {line_axis!r}")
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    F = np.asarray(mesh.faces, dtype=np.int64)
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    if region is None:
+        (x0, y0), (x1, y1) = (lo[0] + margin_m, lo[1] + margin_m), (hi[0] - margin_m, hi[1] - margin_m)
+    else:
+        (x0, y0), (x1, y1) = region
+    if not (x1 > x0 and y1 > y0):
+        raise ToolPathError(f"raster region is empty: x [{x0:g}, {x1:g}], y [{y0:g}, {y1:g}] m")
+    (u0, u1), (v0, v1) = ((x0, x1), (y0, y1)) if line_axis == "x" else ((y0, y1), (x0, x1))
+    vs = np.arange(v0, v1 - GRID_SHIFT_M, line_spacing_m) + GRID_SHIFT_M
+    us = np.arange(u0, u1 - GRID_SHIFT_M, point_spacing_m) + GRID_SHIFT_M
+    U, W = np.meshgrid(us, vs)
+    xy = np.column_stack([U.ravel(), W.ravel()]) if line_axis == "x" else np.column_stack([W.ravel(), U.ravel()])
+    O = np.column_stack([xy, np.full(len(xy), hi[2] + 0.01)])
+    hit, P, face = raycast_parallel(V, F, O, [0.0, 0.0, -1.0])
+    hit, P, face = hit.reshape(U.shape), P.reshape(U.shape + (3,)), face.reshape(U.shape)
+    lines, norms = [], []
+    for j in range(len(vs)):
+        idx = np.flatnonzero(hit[j])
+        if len(idx) < 2:
+            continue
+        runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+        run = max(runs, key=len)
+        if len(run) < 2:
+            continue
+        p = P[j, run]
+        f = face[j, run]
+        if normals is None:
+            tri = V[F[f]]
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            n /= np.linalg.norm(n, axis=1, keepdims=True)
+        else:
+            n = np.asarray(normals(f, p), dtype=np.float64)
+        lines.append(p)
+        norms.append(n)
+    if len(lines) == 0:
+        raise ToolPathError("the raster region does not cover the model: no line hits it")
+    return lines, norms
