@@ -1570,3 +1570,23 @@ def load_mesh(path: str | Path, units: str) -> trimesh.Trimesh:
     if units == "mm":
         mesh.apply_scale(1e-3)
     return mesh
+
+
+# --------------------------------------------------------------------------------------------
+# Registration hook: generated parts defined in other modules (twin/symmetric_parts.py: the
+# symmetric and hybrid localization parts) add themselves to make_workpiece and
+# WORKPIECE_NAMES here.
+# --------------------------------------------------------------------------------------------
+
+
+def register_workpiece(name: str, generator: Callable[..., trimesh.Trimesh]) -> None:
+    """Make ``generator`` available as ``make_workpiece(name)`` and in WORKPIECE_NAMES."""
+    global WORKPIECE_NAMES
+    if name in _GENERATORS and _GENERATORS[name] is not generator:
+        raise TwinError(f"workpiece {name!r} is already registered")
+    _GENERATORS[name] = generator
+    if name not in WORKPIECE_NAMES:
+        WORKPIECE_NAMES = WORKPIECE_NAMES + (name,)
+
+
+import twin.symmetric_parts  # noqa: E402,F401  (registers its parts through the hook above)

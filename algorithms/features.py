@@ -1,0 +1,817 @@
+"""Symmetric features of document 000 (Table 1) and their symmetry subgroups G_0.
+
+A feature is a surface (or a curve) that some rigid motions leave unchanged: the *symmetry
+subgroup* ``G_0`` of SE(3). Points measured on it cannot fix the pose along ``G_0``; they fix
+it only on the homogeneous space ``SE(3)/G_0``, whose dimension is the number of pose
+directions the feature can fix. Document 000's table:
+
+=============  ====================  ==========================================  =========
+feature        G_0                   the motions that leave it unchanged          dim Q
+=============  ====================  ==========================================  =========
+``circle2d``   SO(2)                 rotation about the centre (in its plane)     2
+``line2d``     T(1)                  translation along the line (in its plane)    2
+``sphere``     SO(3)                 rotations about the centre                   3
+``plane``      SE(2)                 rotation about the normal, in-plane moves    3
+``line3d``     SO(2) x T(1)          rotation about and translation along it      4
+``cylinder``   SO(2) x T(1)          rotation about and translation along axis    4
+``cone``       SO(2)                 rotation about the axis                      5
+``extruded``   T(1)                  translation along the sweep direction        5
+``freeform``   {1}                   the identity only                            6
+=============  ====================  ==========================================  =========
+
+The two 2D features live in the plane z = 0 of the workpiece frame and their problem is
+planar: the ambient group is SE(2) (rotation about z, translation in x and y), so
+``dim Q = 3 - dim G_0``. The others live in SE(3): ``dim Q = 6 - dim G_0``.
+
+Conventions (those of :mod:`algorithms.localization` and :mod:`algorithms.uncertainty`):
+
+* A twist is a 6-vector ``[omega, v]`` (angular part first; rad and m) of the right
+  perturbation in the **workpiece frame**: the pose ``T`` becomes ``T @ exp_se3(xi)``, which
+  moves the model point ``x`` (workpiece frame) by ``omega x x + v``. Twists are taken about
+  the workpiece origin: a unit rotation about the axis ``a`` through ``c`` is
+  ``[a, c x a]``; a unit translation along ``d`` is ``[0, d]``.
+* ``G_0`` is a subgroup of motions in the workpiece frame: ``exp(xi)`` with ``xi`` in its
+  Lie algebra ``g_0`` maps the feature onto itself.
+* The complement ``m_0`` (``m_0 + g_0 = se(3)``, Proposition 2) is the orthogonal complement
+  for the metric ``L^2 |omega|^2 + |v_c|^2`` with ``v_c`` the velocity of the feature's
+  reference point ``c`` (its centre, a point on its axis or plane) and ``L`` any length: in
+  the feature's local frame (origin ``c``, z along its axis or normal) both bases are
+  coordinate axes, so the choice does not depend on ``L``. Bases are unit (``|omega| = 1``
+  for rotations, ``|v| = 1`` for translations).
+
+Features are given explicitly (``Feature.cylinder(point, axis, radius)``, ...) or as mesh
+faces (:meth:`Feature.from_mesh`: the primitive is fitted to the faces and classified when no
+kind is given). Closest points are analytic for the primitives and exact on the triangles
+(:class:`algorithms.closest_point.MeshIndex`) for extruded and free-form surfaces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from algorithms.closest_point import MeshIndex
+from algorithms.errors import AlgorithmError
+from algorithms.se3 import log_se3
+
+__all__ = [
+    "FEATURE_TYPES",
+    "FEATURE_TABLE",
+    "FeatureInfo",
+    "SymmetryGroup",
+    "symmetry_group",
+    "Feature",
+    "FeatureProjection",
+    "check_feature_type",
+    "make_feature",
+    "FIT_TOL_REL",
+]
+
+FEATURE_TYPES: tuple[str, ...] = (
+    "circle2d", "line2d", "sphere", "plane", "line3d", "cylinder", "cone", "extruded", "freeform",
+)
+"""The feature types of document 000's Table 1, in the table's order."""
+
+#: A primitive fitted to mesh faces is accepted when the RMS distance of the faces' vertices
+#: to it is below this fraction of the faces' bounding-box diagonal (generated and CAD meshes
+#: have their vertices on the exact surface; float32 STL rounding is ~1e-7 relative).
+FIT_TOL_REL = 1e-5
+#: Extruded surface: every face normal must be perpendicular to the sweep direction within
+#: this angle [rad].
+EXTRUDED_TOL_RAD = 1e-4
+
+
+@dataclass(frozen=True)
+class FeatureInfo:
+    """One row of document 000's Table 1."""
+
+    name: str
+    group: str
+    description: str
+    quotient_dim: int
+    planar: bool
+
+    @property
+    def group_dim(self) -> int:
+        return (3 if self.planar else 6) - self.quotient_dim
+
+
+FEATURE_TABLE: dict[str, FeatureInfo] = {
+    "circle2d": FeatureInfo("circle2d", "SO(2)", "rotation about the centre", 2, True),
+    "line2d": FeatureInfo("line2d", "T(1)", "translation along the line", 2, True),
+    "sphere": FeatureInfo("sphere", "SO(3)", "rotations about the centre", 3, False),
+    "plane": FeatureInfo("plane", "SE(2)", "rotation about the normal and translations in the plane", 3, False),
+    "line3d": FeatureInfo("line3d", "SO(2)xT(1)", "rotation about the line and translation along it", 4, False),
+    "cylinder": FeatureInfo("cylinder", "SO(2)xT(1)", "rotation about the axis and translation along it", 4, False),
+    "cone": FeatureInfo("cone", "SO(2)", "rotation about the axis", 5, False),
+    "extruded": FeatureInfo("extruded", "T(1)", "translation along the sweep direction", 5, False),
+    "freeform": FeatureInfo("freeform", "{1}", "the identity only", 6, False),
+}
+
+# Local-frame basis of g_0 for each kind: indices into [wx, wy, wz, vx, vy, vz] of the
+# feature frame (origin c, z along the axis / normal; for line2d x along the line).
+_G0_LOCAL = {
+    "circle2d": (2,),
+    "line2d": (3,),
+    "sphere": (0, 1, 2),
+    "plane": (2, 3, 4),
+    "line3d": (2, 5),
+    "cylinder": (2, 5),
+    "cone": (2,),
+    "extruded": (5,),
+    "freeform": (),
+}
+_PLANAR_AMBIENT = (2, 3, 4)  # se(2) inside se(3): wz, vx, vy
+
+
+def check_feature_type(kind) -> str:
+    """Return ``kind`` if it names a feature of the table, else raise listing the valid ones."""
+    if not isinstance(kind, str) or kind not in FEATURE_TABLE:
+        raise AlgorithmError(
+            f"unknown feature type {kind!r}; valid types are: {', '.join(FEATURE_TYPES)}"
+        )
+    return kind
+
+
+def _unit(v, name: str) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64).reshape(-1)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise AlgorithmError(f"{name} must be a finite 3-vector, got {np.asarray(v).tolist()}")
+    n = np.linalg.norm(v)
+    if not n > 1e-12:
+        raise AlgorithmError(f"{name} must be a non-zero vector")
+    return v / n
+
+
+def _point(p, name: str) -> np.ndarray:
+    p = np.asarray(p, dtype=np.float64).reshape(-1)
+    if p.shape == (2,):
+        p = np.array([p[0], p[1], 0.0])
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise AlgorithmError(f"{name} must be a finite 3-vector [m], got {np.asarray(p).tolist()}")
+    return p
+
+
+def _perp_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing ``a`` to a right-handed frame (e1, e2, a), deterministic."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(helper, a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    return e1, e2
+
+
+def _adjoint_rows(local: np.ndarray, R: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Twists (k, 6) given in a frame (R, c) as twists about the workpiece origin."""
+    if len(local) == 0:
+        return np.zeros((0, 6))
+    w = local[:, :3] @ R.T
+    v = local[:, 3:] @ R.T + np.cross(c, w)
+    return np.hstack([w, v])
+
+
+def _rotation_angle(R: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b)))
+
+
+@dataclass(frozen=True)
+class SymmetryGroup:
+    """A symmetry subgroup ``G_0`` with bases of its Lie algebra and of the complement.
+
+    Build one with :func:`symmetry_group` (or take ``Feature.group``).
+
+    Attributes:
+        kind: the table feature whose ``G_0`` this is, or ``"other"`` (a subgroup found in
+            data that the table does not name; then ``g0``/``m0`` are numerical bases).
+        origin: (3,) [m] reference point, workpiece frame: the centre (sphere, circle), a
+            point on the axis or line, a point on the plane.
+        axis: (3,) unit axis (line, cylinder, cone), normal (plane), sweep direction
+            (extruded), line direction (line2d); +z for the 2D circle; unused otherwise.
+        g0: (r, 6) unit twists ``[omega, v]`` about the workpiece origin spanning ``g_0``.
+        m0: (q, 6) unit twists spanning the complement ``m_0`` (q = dim SE(3)/G_0, or
+            dim SE(2)/G_0 for the planar features).
+        planar: True for the 2D features (ambient group SE(2) in the plane z = 0).
+        name: the group's name (``"SO(2)xT(1)"``, ...).
+    """
+
+    kind: str
+    origin: np.ndarray
+    axis: np.ndarray
+    g0: np.ndarray
+    m0: np.ndarray
+    planar: bool
+    name: str
+
+    @property
+    def dim(self) -> int:
+        """dim G_0: the number of free pose directions."""
+        return int(len(self.g0))
+
+    @property
+    def quotient_dim(self) -> int:
+        """dim SE(3)/G_0 (SE(2)/G_0 when planar): the number of fixed pose directions."""
+        return int(len(self.m0))
+
+    def distance(self, D) -> tuple[float, float]:
+        """How far a motion ``D`` (4x4, workpiece frame) is from ``G_0``.
+
+        Returns:
+            (angle [rad], distance [m]): zero for every element of ``G_0``. For the table's
+            groups these are exact geometric measures: the tilt of the axis or normal that
+            ``D`` causes and the offset of the reference point off its orbit (a rotation of a
+            free-form feature is its full angle). For ``"other"`` they are the angular and
+            linear norms of the part of ``log(D)`` outside ``g_0``.
+        """
+        D = np.asarray(D, dtype=np.float64)
+        R, t = D[:3, :3], D[:3, 3]
+        c, a = self.origin, self.axis
+        dc = R @ c + t - c
+        k = self.kind
+        if k == "freeform":
+            return _rotation_angle(R), float(np.linalg.norm(t))
+        if k == "extruded":
+            return _rotation_angle(R), float(np.linalg.norm(t - np.dot(t, a) * a))
+        if k == "sphere":
+            return 0.0, float(np.linalg.norm(dc))
+        if k in ("cone", "circle2d"):
+            return _angle_between(R @ a, a), float(np.linalg.norm(dc))
+        if k in ("cylinder", "line3d"):
+            return _angle_between(R @ a, a), float(np.linalg.norm(dc - np.dot(dc, a) * a))
+        if k == "plane":
+            return _angle_between(R @ a, a), float(abs(np.dot(dc, a)))
+        if k == "line2d":
+            return _rotation_angle(R), float(np.linalg.norm(dc - np.dot(dc, a) * a))
+        # "other": remove the g_0 part of the logarithm (first order)
+        xi = log_se3(D)
+        if len(self.g0):
+            coef, *_ = np.linalg.lstsq(self.g0.T, xi, rcond=None)
+            xi = xi - self.g0.T @ coef
+        return float(np.linalg.norm(xi[:3])), float(np.linalg.norm(xi[3:]))
+
+    def contains(self, D, tol_rad: float = 1e-6, tol_m: float = 1e-6) -> bool:
+        """Whether the motion ``D`` (workpiece frame) lies in ``G_0`` within the tolerances."""
+        ang, dist = self.distance(D)
+        return ang <= tol_rad and dist <= tol_m
+
+    def describe(self) -> str:
+        """One line: the group, its geometry and the free and fixed counts."""
+        c = ", ".join(f"{v:.6g}" for v in self.origin)
+        a = ", ".join(f"{v:.6g}" for v in self.axis)
+        geo = {
+            "circle2d": f"centre ({c}) m",
+            "line2d": f"through ({c}) m along ({a})",
+            "sphere": f"centre ({c}) m",
+            "plane": f"normal ({a}) through ({c}) m",
+            "line3d": f"axis ({a}) through ({c}) m",
+            "cylinder": f"axis ({a}) through ({c}) m",
+            "cone": f"axis ({a}) through ({c}) m",
+            "extruded": f"direction ({a})",
+            "freeform": "",
+            "other": "numerical basis",
+        }[self.kind]
+        return (f"{self.kind} G_0 = {self.name} {geo}: {self.dim} free, "
+                f"{self.quotient_dim} fixed direction(s)").replace("  ", " ")
+
+
+def symmetry_group(kind: str, origin=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 1.0)) -> SymmetryGroup:
+    """The subgroup ``G_0`` of a table feature, with bases of ``g_0`` and ``m_0``.
+
+    Args:
+        kind: one of :data:`FEATURE_TYPES`.
+        origin: (3,) [m] reference point in the workpiece frame (centre, point on the axis,
+            line or plane). For the 2D features a 2-vector (x, y) is accepted; z must be 0.
+        axis: (3,) axis / normal / direction (normalised here). For ``circle2d`` it is the
+            plane normal and must be +-z; for ``line2d`` the line direction, in the xy plane.
+
+    Raises:
+        AlgorithmError: unknown kind (the message lists the valid ones), bad vectors, or a
+            2D feature outside the plane z = 0.
+    """
+    check_feature_type(kind)
+    info = FEATURE_TABLE[kind]
+    c = _point(origin, "origin")
+    a = _unit(axis, "axis")
+    if info.planar:
+        if abs(c[2]) > 1e-12:
+            raise AlgorithmError(f"a {kind} lies in the plane z = 0; its origin has z = {c[2]:g}")
+        if kind == "circle2d":
+            a = np.array([0.0, 0.0, 1.0])
+        else:
+            if abs(a[2]) > 1e-9:
+                raise AlgorithmError(f"a line2d direction must lie in the xy plane, got {a.tolist()}")
+            a = np.array([a[0], a[1], 0.0]) / np.hypot(a[0], a[1])
+    if kind == "line2d":
+        e1 = a
+        e3 = np.array([0.0, 0.0, 1.0])
+        R = np.column_stack([e1, np.cross(e3, e1), e3])
+    elif kind in ("sphere", "freeform"):
+        R = np.eye(3)
+        a = np.array([0.0, 0.0, 1.0])
+    else:
+        e1, e2 = _perp_basis(a)
+        R = np.column_stack([e1, e2, a])
+    eye = np.eye(6)
+    g_idx = _G0_LOCAL[kind]
+    ambient = _PLANAR_AMBIENT if info.planar else tuple(range(6))
+    m_idx = tuple(i for i in ambient if i not in g_idx)
+    g0 = _adjoint_rows(eye[list(g_idx)], R, c) if g_idx else np.zeros((0, 6))
+    m0 = _adjoint_rows(eye[list(m_idx)], R, c)
+    return SymmetryGroup(kind, c, a, g0, m0, info.planar, info.group)
+
+
+def other_group(g0, origin, length: float) -> SymmetryGroup:
+    """A subgroup not in the table, from a numerical basis of its Lie algebra.
+
+    ``m_0`` is the orthogonal complement for ``L^2 |omega|^2 + |v_c|^2`` about ``origin``.
+
+    Args:
+        g0: (r, 6) twists about the workpiece origin.
+        origin: (3,) [m] reference point (e.g. the centroid of the measured points).
+        length: L [m], the characteristic length of the metric.
+    """
+    c = _point(origin, "origin")
+    G = np.atleast_2d(np.asarray(g0, dtype=np.float64)).reshape(-1, 6)
+    # to scaled coordinates about c: [L omega, v + omega x c]
+    S = np.hstack([G[:, :3] * length, G[:, 3:] + np.cross(G[:, :3], c)])
+    U, s, Vt = np.linalg.svd(S, full_matrices=True)
+    r = int(np.sum(s > 1e-9 * max(s.max(initial=0.0), 1e-300)))
+
+    def back(rows):
+        w = rows[:, :3] / length
+        return np.hstack([w, rows[:, 3:] - np.cross(w, c)])
+
+    g = back(Vt[:r])
+    m = back(Vt[r:])
+    # unit: |omega| = 1 when there is rotation, else |v| = 1
+    def norm_rows(X):
+        out = X.copy()
+        for i, x in enumerate(X):
+            nw = np.linalg.norm(x[:3])
+            out[i] = x / (nw if nw > 1e-9 else np.linalg.norm(x[3:]))
+        return out
+
+    return SymmetryGroup("other", c, np.array([0.0, 0.0, 1.0]), norm_rows(g), norm_rows(m), False,
+                         f"{r}-dimensional subgroup not in the table")
+
+
+@dataclass(frozen=True)
+class FeatureProjection:
+    """Closest points on a feature.
+
+    Attributes:
+        foot: (N, 3) [m] closest points on the feature (workpiece frame).
+        normals: (N, m, 3) unit normals at the feet: m = 1 for surfaces and the 2D curves
+            (in-plane normal), m = 2 for the 3D line (a basis of the plane across it).
+        distance: (N,) [m] distance from the point to the feature (signed along the normal
+            for surfaces: positive on the side the normal points to; unsigned for curves).
+    """
+
+    foot: np.ndarray
+    normals: np.ndarray
+    distance: np.ndarray
+
+
+@dataclass(frozen=True)
+class Feature:
+    """A feature of the table: geometry, closest points and symmetry subgroup.
+
+    Create with the constructors (``Feature.plane``, ``Feature.cylinder``, ...), with
+    :func:`make_feature` (by name) or :meth:`Feature.from_mesh` (fitted to mesh faces).
+
+    Attributes:
+        kind: one of :data:`FEATURE_TYPES`.
+        group: its :class:`SymmetryGroup`.
+        origin: (3,) [m] centre / apex / point on the axis, line or plane (workpiece frame).
+        axis: (3,) unit axis / normal / direction (see :func:`symmetry_group`).
+        radius: [m] sphere, cylinder, circle radius; 0 otherwise.
+        half_angle: [rad] cone half-angle (0 < half_angle < pi/2); 0 otherwise.
+        profile: (K, 2) [m] extruded profile polyline in the frame (e1, e2) across the
+            direction (see ``group``), or None.
+        closed: whether ``profile`` is a closed loop.
+        fit_rms_m: RMS distance of the source vertices to a fitted primitive (0 when given
+            explicitly).
+        source: "explicit", "mesh faces" or "mesh".
+    """
+
+    kind: str
+    group: SymmetryGroup
+    origin: np.ndarray
+    axis: np.ndarray
+    radius: float = 0.0
+    half_angle: float = 0.0
+    profile: np.ndarray | None = None
+    closed: bool = False
+    fit_rms_m: float = 0.0
+    source: str = "explicit"
+    index: MeshIndex | None = field(default=None, repr=False, compare=False)
+
+    # ------------------------------------------------------------ constructors
+    @classmethod
+    def plane(cls, point, normal) -> "Feature":
+        """Plane through ``point`` [m] with unit ``normal`` (its outward side)."""
+        g = symmetry_group("plane", point, normal)
+        return cls("plane", g, g.origin, g.axis)
+
+    @classmethod
+    def sphere(cls, center, radius: float) -> "Feature":
+        """Sphere of ``radius`` [m] about ``center`` [m]."""
+        r = _positive(radius, "radius")
+        g = symmetry_group("sphere", center)
+        return cls("sphere", g, g.origin, g.axis, radius=r)
+
+    @classmethod
+    def cylinder(cls, point, axis, radius: float) -> "Feature":
+        """Cylinder of ``radius`` [m] about the line through ``point`` along ``axis``."""
+        r = _positive(radius, "radius")
+        g = symmetry_group("cylinder", point, axis)
+        return cls("cylinder", g, g.origin, g.axis, radius=r)
+
+    @classmethod
+    def line3d(cls, point, direction) -> "Feature":
+        """Straight line through ``point`` [m] along ``direction``."""
+        g = symmetry_group("line3d", point, direction)
+        return cls("line3d", g, g.origin, g.axis)
+
+    @classmethod
+    def cone(cls, apex, axis, half_angle: float) -> "Feature":
+        """Cone (one nappe) with ``apex`` [m], opening along ``axis``, ``half_angle`` [rad]."""
+        ha = float(half_angle)
+        if not (np.isfinite(ha) and 0.0 < ha < np.pi / 2):
+            raise AlgorithmError(f"half_angle must be in (0, pi/2) rad, got {half_angle!r}")
+        g = symmetry_group("cone", apex, axis)
+        return cls("cone", g, g.origin, g.axis, half_angle=ha)
+
+    @classmethod
+    def circle2d(cls, center, radius: float) -> "Feature":
+        """Circle of ``radius`` [m] about ``center`` (x, y) [m] in the plane z = 0."""
+        r = _positive(radius, "radius")
+        g = symmetry_group("circle2d", center)
+        return cls("circle2d", g, g.origin, g.axis, radius=r)
+
+    @classmethod
+    def line2d(cls, point, direction) -> "Feature":
+        """Line through ``point`` (x, y) [m] along ``direction`` (x, y) in the plane z = 0."""
+        d = np.asarray(direction, dtype=np.float64).reshape(-1)
+        if d.shape == (2,):
+            d = np.array([d[0], d[1], 0.0])
+        g = symmetry_group("line2d", point, d)
+        return cls("line2d", g, g.origin, g.axis)
+
+    @classmethod
+    def extruded(cls, direction, profile=None, origin=(0.0, 0.0, 0.0), closed: bool = False,
+                 mesh=None) -> "Feature":
+        """Surface swept along ``direction``: by a 2D ``profile`` polyline or as a mesh.
+
+        Args:
+            direction: (3,) sweep direction.
+            profile: (K, 2) [m] polyline across the direction, in the frame (e1, e2) of
+                ``group`` (``e1, e2 = perpendicular basis of direction``) about ``origin``.
+            origin: (3,) [m] origin of the profile frame.
+            closed: the profile is a closed loop.
+            mesh: instead of a profile, the surface's triangles (workpiece frame); every face
+                normal must be perpendicular to ``direction``.
+        """
+        g = symmetry_group("extruded", origin, direction)
+        if (profile is None) == (mesh is None):
+            raise AlgorithmError("an extruded feature needs exactly one of profile or mesh")
+        if mesh is not None:
+            index = _index(mesh)
+            tilt = np.abs(index.face_normals @ g.axis)
+            if tilt.max() > EXTRUDED_TOL_RAD:
+                raise AlgorithmError(
+                    f"mesh is not extruded along {g.axis.tolist()}: a face normal is "
+                    f"{np.degrees(np.arcsin(min(tilt.max(), 1.0))):.3g} deg off perpendicular"
+                )
+            return cls("extruded", g, g.origin, g.axis, source="mesh", index=index)
+        P = np.asarray(profile, dtype=np.float64)
+        if P.ndim != 2 or P.shape[1] != 2 or len(P) < 2 or not np.all(np.isfinite(P)):
+            raise AlgorithmError(f"profile must be (K, 2) with K >= 2 finite points [m], got {P.shape}")
+        return cls("extruded", g, g.origin, g.axis, profile=P, closed=bool(closed))
+
+    @classmethod
+    def freeform(cls, mesh) -> "Feature":
+        """A free-form surface given by its triangles (workpiece frame); G_0 = {1}."""
+        index = _index(mesh)
+        c = index.vertices.mean(axis=0)
+        g = symmetry_group("freeform", c)
+        return cls("freeform", g, g.origin, g.axis, source="mesh", index=index)
+
+    @classmethod
+    def from_mesh(cls, mesh, faces=None, kind: str | None = None, surface: str = "primitive",
+                  tol_rel: float = FIT_TOL_REL) -> "Feature":
+        """A feature from mesh faces: fit the primitive, or classify when ``kind`` is None.
+
+        Classification tries plane, sphere, cylinder, cone, extruded in that order and takes
+        the first whose fit is within ``tol_rel`` of the faces' size (RMS of the vertices'
+        distances; for extruded: every normal perpendicular to the direction within
+        ``EXTRUDED_TOL_RAD``); otherwise free-form.
+
+        Args:
+            mesh: a triangle mesh (workpiece frame, metres).
+            faces: indices of the faces that form the feature (default: all).
+            kind: a table type to fit (not circle2d/line2d/line3d: those are not surfaces),
+                or None to classify.
+            surface: ``"primitive"``: closest points on the fitted analytic surface (the
+                design surface, free of facets); ``"faces"``: on the triangles themselves.
+            tol_rel: fit tolerance relative to the faces' bounding-box diagonal.
+
+        Raises:
+            AlgorithmError: unknown kind, a curve kind, no faces, or faces that do not fit
+                the requested kind within the tolerance (the message gives the RMS).
+        """
+        if surface not in ("primitive", "faces"):
+            raise AlgorithmError(f"surface must be 'primitive' or 'faces', got {surface!r}")
+        if kind is not None:
+            check_feature_type(kind)
+            if kind in ("circle2d", "line2d", "line3d"):
+                raise AlgorithmError(
+                    f"a {kind} is a curve, not a surface: give it explicitly "
+                    f"(Feature.{kind}(...)), not as mesh faces"
+                )
+        V = np.asarray(mesh.vertices, dtype=np.float64)
+        F = np.asarray(mesh.faces, dtype=np.int64)
+        if faces is not None:
+            idx = np.asarray(faces, dtype=np.int64).reshape(-1)
+            if len(idx) == 0 or idx.min() < 0 or idx.max() >= len(F):
+                raise AlgorithmError(f"faces must be indices into the mesh's {len(F)} faces")
+            F = F[np.unique(idx)]
+        if len(F) == 0:
+            raise AlgorithmError("no faces given")
+        used, inv = np.unique(F, return_inverse=True)
+        sub_v = V[used]
+        sub_f = inv.reshape(-1, 3)
+        sub = _SimpleMesh(sub_v, sub_f)
+        tri = sub_v[sub_f]
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area = 0.5 * np.linalg.norm(cross, axis=1)
+        ok = area > 0
+        normals = np.zeros_like(cross)
+        normals[ok] = cross[ok] / (2.0 * area[ok, None])
+        size = float(np.linalg.norm(np.ptp(sub_v, axis=0)))
+        tol = tol_rel * max(size, 1e-300)
+        kinds = [kind] if kind is not None else ["plane", "sphere", "cylinder", "cone", "extruded"]
+        last_rms = np.inf
+        for k in kinds:
+            if k == "freeform":
+                break
+            feat, rms = _fit(k, sub_v, normals, area, tri)
+            last_rms = rms
+            if feat is not None and rms <= tol:
+                if k == "extruded" or surface == "faces":
+                    index = MeshIndex(sub)
+                    return cls(feat.kind, feat.group, feat.origin, feat.axis, feat.radius,
+                               feat.half_angle, None, False, rms, "mesh faces", index)
+                return cls(feat.kind, feat.group, feat.origin, feat.axis, feat.radius,
+                           feat.half_angle, None, False, rms, "mesh faces")
+        if kind is not None and kind != "freeform":
+            raise AlgorithmError(
+                f"the faces are not a {kind}: fit RMS {last_rms:.3g} m exceeds "
+                f"{tol:.3g} m ({tol_rel:g} of their {size:.4g} m size)"
+            )
+        f = cls.freeform(sub)
+        return cls("freeform", f.group, f.origin, f.axis, source="mesh faces", index=f.index)
+
+    # ------------------------------------------------------------ properties
+    @property
+    def info(self) -> FeatureInfo:
+        return FEATURE_TABLE[self.kind]
+
+    @property
+    def planar(self) -> bool:
+        return self.group.planar
+
+    # ------------------------------------------------------------ geometry
+    def closest(self, points) -> FeatureProjection:
+        """Closest points on the feature to ``points`` (N, 3) [m], workpiece frame.
+
+        For the 2D features (N, 2) points are accepted (z = 0 is implied).
+        """
+        Y = _points(points, self.planar)
+        k = self.kind
+        c, a = self.origin, self.axis
+        n_pts = len(Y)
+        if self.index is not None:
+            cp = self.index.query(Y)
+            d = np.einsum("ij,ij->i", Y - cp.foot, cp.normal)
+            return FeatureProjection(cp.foot, cp.normal[:, None, :], d)
+        w = Y - c
+        if k in ("plane", "line2d"):
+            n = a if k == "plane" else np.array([-a[1], a[0], 0.0])
+            s = w @ n
+            foot = Y - s[:, None] * n
+            return FeatureProjection(foot, np.broadcast_to(n, (n_pts, 1, 3)).copy(), s)
+        if k == "sphere":
+            r = np.linalg.norm(w, axis=1)
+            u = _safe_dirs(w, r, np.array([0.0, 0.0, 1.0]))
+            return FeatureProjection(c + self.radius * u, u[:, None, :], r - self.radius)
+        if k in ("cylinder", "circle2d", "line3d", "cone"):
+            h = w @ a
+            radial = w - h[:, None] * a
+            rho = np.linalg.norm(radial, axis=1)
+            e1, e2 = _perp_basis(a)
+            u = _safe_dirs(radial, rho, e1)
+            if k in ("cylinder", "circle2d"):
+                foot = c + h[:, None] * a + self.radius * u
+                return FeatureProjection(foot, u[:, None, :], rho - self.radius)
+            if k == "line3d":
+                foot = c + h[:, None] * a
+                nrm = np.broadcast_to(np.stack([e1, e2]), (n_pts, 2, 3)).copy()
+                return FeatureProjection(foot, nrm, rho)
+            # cone: work in the half-plane through the axis and the point
+            ca, sa = np.cos(self.half_angle), np.sin(self.half_angle)
+            gen = ca * a + sa * u
+            nrm = -sa * a + ca * u
+            t = h * ca + rho * sa
+            foot = c + np.maximum(t, 0.0)[:, None] * gen
+            d = h * (-sa) + rho * ca
+            behind = t < 0  # closest point is the apex
+            if behind.any():
+                r_apex = np.linalg.norm(w[behind], axis=1)
+                nrm[behind] = _safe_dirs(w[behind], r_apex, -a)
+                d[behind] = r_apex
+            return FeatureProjection(foot, nrm[:, None, :], d)
+        if k == "extruded":
+            return _closest_on_profile(self, Y)
+        raise AlgorithmError(f"a {k} feature needs a mesh for closest points")  # pragma: no cover
+
+
+class _SimpleMesh:
+    """Minimal mesh (vertices, faces) for MeshIndex."""
+
+    def __init__(self, vertices, faces):
+        self.vertices = vertices
+        self.faces = faces
+
+
+def _index(mesh) -> MeshIndex:
+    if isinstance(mesh, MeshIndex):
+        return mesh
+    return MeshIndex(mesh)
+
+
+def _positive(x, name) -> float:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise AlgorithmError(f"{name} must be a positive length [m], got {x!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise AlgorithmError(f"{name} must be a positive length [m], got {x!r}")
+    return v
+
+
+def _points(points, planar: bool) -> np.ndarray:
+    Y = np.asarray(points, dtype=np.float64)
+    if planar and Y.ndim == 2 and Y.shape[1] == 2:
+        Y = np.hstack([Y, np.zeros((len(Y), 1))])
+    if Y.ndim != 2 or Y.shape[1] != 3:
+        raise AlgorithmError(f"points must be (N, 3){' or (N, 2)' if planar else ''}, got {Y.shape}")
+    return Y
+
+
+def _safe_dirs(w: np.ndarray, r: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    out = np.empty_like(w)
+    good = r > 1e-300
+    out[good] = w[good] / r[good, None]
+    out[~good] = fallback
+    return out
+
+
+def _closest_on_profile(feat: Feature, Y: np.ndarray) -> FeatureProjection:
+    """Closest points on an extruded polyline profile (exact, all segments)."""
+    a = feat.axis
+    e1, e2 = _perp_basis(a)
+    w = Y - feat.origin
+    h = w @ a
+    q = np.column_stack([w @ e1, w @ e2])
+    P = feat.profile
+    if feat.closed:
+        A, B = P, np.roll(P, -1, axis=0)
+    else:
+        A, B = P[:-1], P[1:]
+    AB = B - A
+    L2 = np.einsum("ij,ij->i", AB, AB)
+    L2 = np.where(L2 > 0, L2, 1.0)
+    best_d2 = np.full(len(Y), np.inf)
+    best_f = np.zeros((len(Y), 2))
+    best_seg = np.zeros(len(Y), dtype=np.int64)
+    chunk = max(1, 2_000_000 // max(len(A), 1))
+    for s in range(0, len(Y), chunk):
+        qq = q[s:s + chunk]
+        t = np.clip(((qq[:, None, :] - A[None]) * AB[None]).sum(axis=2) / L2[None], 0.0, 1.0)
+        f = A[None] + t[..., None] * AB[None]
+        d2 = ((qq[:, None, :] - f) ** 2).sum(axis=2)
+        j = np.argmin(d2, axis=1)
+        rows = np.arange(len(qq))
+        best_d2[s:s + chunk] = d2[rows, j]
+        best_f[s:s + chunk] = f[rows, j]
+        best_seg[s:s + chunk] = j
+    diff = q - best_f
+    dist = np.sqrt(best_d2)
+    seg_dir = AB[best_seg] / np.sqrt(L2[best_seg])[:, None]
+    seg_n = np.column_stack([seg_dir[:, 1], -seg_dir[:, 0]])
+    n2 = np.where((dist > 1e-300)[:, None], diff / np.maximum(dist, 1e-300)[:, None], seg_n)
+    foot = feat.origin + h[:, None] * a + best_f[:, :1] * e1 + best_f[:, 1:] * e2
+    normal = n2[:, :1] * e1 + n2[:, 1:] * e2
+    signed = np.einsum("ij,ij->i", diff, seg_n)
+    d = np.where(signed >= 0, dist, -dist)
+    return FeatureProjection(foot, normal[:, None, :], d)
+
+
+def _fit(kind: str, V: np.ndarray, N: np.ndarray, area: np.ndarray, tri: np.ndarray):
+    """Fit ``kind`` to vertices V with face normals N (area weights); returns (feature, rms)."""
+    w = area / max(area.sum(), 1e-300)
+    try:
+        if kind == "plane":
+            c = V.mean(axis=0)
+            _, vecs = np.linalg.eigh((V - c).T @ (V - c))
+            n = vecs[:, 0]
+            if np.dot(n, w @ N) < 0:
+                n = -n
+            rms = float(np.sqrt(np.mean(((V - c) @ n) ** 2)))
+            return Feature.plane(c, n), rms
+        if kind == "sphere":
+            A = np.hstack([2.0 * V, np.ones((len(V), 1))])
+            b = np.einsum("ij,ij->i", V, V)
+            sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+            c = sol[:3]
+            r2 = sol[3] + c @ c
+            if not r2 > 0:
+                return None, np.inf
+            r = float(np.sqrt(r2))
+            rms = float(np.sqrt(np.mean((np.linalg.norm(V - c, axis=1) - r) ** 2)))
+            return Feature.sphere(c, r), rms
+        if kind == "cylinder":
+            M = (N * w[:, None]).T @ N
+            _, vecs = np.linalg.eigh(M)
+            a = vecs[:, 0]
+            e1, e2 = _perp_basis(a)
+            p2 = np.column_stack([V @ e1, V @ e2])
+            A = np.hstack([2.0 * p2, np.ones((len(V), 1))])
+            b = np.einsum("ij,ij->i", p2, p2)
+            sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+            r2 = sol[2] + sol[:2] @ sol[:2]
+            if not r2 > 0:
+                return None, np.inf
+            r = float(np.sqrt(r2))
+            c = sol[0] * e1 + sol[1] * e2 + (V.mean(axis=0) @ a) * a
+            rho = np.linalg.norm(p2 - sol[:2], axis=1)
+            rms = float(np.sqrt(np.mean((rho - r) ** 2)))
+            return Feature.cylinder(c, a, r), rms
+        if kind == "cone":
+            nm = w @ N
+            C = ((N - nm) * w[:, None]).T @ (N - nm)
+            _, vecs = np.linalg.eigh(C)
+            a = vecs[:, 0]
+            # apex: every face plane passes through it
+            cen = tri.mean(axis=1)
+            M = (N * w[:, None]).T @ N
+            rhs = (N * w[:, None]).T @ np.einsum("ij,ij->i", N, cen)
+            if np.linalg.cond(M) > 1e12:
+                return None, np.inf
+            apex = np.linalg.solve(M, rhs)
+            h = (V - apex) @ a
+            if h.mean() < 0:
+                a, h = -a, -h
+            rho = np.linalg.norm((V - apex) - h[:, None] * a, axis=1)
+            ha = float(np.arctan2(np.sum(rho * h), np.sum(h * h)))
+            if not 0 < ha < np.pi / 2:
+                return None, np.inf
+            feat = Feature.cone(apex, a, ha)
+            rms = float(np.sqrt(np.mean(feat.closest(V).distance ** 2)))
+            return feat, rms
+        if kind == "extruded":
+            M = (N * w[:, None]).T @ N
+            _, vecs = np.linalg.eigh(M)
+            d = vecs[:, 0]
+            tilt = float(np.max(np.abs(N[area > 0] @ d)))
+            g = Feature("extruded", symmetry_group("extruded", V.mean(axis=0), d), V.mean(axis=0), d)
+            # report the tilt as a length: sin(tilt) times the size, comparable with tol
+            size = float(np.linalg.norm(np.ptp(V, axis=0)))
+            return g, (0.0 if tilt <= EXTRUDED_TOL_RAD else tilt * size)
+    except np.linalg.LinAlgError:
+        return None, np.inf
+    return None, np.inf  # pragma: no cover
+
+
+def make_feature(kind: str, **params) -> Feature:
+    """A feature by name: ``make_feature("cylinder", point=..., axis=..., radius=...)``.
+
+    Parameters per kind: circle2d (center, radius), line2d (point, direction), sphere
+    (center, radius), plane (point, normal), line3d (point, direction), cylinder (point,
+    axis, radius), cone (apex, axis, half_angle), extruded (direction, profile | mesh,
+    origin, closed), freeform (mesh).
+
+    Raises:
+        AlgorithmError: unknown kind (lists the valid ones) or wrong parameters.
+    """
+    check_feature_type(kind)
+    ctor = getattr(Feature, kind)
+    try:
+        return ctor(**params)
+    except TypeError as exc:
+        raise AlgorithmError(f"bad parameters for a {kind}: {exc}") from None
