@@ -786,7 +786,7 @@ def global_localize(
     start_table="icosahedral",
     stop_at_first: bool = False,
     n_coarse: int = 150,
-    n_verify: int = 1000,
+    n_verify: int = 400,
     max_candidates: int = 6,
     ga_bits: int = GA_BITS,
     ga_mutation: str = "per_bit",
@@ -1006,10 +1006,10 @@ def global_localize(
         y_v,
         cand_T,
         L=L,
-        delta1=1e-9,
+        delta1=1e-6,
         delta2=np.inf,
-        delta3=1e-9,
-        max_iter_per_descent=30,
+        delta3=1e-7,
+        max_iter_per_descent=15,
         rng=None,
     )
     timings["refine_s"] = time.perf_counter() - t
