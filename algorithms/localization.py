@@ -150,7 +150,8 @@ class LocalizationResult:
         rmse_m: RMS point-to-model distance of the inliers at the result [m].
         history: RMS distance [m] at the start and after every iteration.
         covariance: (6, 6) estimated covariance of the pose twist ``[omega, v]`` in the
-            workpiece frame (``T_true = T_est exp(xi)``; rad^2, rad m, m^2), the Cramer-Rao
+            workpiece frame (the error twist of ``T_est = T_true exp(xi)``; rad^2, rad m,
+            m^2), the Cramer-Rao
             expression at the estimate with ``sigma_m``; None when unobservable.
         weak_directions: (k, 6) weakly constrained twists ``[omega, v]`` (workpiece frame),
             empty (0, 6) when observable.

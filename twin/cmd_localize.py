@@ -127,7 +127,7 @@ def result_to_json(res) -> dict:
         "method": res.method,
         "time_s": float(res.time_s),
         "covariance": _finite_or_none(res.covariance),
-        "covariance_frame": "twist [omega, v] of T_true = T_est exp(xi), workpiece frame; rad^2, rad m, m^2",
+        "covariance_frame": "error twist [omega, v] of T_est = T_true exp(xi), workpiece frame; rad^2, rad m, m^2",
         "sigma_m": float(res.sigma_m) if math.isfinite(res.sigma_m) else None,
         "weak_directions": np.asarray(res.weak_directions).tolist(),
         "n_points_used": int(res.n_points_used),
