@@ -48,7 +48,9 @@ Three methods from the source documents, one entry point :func:`global_localize`
     ``1 / (1 + sum_i D_err,i)``, crossover probability ``Pc = 0.9``, mutation ``Pm = 0.1``,
     100 individuals, random initial genes, stop at generation 100 or best fitness >= 0.95.
     Then the fine stage (document 001's variable-iteration-centre linearised least squares,
-    ``localize(..., method="fine_001", init=T_coarse)``) and ``T = T_fine @ T_coarse``.
+    ``localize(..., method="fine_001", init=T_coarse)``, on the coarse subset of at most
+    ``n_coarse`` points: the document's fine stage uses a few probe points) and
+    ``T = T_fine @ T_coarse``; then the polish with all points.
 
     Readings and choices (the original does not state them):
 
@@ -156,6 +158,9 @@ GA_MUTATION_PROB = 0.1
 GA_FITNESS_STOP = 0.95
 #: Our choice (the document does not give it): bits per parameter.
 GA_BITS = 10
+#: Fine stage stop value d [rad^2 + m^2] and iteration cap (our choices; the polish follows).
+FINE_001_D = 1e-16
+FINE_001_MAX_ITERATIONS = 300
 
 # ---- document 003, particle swarm ------------------------------------------------------------
 PSO_PARTICLES = 40
@@ -953,7 +958,11 @@ def global_localize(
             ga_mutation=ga_mutation,
         )
         t = time.perf_counter()
-        fine = localize(y, method="fine_001", init=T_ga, index=index, sigma=noise_sigma_m or None, outlier=outlier)
+        # document 001's fine stage works on a few probe points (m >= 6): the coarse subset
+        # d of document 001's stop test: sum dtheta^2 + sum dDelta^2 < FINE_001_D (steps below
+        # 1e-8 rad / 1e-8 m; the polish that follows converges quadratically from there)
+        fine = localize(y_c, method="fine_001", init=T_ga, index=index, sigma=noise_sigma_m or None,
+                        outlier=outlier, tolerance=FINE_001_D, max_iterations=FINE_001_MAX_ITERATIONS)
         timings["fine_001_s"] = time.perf_counter() - t
         primary = fine.T_world_workpiece
         extra["T_fine"] = primary @ inv_pose(T_ga)
