@@ -138,3 +138,46 @@ def angle_deg(a, b, unsigned: bool = False) -> np.ndarray:
     if unsigned:
         c = np.abs(c)
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def smooth_line_normals(lines, normals, knot_spacing_m: float = 0.004) -> tuple:
+    """Normals smoothed along each line by a cubic least-squares B-spline in arc length.
+
+    Cross-line triangulation takes the *nearest* point of each adjacent line, which jumps
+    from one sample to the next as the point moves along; the normals then step by a few
+    hundredths of a degree from point to point. Harmless for a normal estimate, but a tool
+    orientation built from them makes the wrist's acceleration noisy (the second difference
+    of the orientation over 1 mm). The fit (one knot span per ``knot_spacing_m``, components
+    fitted independently, then renormalised) removes that without bending the surface's own
+    variation, which spans centimetres.
+
+    Args:
+        lines: L arrays (n_i, 3) [m], the points the normals belong to.
+        normals: L arrays (n_i, 3) unit normals.
+        knot_spacing_m: arc length per knot span [m].
+
+    Returns:
+        L arrays (n_i, 3) of unit normals.
+    """
+    from scipy.interpolate import make_lsq_spline
+
+    if not (np.isfinite(knot_spacing_m) and knot_spacing_m > 0):
+        raise NormalsError(f"knot_spacing_m must be > 0, got {knot_spacing_m!r}")
+    out = []
+    for i, (p, n) in enumerate(zip(lines, normals)):
+        p = np.asarray(p, dtype=np.float64)
+        n = np.asarray(n, dtype=np.float64)
+        if p.shape != n.shape:
+            raise NormalsError(f"line {i}: points {p.shape} and normals {n.shape} differ in shape")
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        spans = int(min(max(1, round(s[-1] / knot_spacing_m)), max(1, (len(p) - 4) // 2 + 1)))
+        if len(p) < 4 or s[-1] <= 0:
+            out.append(n.copy())
+            continue
+        u = s / s[-1]
+        keep = np.concatenate([[True], np.diff(u) > 0])
+        interior = np.quantile(u[keep], np.linspace(0.0, 1.0, spans + 1)[1:-1]) if spans > 1 else np.empty(0)
+        t = np.concatenate([np.zeros(4), interior, np.ones(4)])
+        m = make_lsq_spline(u[keep], n[keep], t, k=3)(u)
+        out.append(m / np.linalg.norm(m, axis=1, keepdims=True))
+    return tuple(out)

@@ -152,15 +152,13 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
             f"a scan-line cloud needs at least 2 lines with valid points, got {len(keep_idx)} "
             f"({which}): normals across lines cannot be formed"
         )
-    allp = P[np.concatenate(keep_idx)]
-    centred = allp - allp.mean(axis=0)
     # Along-line direction: principal direction of the per-line spreads (pooled covariance
     # of the lines about their own means), robust to the across-line spread of the raster.
     C = np.zeros((3, 3))
     for rows in keep_idx:
         q = P[rows] - P[rows].mean(axis=0)
         C += q.T @ q
-    w, V = np.linalg.eigh(C)
+    _, V = np.linalg.eigh(C)
     direction = V[:, -1]
     # Across: the spread of the line means, orthogonal to the direction.
     means = np.array([P[r].mean(axis=0) for r in keep_idx])
@@ -177,7 +175,6 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
         direction = -direction
     if (means[-1] - means[0]) @ across < 0:
         across = -across
-    del centred
     order = np.argsort(means @ across, kind="stable")
     lines, idx = [], []
     for k in order:

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from algorithms.errors import AlgorithmError
 from algorithms.se3 import as_pose, inv_pose
@@ -199,6 +199,17 @@ class ProcessPath:
         return np.isfinite(self.contact[:, 0])
 
 
+def transform_path(T_a_b, path: ProcessPath) -> ProcessPath:
+    """The same path with every pose, point and normal given in frame b expressed in frame a.
+
+    Document 003's step 5: a CAD path (workpiece frame) moved by the localization estimate
+    ``T_base_workpiece`` lands where the part really is.
+    """
+    T = as_pose(T_a_b, "T_a_b")
+    return ProcessPath(T @ path.T_tool, path.contact @ T[:3, :3].T + T[:3, 3], path.normal @ T[:3, :3].T,
+                       path.segment.copy(), path.segments, path.s.copy(), path.tip_radius_m, dict(path.info))
+
+
 def _path_length(T: np.ndarray) -> np.ndarray:
     dp = np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1)
     if len(T) > 1:
@@ -336,8 +347,15 @@ def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSetting
     return assemble_path(Ts, cs, ns, settings.retract_m, settings.transit_step_m, settings.tip_radius_m)
 
 
-def raycast_parallel(vertices, faces, origins, direction) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def raycast_parallel(vertices, faces, origins, direction, chunk: int = 20000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First hits of parallel rays on a triangle mesh (exact, vectorised).
+
+    The triangles are projected onto the plane orthogonal to ``direction`` and grouped by
+    size (powers of two of their circumradius); each group has a KD-tree of centroids that
+    is searched within its largest radius, so small and large triangles mix without every
+    ray testing every large-radius neighbourhood. Point-in-triangle uses barycentric
+    coordinates with a 1e-12 tolerance: a ray along a shared edge or through a shared
+    vertex hits one of the triangles (it cannot slip through).
 
     Args:
         vertices: (V, 3), faces: (F, 3) the mesh.
@@ -350,8 +368,9 @@ def raycast_parallel(vertices, faces, origins, direction) -> tuple[np.ndarray, n
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
     O = np.asarray(origins, dtype=np.float64)
+    if O.ndim != 2 or O.shape[1] != 3:
+        raise ToolPathError(f"origins must be (N, 3), got {O.shape}")
     d = _fixed_vector(direction, "direction")
-    # Project onto the plane orthogonal to d: a 2-D point-in-triangle problem.
     e1 = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(d, e1)
@@ -361,38 +380,49 @@ def raycast_parallel(vertices, faces, origins, direction) -> tuple[np.ndarray, n
     o2 = O @ B
     cen = t2.mean(axis=1)
     rad = np.max(np.linalg.norm(t2 - cen[:, None, :], axis=2), axis=1)
-    tree = cKDTree(cen)
-    # Candidate triangles: centroid within the largest circumradius of the query.
-    cand = tree.query_ball_point(o2, r=float(rad.max()) * (1 + 1e-9) + 1e-12)
+    level = np.floor(np.log2(np.maximum(rad, 1e-12))).astype(np.int64)
+    groups = []
+    for lv in np.unique(level):
+        ids = np.flatnonzero(level == lv)
+        groups.append((ids, cKDTree(cen[ids]), float(rad[ids].max()) * (1 + 1e-9) + 1e-12))
     hit = np.zeros(len(O), dtype=bool)
     pts = np.full((len(O), 3), np.nan)
     face = np.full(len(O), -1, dtype=np.int64)
-    counts = np.array([len(c) for c in cand])
-    if counts.sum() == 0:
-        return hit, pts, face
-    qi = np.repeat(np.arange(len(O)), counts)
-    fi = np.concatenate([np.asarray(c, dtype=np.int64) for c in cand if len(c)])
-    a, b, c = t2[fi, 0], t2[fi, 1], t2[fi, 2]
-    p = o2[qi]
-    v0, v1, v2 = b - a, c - a, p - a
-    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
-        v = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-    eps = 1e-12
-    inside = (np.abs(den) > 0) & (u >= -eps) & (v >= -eps) & (u + v <= 1 + eps)
-    qi, fi, u, v = qi[inside], fi[inside], u[inside], v[inside]
-    T3 = tri[fi]
-    X = T3[:, 0] + u[:, None] * (T3[:, 1] - T3[:, 0]) + v[:, None] * (T3[:, 2] - T3[:, 0])
-    t = (X - O[qi]) @ d
-    front = t >= 0
-    qi, fi, X, t = qi[front], fi[front], X[front], t[front]
-    order = np.lexsort((t, qi))
-    qi, fi, X = qi[order], fi[order], X[order]
-    first = np.concatenate([[True], qi[1:] != qi[:-1]]) if len(qi) else np.zeros(0, dtype=bool)
-    hit[qi[first]] = True
-    pts[qi[first]] = X[first]
-    face[qi[first]] = fi[first]
+    best_t = np.full(len(O), np.inf)
+    for c0 in range(0, len(O), chunk):
+        sl = slice(c0, min(len(O), c0 + chunk))
+        for ids, tree, r in groups:
+            cand = tree.query_ball_point(o2[sl], r=r)
+            counts = np.fromiter((len(c) for c in cand), dtype=np.int64, count=len(cand))
+            if counts.sum() == 0:
+                continue
+            qi = np.repeat(np.arange(sl.start, sl.stop), counts)
+            fi = ids[np.concatenate([np.asarray(c, dtype=np.int64) for c in cand if len(c)])]
+            a, b, c = t2[fi, 0], t2[fi, 1], t2[fi, 2]
+            v0, v1, v2 = b - a, c - a, o2[qi] - a
+            den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+                v = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+            eps = 1e-12
+            with np.errstate(invalid="ignore"):
+                inside = (np.abs(den) > 0) & (u >= -eps) & (v >= -eps) & (u + v <= 1 + eps)
+            qi, fi, u, v = qi[inside], fi[inside], u[inside], v[inside]
+            T3 = tri[fi]
+            X = T3[:, 0] + u[:, None] * (T3[:, 1] - T3[:, 0]) + v[:, None] * (T3[:, 2] - T3[:, 0])
+            t = (X - O[qi]) @ d
+            front = t >= 0
+            qi, fi, X, t = qi[front], fi[front], X[front], t[front]
+            order = np.lexsort((t, qi))
+            qi, fi, X, t = qi[order], fi[order], X[order], t[order]
+            first = np.concatenate([[True], qi[1:] != qi[:-1]]) if len(qi) else np.zeros(0, dtype=bool)
+            qi, fi, X, t = qi[first], fi[first], X[first], t[first]
+            better = t < best_t[qi]
+            qi, fi, X, t = qi[better], fi[better], X[better], t[better]
+            best_t[qi] = t
+            hit[qi] = True
+            pts[qi] = X
+            face[qi] = fi
     return hit, pts, face
 
 

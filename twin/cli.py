@@ -14,7 +14,7 @@ import sys
 from algorithms.errors import AlgorithmError
 from twin.errors import TwinError
 
-COMMANDS = ["scan", "demo"]
+COMMANDS = ["scan", "demo", "localize", "run"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -255,7 +255,10 @@ class PathSpec:
         holder_length_m: length of the holder from the flange face [m].
         feed_m_s: feed rate along the contact lines [m/s].
         transit_speed_m_s: speed of approach, retract and transit moves [m/s].
-        acceleration_m_s2: path acceleration limit of every segment [m/s^2].
+        acceleration_m_s2: path acceleration limit of process lines and transits [m/s^2].
+        touchdown_acceleration_m_s2: acceleration limit of the approach and retract moves along
+            the tool axis [m/s^2]: the servo lag in the deceleration before touch-down pushes
+            the tool into the part (about 0.6 mm per m/s^2 in this cell), so it is low.
         point_spacing_m: spacing of the contact points along a line [m].
         line_spacing_m: spacing of the lines of the CAD raster path [m].
         margin_m: the CAD raster stays this far inside the part's footprint [m].
@@ -284,6 +287,7 @@ class PathSpec:
     feed_m_s: float
     transit_speed_m_s: float
     acceleration_m_s2: float
+    touchdown_acceleration_m_s2: float
     point_spacing_m: float
     line_spacing_m: float
     margin_m: float
@@ -498,7 +502,8 @@ def _parse_path(s: _Section) -> PathSpec:
     holder_len = s.number("holder_length_m", 0.050, 0.0, 1.0)
     feed = s.number("feed_m_s", 0.03, 0.0, 1.0, lo_open=True)
     transit = s.number("transit_speed_m_s", 0.05, 0.0, 1.0, lo_open=True)
-    acc = s.number("acceleration_m_s2", 0.5, 0.0, 10.0, lo_open=True)
+    acc = s.number("acceleration_m_s2", 0.25, 0.0, 10.0, lo_open=True)
+    acc_td = s.number("touchdown_acceleration_m_s2", 0.05, 0.0, 10.0, lo_open=True)
     point_spacing = s.number("point_spacing_m", 0.001, 1e-5, 0.1)
     line_spacing = s.number("line_spacing_m", 0.004, 0.0, 1.0, lo_open=True)
     margin = s.number("margin_m", 0.005, 0.0, 1.0)
@@ -522,6 +527,6 @@ def _parse_path(s: _Section) -> PathSpec:
             raise TwinError(f"path.{name} must be a non-zero vector")
     if np.linalg.norm(T_ft[:3, 3]) <= tip:
         raise TwinError(f"path.tool: the tool tip must lie farther from the flange than tip_radius_m = {tip:g} m")
-    return PathSpec(T_ft, tip, shank, holder, holder_len, feed, transit, acc, point_spacing, line_spacing,
+    return PathSpec(T_ft, tip, shank, holder, holder_len, feed, transit, acc, acc_td, point_spacing, line_spacing,
                     margin, axis_name, retract, heading, heading_dir / np.linalg.norm(heading_dir), axis,
                     axis_dir / np.linalg.norm(axis_dir), lead, tilt, knots, simplify, window, k, gap, empty)
