@@ -73,6 +73,7 @@ __all__ = [
     "model_symmetries",
     "localize_symmetric",
     "SYMMETRIC_CHOICES",
+    "pseudo_normals",
 ]
 
 #: A pose direction is free when its scaled information eigenvalue is below this fraction
@@ -84,6 +85,16 @@ MATCH_TOL = 1e-3
 #: fraction of the model's bounding-box diagonal from the surface (generated meshes deviate
 #: from their design surfaces by 1e-5 m; real asymmetries move the surface by millimetres).
 SYMMETRY_TOL_REL = 5e-4
+#: Detection uses only points whose offset from their foot, and the pseudo-normal there, are
+#: within 10 degrees of the face normal (points on or beside a sharp edge measure the edge).
+EDGE_COS = float(np.cos(np.radians(10.0)))
+#: ... and whose foot is farther than this many noise sigmas from a sharp edge of its face.
+EDGE_BAND_SIGMA = 4.0
+#: Two equally good poses are the same solution when they differ by a motion within this
+#: angle [rad] (and this fraction of the model's size) of G_0: the detected G_0 carries the
+#: measurement's uncertainty (an axis tilted by 1e-4 rad, say), while distinct discrete
+#: symmetries differ by tens of degrees or millimetres.
+SAME_SOLUTION_TOL = 1e-2
 #: ``symmetric=`` choices besides a feature type.
 SYMMETRIC_CHOICES = ("auto", "none")
 #: Stopping rule and iteration cap of Algorithm 2.
@@ -677,6 +688,107 @@ def _frame(a, b):
     return np.column_stack([e1, e2, np.cross(e1, e2)])
 
 
+# ------------------------------------------------------------------ pseudo-normals
+_PSEUDO_CACHE: dict = {}
+
+
+class _PseudoNormalTable:
+    """Angle-weighted pseudo-normals of the faces, edges and vertices of a mesh."""
+
+    def __init__(self, index: MeshIndex):
+        V, F = index.vertices, index.faces
+        fn = index.face_normals
+        tri = V[F]
+        ang = np.empty((len(F), 3))
+        for k in range(3):
+            e1 = tri[:, (k + 1) % 3] - tri[:, k]
+            e2 = tri[:, (k + 2) % 3] - tri[:, k]
+            cosang = np.einsum("ij,ij->i", e1, e2) / np.maximum(
+                np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
+            ang[:, k] = np.arccos(np.clip(cosang, -1.0, 1.0))
+        vn = np.zeros_like(V)
+        for k in range(3):
+            np.add.at(vn, F[:, k], fn * ang[:, k:k + 1])
+        self.vertex = vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+        # local edge k of face f joins corners k and k+1
+        edges = np.sort(np.stack([F, np.roll(F, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+        _, inv = np.unique(edges, axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        en = np.zeros((inv.max() + 1, 3))
+        np.add.at(en, inv, np.repeat(fn, 3, axis=0))
+        en /= np.maximum(np.linalg.norm(en, axis=1, keepdims=True), 1e-300)
+        self.edge = en[inv].reshape(len(F), 3, 3)
+        # sharp edges: dihedral angle above 10 degrees, or a border (one face only)
+        count = np.bincount(inv)
+        tilt = np.einsum("fkj,fj->fk", self.edge, fn)
+        self.sharp = (tilt < np.cos(np.radians(5.0))) | (count[inv].reshape(len(F), 3) == 1)
+        self.face = fn
+        self.faces = F
+        self.V = V
+
+    def at(self, face: np.ndarray, foot: np.ndarray) -> np.ndarray:
+        F = self.faces[face]
+        a, b, c = self.V[F[:, 0]], self.V[F[:, 1]], self.V[F[:, 2]]
+        ab, ac, ap = b - a, c - a, foot - a
+        d00 = np.einsum("ij,ij->i", ab, ab)
+        d01 = np.einsum("ij,ij->i", ab, ac)
+        d11 = np.einsum("ij,ij->i", ac, ac)
+        d20 = np.einsum("ij,ij->i", ap, ab)
+        d21 = np.einsum("ij,ij->i", ap, ac)
+        den = d00 * d11 - d01 * d01
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = (d11 * d20 - d01 * d21) / den
+            w = (d00 * d21 - d01 * d20) / den
+        u = 1.0 - v - w
+        bary = np.column_stack([u, v, w])
+        zero = np.abs(bary) < 1e-9
+        zero[~np.isfinite(bary)] = False
+        out = self.face[face].copy()
+        nz = zero.sum(axis=1)
+        rows = np.arange(len(face))
+        # one zero coordinate: on the edge opposite that corner (local edge (k+1) % 3)
+        e_rows = nz == 1
+        if e_rows.any():
+            k = np.argmax(zero[e_rows], axis=1)
+            out[e_rows] = self.edge[face[e_rows], (k + 1) % 3]
+        # two zeros: at the corner with the non-zero coordinate
+        v_rows = nz >= 2
+        if v_rows.any():
+            k = np.argmax(~zero[v_rows], axis=1)
+            out[v_rows] = self.vertex[F[rows[v_rows], k]]
+        return out
+
+
+    def sharp_edge_distance(self, face: np.ndarray, foot: np.ndarray) -> np.ndarray:
+        """(N,) distance [m] from feet to the nearest sharp edge of their face (inf: none)."""
+        F = self.faces[face]
+        out = np.full(len(face), np.inf)
+        for k in range(3):
+            sharp = self.sharp[face, k]
+            if not sharp.any():
+                continue
+            a = self.V[F[sharp, k]]
+            b = self.V[F[sharp, (k + 1) % 3]]
+            ab = b - a
+            t = np.clip(np.einsum("ij,ij->i", foot[sharp] - a, ab) / np.maximum(
+                np.einsum("ij,ij->i", ab, ab), 1e-300), 0.0, 1.0)
+            dist = np.linalg.norm(foot[sharp] - (a + t[:, None] * ab), axis=1)
+            out[sharp] = np.minimum(out[sharp], dist)
+        return out
+
+
+def pseudo_normals(index: MeshIndex) -> _PseudoNormalTable:
+    """The (cached) angle-weighted pseudo-normal table of a mesh index."""
+    key = id(index)
+    hit = _PSEUDO_CACHE.get(key)
+    if hit is None or hit[0] is not index:
+        if len(_PSEUDO_CACHE) > 8:
+            _PSEUDO_CACHE.clear()
+        hit = (index, _PseudoNormalTable(index))
+        _PSEUDO_CACHE[key] = hit
+    return hit[1]
+
+
 # ---------------------------------------------------------------------- the pipeline
 def localize_symmetric(
     points,
@@ -741,15 +853,12 @@ def localize_symmetric(
     T1 = res1.T_world_workpiece
     P = np.asarray(points, dtype=np.float64)
     finite = np.all(np.isfinite(P), axis=1)
-    Y = P[res1.inliers]
-    Ym = transform_points(inv_pose(T1), Y)
-    cp = index.query(Ym)
-    smooth = index.smooth_normals(cp.face, cp.foot)
+    det_foot, det_normal, det_face = _surface_points(index, P[res1.inliers], T1, res1.sigma_m)
     T_ref = np.eye(4) if (init is None or isinstance(init, str)) else as_pose(init, name="init")
 
     if isinstance(symmetric, str) and symmetric == "none":
-        weak = _unit_rows(res1.weak_directions)
-        obs = observability(cp.foot, smooth, tol)
+        obs = observability(det_foot, det_normal, tol)
+        weak = _unit_rows(obs.weak_directions)
         rel = obs.relative_eigenvalues
         return SymmetricResult(
             T_world_workpiece=T1, solutions=T1[None].copy(), solution_rmse_m=np.array([res1.rmse_m]),
@@ -769,10 +878,9 @@ def localize_symmetric(
     elif isinstance(symmetric, Feature):
         group = symmetric.group
     elif symmetric == "auto":
-        group = detect_symmetry(cp.foot, smooth, tol).group
+        group = detect_symmetry(det_foot, det_normal, tol).group
     else:
-        faces = np.unique(cp.face)
-        feat = Feature.from_mesh(index.mesh if hasattr(index.mesh, "faces") else index, faces, kind=symmetric)
+        feat = Feature.from_mesh(index.mesh, np.unique(det_face), kind=symmetric)
         group = feat.group
     res2 = algorithm2(P, index, group, init=T1, sigma=sigma, outlier=outlier)
     T2 = res2.T_world_workpiece
@@ -782,7 +890,7 @@ def localize_symmetric(
         reps = [np.eye(4)]
         for S in syms[1:]:
             # T S equals T S' modulo G_0 when S' S^-1 is in G_0
-            if any(group.contains(S @ inv_pose(R), SYMMETRY_TOL_REL, SYMMETRY_TOL_REL * index.extent)
+            if any(group.contains(S @ inv_pose(R), SAME_SOLUTION_TOL, SAME_SOLUTION_TOL * index.extent)
                    for R in reps):
                 continue
             reps.append(S)
@@ -795,6 +903,11 @@ def localize_symmetric(
         rms.append(float(np.sqrt(np.mean(d**2))))
     inliers = res2.inliers
     status = res2.status
+    # the information at the result, on the surface points (as for the detection)
+    f2, n2, _ = _surface_points(index, P[inliers], T2, res2.sigma_m)
+    rel = _scaled_information(f2, n2[:, None, :], False) if len(f2) >= 6 else res2.relative_eigenvalues
+    rank6 = int(np.sum(rel >= tol))
+    cond = float(1.0 / rel[0]) if rank6 == 6 else float("inf")
     if len(sols) > 1:
         status += f"; {len(sols)} equally good poses (discrete symmetry of the model)"
     return SymmetricResult(
@@ -805,12 +918,35 @@ def localize_symmetric(
         covariance_fixed=res2.covariance_fixed, converged=res2.converged,
         iterations=res1.iterations + res2.iterations, status=status, rmse_m=res2.rmse_m,
         history=res1.history + res2.history[1:], sigma_m=res2.sigma_m,
-        general_system_rank=res2.general_system_rank,
-        general_system_condition=res2.general_system_condition,
-        relative_eigenvalues=res2.relative_eigenvalues, detection_tol=tol, algorithm="2",
+        general_system_rank=rank6, general_system_condition=cond,
+        relative_eigenvalues=rel, detection_tol=tol, algorithm="2",
         n_points_used=res2.n_points_used, n_outliers=int(finite.sum() - res2.n_points_used),
         inliers=inliers, time_s=time.perf_counter() - t0,
     )
+
+
+def _surface_points(index, Y, T, sigma):
+    """Feet, smooth normals and faces of the points that measure a surface, not an edge.
+
+    Points on, beyond or within the noise of a sharp edge (their foot on the edge, the offset
+    not along the normal, or the foot closer to a sharp edge than EDGE_BAND_SIGMA noise
+    sigmas) measure the edge: they would fake information along a free direction (a plane
+    whose points hang over its border). The information analyses leave them out; Algorithm
+    2 still uses every inlier. Falls back to all points when fewer than 6 remain.
+    """
+    Ym = transform_points(inv_pose(T), Y)
+    cp = index.query(Ym)
+    smooth = index.smooth_normals(cp.face, cp.foot)
+    along = np.abs(np.einsum("ij,ij->i", Ym - cp.foot, cp.normal))
+    table = pseudo_normals(index)
+    pn = table.at(cp.face, cp.foot)
+    band = max(EDGE_BAND_SIGMA * sigma, 1e-9 * index.extent)
+    keep = ((along >= EDGE_COS * cp.distance) | (cp.distance <= 1e-12 * index.extent)) & (
+        np.einsum("ij,ij->i", pn, cp.normal) >= EDGE_COS) & (
+        table.sharp_edge_distance(cp.face, cp.foot) > band)
+    if keep.sum() < 6:
+        keep[:] = True
+    return cp.foot[keep], smooth[keep], cp.face[keep]
 
 
 def _unit_rows(W):

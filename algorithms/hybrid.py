@@ -1,0 +1,463 @@
+"""Hybrid (envelopment) localization: document 000's Algorithm 3.
+
+The problem (document 000, section 5.1). Some surfaces of the part are finished ("standard")
+and symmetric; the rest are rough (cast, forged) and carry stock. Find the pose of the
+finished part (the CAD model) so that its finished features match the measured finished
+points, and every measured rough point ``z_i`` lies at least the machining allowance
+``delta_i`` outside the model: ``<g^-1 z_i - t_i, n_i> >= delta_i`` (``t_i`` the closest
+model point, ``n_i`` the outward normal there).
+
+The solution (document 000, section 5.2):
+
+1. The finished points fix the pose on ``SE(3)/G_0`` (Algorithm 2, :mod:`algorithms.symmetric`,
+   with ``G_0`` found from the data or given); the pose ``g_0`` is left free along ``G_0``.
+2. Over ``g(lambda) = g_0 exp(sum lambda_j eta_j)`` (``eta_j`` a basis of ``g_0``) the rough
+   points are kept outside by their allowances while the envelope objective
+   ``e_e = sum_i ||g^-1 z_i - t_i||^2`` is minimised. Each step is the linear programme of
+   Algorithm 3, ``min <de_e, lambda>  s.t.  f + Df lambda <= 0`` with
+   ``f_i = delta_i - d_i`` (``d_i`` the signed distance of ``z_i`` from the model), solved by
+   scipy's HiGHS; then ``g_k = g_(k-1) exp(sum lambda_j eta_j)``. Stop when
+   ``1 - e_k / e_(k-1) < delta``.
+
+What the document leaves open, and the choices made here:
+
+* A linear programme with a linear objective runs to a vertex or is unbounded; the step is
+  therefore bounded by a trust region (a box on ``lambda``, in metres of point motion), and
+  the LP's direction is followed as far as the quadratic ``e_e`` keeps falling (exact line
+  search on its linearisation). Steps that would break an allowance on the true (nonlinear)
+  distances or not lower ``e_e`` are shrunk.
+* Before that, and always, the **best achievable minimum margin** ``max_lambda min_i (d_i -
+  delta_i)`` is found by the same kind of LP steps (maximise ``t`` subject to
+  ``d_i - A_i lambda - delta_i >= t``). When it is negative no pose along ``G_0`` gives every
+  rough point its allowance: the result says so (``feasible = False``), its pose is the
+  max-min placement (the best achievable), and ``limiting_points`` names the points that
+  hold the margin down (within ``LIMIT_TOL_REL`` of the size of the rough-point set of the
+  minimum). When it is not negative, Algorithm 3 starts from there.
+* A rough point that even at the max-min placement lies inside the finished model by more
+  than the stock (``stock_m``, default the median signed distance of the rough points there)
+  is not on a rough surface (a finished-surface or fixture point, or the wrong model): that
+  is an input error naming the points.
+* Directions of ``G_0`` that neither the objective nor any allowance depends on (the rough
+  points' information along them is below ``DETECTION_TOL`` of the strongest, e.g. rotation
+  about the axis of a round boss) stay free and are reported as such.
+
+Frames and units: points in the world frame, the model in the workpiece frame, metres;
+twists ``[omega, v]`` in the workpiece frame about its origin, as everywhere in this package.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linprog
+
+from algorithms.closest_point import MeshIndex
+from algorithms.errors import AlgorithmError
+from algorithms.se3 import as_pose, exp_se3, inv_pose, transform_points
+from algorithms.symmetric import DETECTION_TOL, SymmetricResult, localize_symmetric, pseudo_normals
+
+__all__ = ["HybridResult", "localize_hybrid", "envelope_distances", "LIMIT_TOL_REL", "TOLERANCE"]
+
+#: Stopping rule ``1 - e_k / e_(k-1) < TOLERANCE`` of Algorithm 3.
+TOLERANCE = 1e-10
+MAX_ITERATIONS = 200
+#: Points whose margin is within this fraction of the rough points' size of the minimum
+#: margin at the max-min placement are reported as limiting it.
+LIMIT_TOL_REL = 1e-6
+#: Trust region: initial and smallest half-width, relative to the rough points' size.
+TRUST0_REL = 0.05
+TRUST_MIN_REL = 1e-12
+
+
+@dataclass(frozen=True)
+class HybridResult:
+    """Result of :func:`localize_hybrid`.
+
+    Attributes:
+        T_world_workpiece: (4, 4) pose of the finished part: Algorithm 3's optimum when
+            feasible, else the max-min placement (the best achievable).
+        feasible: whether every rough point keeps at least its allowance at the result.
+        status: what happened, in words (names the limiting points when infeasible).
+        symmetric: the Algorithm 2 result on the finished points (``g_0``, ``G_0``).
+        T_max_min: (4, 4) the placement that maximises the smallest margin.
+        best_min_margin_m: ``max over G_0 of min_i (d_i - delta_i)`` [m] (negative:
+            infeasible by that much).
+        limiting_points: indices (into the rough points) that hold the margin down at the
+            max-min placement, smallest margin first.
+        stock_m: (M,) signed distance of each rough point from the finished model at the
+            result [m] (its stock; negative inside).
+        allowance_m: (M,) the required allowances delta_i [m].
+        margin_m: (M,) ``stock_m - allowance_m`` [m].
+        min_allowance_m: {group: smallest stock in the group at the result} [m].
+        groups: (M,) group label of each rough point.
+        envelope_rmse_m: ``sqrt(e_e / M)`` at the result [m].
+        free_dofs: directions still free after both stages (G_0 directions the rough points
+            do not constrain either).
+        free_directions: (free_dofs, 6) unit twists ``[omega, v]``, workpiece frame.
+        group_dofs: dim G_0: the directions Algorithm 3 worked on.
+        iterations: accepted LP steps (max-min stage + Algorithm 3).
+        lp_solves: linear programmes solved.
+        converged: whether the stages met their stopping rules.
+        history: envelope objective RMS [m] after each accepted Algorithm 3 step.
+        time_s: wall time [s].
+    """
+
+    T_world_workpiece: np.ndarray
+    feasible: bool
+    status: str
+    symmetric: SymmetricResult = field(repr=False)
+    T_max_min: np.ndarray
+    best_min_margin_m: float
+    limiting_points: np.ndarray
+    stock_m: np.ndarray
+    allowance_m: np.ndarray
+    margin_m: np.ndarray
+    min_allowance_m: dict
+    groups: np.ndarray
+    envelope_rmse_m: float
+    free_dofs: int
+    free_directions: np.ndarray
+    group_dofs: int
+    iterations: int
+    lp_solves: int
+    converged: bool
+    history: tuple
+    time_s: float = 0.0
+
+
+def envelope_distances(points_world, T_world_workpiece, index: MeshIndex):
+    """Signed distances of points from a closed model and their outward gradients.
+
+    The sign is decided with the angle-weighted pseudo-normal of the face, edge or vertex the
+    closest point lies on (Baerentzen and Aanaes, 2005), which is exact for a closed,
+    consistently wound mesh; the face normal alone misjudges points beside a convex edge
+    (the rim of a boss, say).
+
+    Args:
+        points_world: (M, 3) [m] points, world frame.
+        T_world_workpiece: (4, 4) pose of the model.
+        index: MeshIndex of the closed, outward-wound model (workpiece frame).
+
+    Returns:
+        (d (M,) [m], positive outside; u (M, 3) unit outward directions (the gradient of d
+        with respect to the model-frame point); model-frame points (M, 3)).
+    """
+    Z = transform_points(inv_pose(T_world_workpiece), np.asarray(points_world, dtype=np.float64))
+    cp = index.query(Z)
+    diff = Z - cp.foot
+    pn = pseudo_normals(index).at(cp.face, cp.foot)
+    sign = np.where(np.einsum("ij,ij->i", diff, pn) < 0.0, -1.0, 1.0)
+    dist = cp.distance
+    tiny = 1e-12 * index.extent
+    u = np.where((dist > tiny)[:, None], sign[:, None] * diff / np.maximum(dist, tiny)[:, None], cp.normal)
+    return sign * dist, u, Z
+
+
+def _check_allowance(allowance, m):
+    a = np.asarray(allowance, dtype=np.float64)
+    if a.ndim == 0:
+        a = np.full(m, float(a))
+    if a.shape != (m,):
+        raise AlgorithmError(f"allowance must be a number or ({m},) per rough point [m], got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise AlgorithmError("allowance must be finite [m]")
+    bad = np.nonzero(a < 0)[0]
+    if len(bad):
+        rows = ", ".join(str(i) for i in bad[:10]) + (f" and {len(bad) - 10} more" if len(bad) > 10 else "")
+        raise AlgorithmError(
+            f"allowance must be >= 0 [m] (material left for machining); rough point(s) {rows} "
+            f"have {a[bad[0]]:g}"
+        )
+    return a
+
+
+def localize_hybrid(
+    finished_points,
+    rough_points,
+    mesh,
+    allowance,
+    groups=None,
+    symmetric="auto",
+    init=None,
+    stock_m: float | None = None,
+    sigma: float | None = None,
+    outlier="mad",
+    max_iterations: int = MAX_ITERATIONS,
+    tolerance: float = TOLERANCE,
+    index: MeshIndex | None = None,
+) -> HybridResult:
+    """Hybrid localization: Algorithm 2 on the finished points, Algorithm 3 on the rough ones.
+
+    Args:
+        finished_points: (N, 3) [m] points on the finished (standard) surfaces, world frame.
+        rough_points: (M, 3) [m] points on the rough (envelope) surfaces, world frame.
+        mesh: the finished part's closed, outward-wound model (workpiece frame, metres).
+        allowance: machining allowance delta_i >= 0 [m]: one number or (M,).
+        groups: (M,) labels of the rough points (e.g. one per cast surface) for the
+            per-group minimum stock; default all "rough".
+        symmetric: ``G_0`` of the finished points: "auto" (detected), a feature type, a
+            :class:`~algorithms.features.Feature` or a
+            :class:`~algorithms.features.SymmetryGroup`.
+        init: initial pose (4x4) or None (identity); also fixes the ``G_0`` start.
+        stock_m: nominal stock [m] for the inside-the-model check (default: the median
+            stock of the rough points at the max-min placement).
+        sigma, outlier: for the finished points (see :func:`localize_symmetric`).
+        max_iterations: cap on LP steps per stage.
+        tolerance: ``delta`` of ``1 - e_k/e_(k-1) < delta``.
+        index: prebuilt MeshIndex of ``mesh``.
+
+    Returns:
+        HybridResult.
+
+    Raises:
+        AlgorithmError: bad points, a negative or non-finite allowance, ``symmetric="none"``,
+            rough points inside the model by more than the stock (named), bad options.
+    """
+    t0 = time.perf_counter()
+    Z = np.asarray(rough_points, dtype=np.float64)
+    if Z.ndim != 2 or Z.shape[1] != 3 or len(Z) < 1:
+        raise AlgorithmError(f"rough points must be (M, 3) with M >= 1, got {Z.shape}")
+    if not np.all(np.isfinite(Z)):
+        bad = np.nonzero(~np.all(np.isfinite(Z), axis=1))[0]
+        raise AlgorithmError(f"rough points must be finite; row(s) {', '.join(map(str, bad[:10]))} are not")
+    M = len(Z)
+    delta = _check_allowance(allowance, M)
+    if groups is None:
+        labels = np.full(M, "rough")
+    else:
+        labels = np.asarray(groups).astype(str)
+        if labels.shape != (M,):
+            raise AlgorithmError(f"groups must be ({M},) labels, got shape {labels.shape}")
+    if isinstance(symmetric, str) and symmetric == "none":
+        raise AlgorithmError("the hybrid problem needs the finished features' G_0: symmetric must not be 'none'")
+    if stock_m is not None and not (np.isfinite(stock_m) and stock_m > 0):
+        raise AlgorithmError(f"stock_m must be a positive length [m] or None, got {stock_m}")
+    if int(max_iterations) < 1:
+        raise AlgorithmError(f"max_iterations must be >= 1, got {max_iterations}")
+    if init is not None and not isinstance(init, str):
+        init = as_pose(init, name="init")
+    index = index if index is not None else MeshIndex(mesh)
+
+    sym = localize_symmetric(finished_points, mesh, symmetric=symmetric, init=init, sigma=sigma,
+                             outlier=outlier, index=index, discrete=False)
+    T = sym.T_world_workpiece
+    H = sym.free_directions  # (r, 6) basis of g_0 at T
+    r = len(H)
+    c = Z.mean(axis=0)
+    size = float(np.sqrt(np.mean(np.sum((Z - c) ** 2, axis=1)))) or float(index.extent)
+    size = max(size, 1e-3 * index.extent)
+    lp_count = [0]
+
+    def state(T_):
+        d_, u_, Zm_ = envelope_distances(Z, T_, index)
+        A_ = np.zeros((M, r))
+        if r:
+            J = np.hstack([np.cross(Zm_, u_), u_])
+            A_ = J @ H.T
+        return d_, A_
+
+    # scale of each lambda_j: RMS motion of the rough points per unit lambda_j [m]
+    d, A = state(T)
+    if r:
+        motion = np.zeros(r)
+        Zm = transform_points(inv_pose(T), Z)
+        for j in range(r):
+            mv = np.cross(H[j, :3], Zm) + H[j, 3:]
+            motion[j] = np.sqrt(np.mean(np.sum(mv * mv, axis=1)))
+        scale = np.where(motion > 0, motion, 1.0)
+    else:
+        scale = np.zeros(0)
+
+    # ---------------------------------------------------------------- max-min stage
+    it1, conv1, T_mm, d, A = _max_min(T, d, A, delta, H, scale, size, state, lp_count, max_iterations)
+    margin = d - delta
+    best = float(margin.min())
+    lim_tol = LIMIT_TOL_REL * size
+    order = np.argsort(margin, kind="stable")
+    limiting = order[margin[order] <= best + lim_tol]
+
+    # inside the model by more than the stock: not a rough-surface point
+    s_ref = float(stock_m) if stock_m is not None else float(np.median(d))
+    if s_ref > 0:
+        deep = np.nonzero(d < -s_ref)[0]
+        if len(deep):
+            deep = deep[np.argsort(d[deep])]
+            names = ", ".join(f"{i} ({-d[i] * 1e3:.3g} mm inside)" for i in deep[:10])
+            more = f" and {len(deep) - 10} more" if len(deep) > 10 else ""
+            what = "the given stock" if stock_m is not None else "the median stock"
+            raise AlgorithmError(
+                f"rough point(s) {names}{more} of {M} lie inside the finished model by more than "
+                f"{what} ({s_ref * 1e3:.3g} mm) even at the best placement: they are not on a rough "
+                "surface (finished-surface or fixture points?) or the model is wrong; remove them"
+            )
+
+    history = []
+    it2, conv2 = 0, True
+    if best < 0.0:
+        feasible = False
+        T_out = T_mm
+        lim_txt = ", ".join(f"{i} ({labels[i]}: stock {d[i] * 1e3:.4g} mm, allowance {delta[i] * 1e3:.4g} mm)"
+                            for i in limiting[:10])
+        more = f" and {len(limiting) - 10} more" if len(limiting) > 10 else ""
+        status = (
+            f"infeasible: no pose along G_0 ({sym.group.name}) gives every rough point its allowance; "
+            f"the best achievable minimum margin is {best * 1e3:.4g} mm (smallest stock "
+            f"{d.min() * 1e3:.4g} mm), limited by point(s) {lim_txt}{more}; the pose returned is "
+            "that max-min placement"
+        )
+    else:
+        feasible = True
+        T_out, d, A, it2, conv2, history = _envelope(T_mm, d, A, delta, H, scale, size, state, lp_count,
+                                                     max_iterations, tolerance)
+        status = (f"feasible: every rough point keeps its allowance (smallest margin "
+                  f"{(d - delta).min() * 1e3:.4g} mm; best achievable {best * 1e3:.4g} mm); "
+                  + ("converged" if conv2 else "not converged: reached max_iterations"))
+    # directions of G_0 the rough points do not constrain either
+    free_dirs = np.zeros((0, 6))
+    if r:
+        As = A * (1.0 / scale)[None, :]
+        w, V = np.linalg.eigh(As.T @ As / M)
+        wmax = w[-1] if w[-1] > 0 else 1.0
+        weak = w / wmax < DETECTION_TOL if w[-1] > 0 else np.ones(r, dtype=bool)
+        if weak.any():
+            coef = V[:, weak] / scale[:, None]
+            free_dirs = _unit_rows((coef.T @ H))
+    stock = d
+    per_group = {g: float(stock[labels == g].min()) for g in dict.fromkeys(labels.tolist())}
+    return HybridResult(
+        T_world_workpiece=T_out,
+        feasible=feasible,
+        status=status + f"; finished features: {sym.group.describe()}",
+        symmetric=sym,
+        T_max_min=T_mm,
+        best_min_margin_m=best,
+        limiting_points=limiting,
+        stock_m=stock,
+        allowance_m=delta,
+        margin_m=stock - delta,
+        min_allowance_m=per_group,
+        groups=labels,
+        envelope_rmse_m=float(np.sqrt(np.mean(stock**2))),
+        free_dofs=int(len(free_dirs)),
+        free_directions=free_dirs,
+        group_dofs=r,
+        iterations=it1 + it2,
+        lp_solves=lp_count[0],
+        converged=bool(conv1 and conv2),
+        history=tuple(history),
+        time_s=time.perf_counter() - t0,
+    )
+
+
+def _unit_rows(W):
+    out = W.copy()
+    for i, x in enumerate(W):
+        nw = np.linalg.norm(x[:3])
+        out[i] = x / (nw if nw > 1e-9 * max(np.linalg.norm(x[3:]), 1e-300) else np.linalg.norm(x[3:]))
+    return out
+
+
+def _lp(c, A_ub, b_ub, bounds, lp_count):
+    lp_count[0] += 1
+    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
+    if res.status != 0:
+        return None
+    return res.x
+
+
+def _max_min(T, d, A, delta, H, scale, size, state, lp_count, max_it):
+    """Trust-region LP steps maximising min_i (d_i - delta_i) over lambda in R^r."""
+    r = len(H)
+    if r == 0:
+        return 0, True, T, d, A
+    trust = TRUST0_REL * size
+    trust_min = TRUST_MIN_REL * size
+    cur = float((d - delta).min())
+    it, converged = 0, False
+    cost = np.zeros(r + 1)
+    cost[-1] = -1.0
+    for _ in range(20 * max_it):
+        if it >= max_it or trust < trust_min:
+            converged = trust < trust_min
+            break
+        # max t  s.t.  A lambda + t <= d - delta,  |lambda_j| scale_j <= trust
+        bounds = [(-trust / s, trust / s) for s in scale] + [(None, None)]
+        # rows that cannot be the smallest anywhere in the box are left out (exactly)
+        margin = d - delta
+        reach = np.abs(A) @ (trust / scale)
+        rows = margin - reach <= np.min(margin + reach)
+        x = _lp(cost, np.hstack([A[rows], np.ones((int(rows.sum()), 1))]), margin[rows], bounds, lp_count)
+        if x is None:
+            trust *= 0.5
+            continue
+        lam, pred = x[:r], x[-1]
+        if pred - cur <= 1e-12 * size:
+            converged = True
+            break
+        T_new = T @ exp_se3(H.T @ lam)
+        d_new, A_new = state(T_new)
+        new = float((d_new - delta).min())
+        ratio = (new - cur) / (pred - cur)
+        if ratio >= 0.1:
+            T, d, A, cur = T_new, d_new, A_new, new
+            it += 1
+            if ratio > 0.75 and np.max(np.abs(lam) * scale) > 0.99 * trust:
+                trust *= 2.0
+        else:
+            trust = 0.5 * max(trust if ratio < 0 else np.max(np.abs(lam) * scale), trust_min)
+    return it, converged, T, d, A
+
+
+def _envelope(T, d, A, delta, H, scale, size, state, lp_count, max_it, tol):
+    """Algorithm 3: LP steps on <de_e, lambda> under the linearised allowances."""
+    r = len(H)
+    e = float(np.sum(d * d))
+    history = [float(np.sqrt(e / len(d)))]
+    if r == 0:
+        return T, d, A, 0, True, history
+    trust = TRUST0_REL * size
+    trust_min = TRUST_MIN_REL * size
+    it, converged = 0, False
+    for _ in range(20 * max_it):
+        if it >= max_it:
+            break
+        if trust < trust_min:
+            converged = True
+            break
+        grad = -2.0 * A.T @ d  # d e_e / d lambda
+        bounds = [(-trust / s, trust / s) for s in scale]
+        # rows that no step in the box can violate are left out (exactly)
+        margin = d - delta
+        rows = np.abs(A) @ (trust / scale) >= margin
+        if rows.any():
+            lam = _lp(grad, A[rows], margin[rows], bounds, lp_count)
+        else:
+            lam = _lp(grad, None, None, bounds, lp_count)
+        if lam is None:
+            trust *= 0.5
+            continue
+        Ap = A @ lam
+        denom = float(Ap @ Ap)
+        if denom <= 0 or float(grad @ lam) >= 0:
+            converged = True
+            break
+        alpha = min(1.0, float(d @ Ap) / denom)  # exact line search on the linearised e_e
+        step = alpha * lam
+        T_new = T @ exp_se3(H.T @ step)
+        d_new, A_new = state(T_new)
+        e_new = float(np.sum(d_new * d_new))
+        if e_new < e and float((d_new - delta).min()) >= 0.0:
+            rel = 1.0 - e_new / e
+            T, d, A, e = T_new, d_new, A_new, e_new
+            it += 1
+            history.append(float(np.sqrt(e / len(d))))
+            # the box follows the step length (a vertex step in a large box zig-zags)
+            trust = max(2.0 * float(np.max(np.abs(step) * scale)), trust_min)
+            if rel < tol:
+                converged = True
+                break
+        else:
+            trust *= 0.5
+    return T, d, A, it, converged, history
