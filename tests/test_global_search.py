@@ -269,3 +269,28 @@ def test_input_errors(part):
         global_localize(bad, m)
     with pytest.raises(AlgorithmError, match="mesh"):
         global_localize(pts)
+
+
+# ------------------------------------------------------------------ options and integration
+def test_printed_start_table_and_stop_at_first(part):
+    m, idx, pts = part
+    T = _pose(TRUE_ROTVECS[0])
+    y = pts @ T[:3, :3].T + T[:3, 3]
+    r = global_localize(y, m, index=idx, noise_sigma_m=0.0, start_table="liu2001", stop_at_first=True)
+    assert r.extra["n_starts"] == 36
+    assert r.extra["starts_accepted"] >= 1
+    _check_recovered(r, T)
+
+
+def test_result_type_and_localize_global_init(part):
+    from algorithms.localization import localize
+
+    m, idx, pts = part
+    T = _pose(TRUE_ROTVECS[2])
+    y = pts @ T[:3, :3].T + T[:3, 3]
+    r = global_localize(y, m, index=idx, noise_sigma_m=0.0)
+    assert isinstance(r, gs.GlobalLocalizationResult) and isinstance(r, LocalizationResult)
+    assert r.method == "multistart" and r.rmse_m < 1e-9
+    local = localize(y, m, init="global", index=idx)
+    assert rotation_error_rad(local.T_world_workpiece, T) < POSE_TOL_RAD
+    assert translation_error_m(local.T_world_workpiece, T) < POSE_TOL_M
