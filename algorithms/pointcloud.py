@@ -8,20 +8,24 @@ holds one ordered (n_i, 3) array per line, lines ordered across the part.
 The steps and their parameters (the defaults are the ones ``twin run`` uses):
 
 1. :func:`organize_scan_lines`: group the samples by their scan-line label, drop invalid
-   (NaN/inf) samples and the samples between lines (label < 0), order each line along a
-   common along-line direction (the principal direction of all line points, so that every
-   line runs the same way) and the lines across it. A line with no valid point, or fewer
+   (NaN/inf) samples and the samples between lines (label < 0), make every line run along a
+   common direction (the principal direction of the lines; a line scanned the other way is
+   reversed, its samples otherwise kept in acquisition order) and order the lines across it.
+   A line with no valid point, or fewer
    than two lines, is an error naming the line (``empty="drop"`` drops empty lines instead).
-2. :func:`remove_outliers`: a robust local-polynomial (Hampel-type) filter per line on the two
+2. :func:`remove_outliers`: a robust local-quadratic (Hampel-type) filter per line on the two
    coordinates across the line (``across`` and the height ``direction x across``, both
-   functions of the position along the line): a Savitzky-Golay quadratic over ``window_m``
-   of line is fitted to the current inliers, every point's residual from it is measured, and
-   points whose residual norm exceeds ``k * sigma`` are rejected, with
-   ``sigma = 1.4826 * median(|residual|)`` of the inliers (a robust Gaussian sigma) but a
-   threshold never below ``min_residual_m``. Three passes, each re-testing every point
-   against a fit made without the previous pass's outliers, so that a large spike pulls
-   its neighbours out only for one pass. A moving median alone would not do: on a sloped,
-   densely sampled line each coordinate is monotone and the median returns the point itself.
+   functions of the position along the line): a least-squares quadratic over ``window_m`` of
+   line (counted in samples at the line's median spacing, i.e. a Savitzky-Golay filter) is
+   fitted around every sample, and samples whose residual norm exceeds ``k * sigma`` are
+   rejected, with ``sigma = 1.4826 * median(|residual|)`` of the inliers (a robust Gaussian
+   sigma) but a threshold never below ``min_residual_m``. A spike pulls the fit of its
+   neighbours, so outliers are removed in passes (up to ``passes``, 8 by default): each pass
+   weights out the samples above the threshold whose residual is the largest within their
+   window (the spikes, not the neighbours they pull) and refits; the final test of every
+   sample is against the last fit. A moving median would not do as the reference: on a
+   sloped, densely sampled line each coordinate is monotone and the median returns the
+   point itself, noise included.
 3. :func:`extract_boundary`: split each line where consecutive points are more than
    ``max_gap_m`` apart (the beam leaving the part for the table, a hole, an occluded stretch)
    and keep the longest run: the part. The boundary polygon (:func:`boundary_polygon`) joins
@@ -39,7 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.ndimage import correlate1d, maximum_filter1d
 
 from algorithms.errors import AlgorithmError
 
@@ -47,7 +51,7 @@ from algorithms.errors import AlgorithmError
 OUTLIER_WINDOW_M = 0.001
 OUTLIER_K = 5.0
 OUTLIER_MIN_RESIDUAL_M = 5e-6
-OUTLIER_PASSES = 3
+OUTLIER_PASSES = 8
 # A gap wider than this splits a line (boundary extraction).
 MAX_GAP_M = 0.002
 # Bin length of the even-spacing simplification.
@@ -101,7 +105,8 @@ def _count(removed: dict, key: str, n: int) -> dict:
     return out
 
 
-def organize_scan_lines(points, line, empty: str = "error", min_points: int = MIN_LINE_POINTS) -> LineCloud:
+def organize_scan_lines(points, line, empty: str = "error", min_points: int = MIN_LINE_POINTS,
+                        order: str = "input") -> LineCloud:
     """Group samples by scan line and order them along and across the lines.
 
     Args:
@@ -110,6 +115,12 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
         empty: ``"error"`` (default): a line with fewer than ``min_points`` valid samples is
             an error naming it; ``"drop"``: such lines are dropped (and counted).
         min_points: fewest valid points a line must have.
+        order: ``"input"`` (default): the samples of a line keep their acquisition order (a
+            scan's samples come in time order), reversed where the line runs against the
+            common direction; ``"projection"``: sorted by their position along the common
+            direction (for points in no particular order). Acquisition order is the safer one
+            for filtering: an outlier displaced across the line also moves along it and would
+            be sorted in among the wrong neighbours.
 
     Returns:
         LineCloud with at least two lines.
@@ -124,6 +135,8 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
         raise PointCloudError(f"points must be (N, 3), got shape {P.shape}")
     if lab.shape != (len(P),) or not np.issubdtype(lab.dtype, np.integer):
         raise PointCloudError(f"line must be (N,) integers pairing with points (N = {len(P)}), got {lab.shape} {lab.dtype}")
+    if order not in ("input", "projection"):
+        raise PointCloudError(f"order must be 'input' or 'projection', got {order!r}")
     if empty not in ("error", "drop"):
         raise PointCloudError(f"empty must be 'error' or 'drop', got {empty!r}")
     finite = np.all(np.isfinite(P), axis=1)
@@ -175,33 +188,66 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
         direction = -direction
     if (means[-1] - means[0]) @ across < 0:
         across = -across
-    order = np.argsort(means @ across, kind="stable")
     lines, idx = [], []
-    for k in order:
+    line_order = np.argsort(means @ across, kind="stable")
+    for k in line_order:
         rows = keep_idx[k]
-        o = np.argsort(P[rows] @ direction, kind="stable")
-        lines.append(P[rows][o])
-        idx.append(rows[o])
-    return LineCloud(tuple(lines), np.array(keep_ids)[order], tuple(idx), direction, across, removed)
+        if order == "projection":
+            rows = rows[np.argsort(P[rows] @ direction, kind="stable")]
+        elif (P[rows[-1]] - P[rows[0]]) @ direction < 0:
+            rows = rows[::-1]
+        lines.append(P[rows])
+        idx.append(rows)
+    return LineCloud(tuple(lines), np.array(keep_ids)[line_order], tuple(idx), direction, across, removed)
 
 
-def _robust_mask(c: np.ndarray, u: np.ndarray, half: int, k: float, floor: float, passes: int) -> np.ndarray:
-    """Inliers of the (n, 2) cross-line coordinates ``c`` sampled at along-line positions ``u``."""
-    ok = np.ones(len(c), dtype=bool)
+def _local_quadratic(y: np.ndarray, w: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least-squares quadratic over +-``half`` samples around every sample, its value there.
+
+    ``y`` (n, d), weights ``w`` (n,) (0 excludes a sample). With all weights 1 this is the
+    Savitzky-Golay filter; zero weights leave the fit undisturbed by the excluded samples and
+    near the ends the window is one-sided. Returns the fit and a mask of samples with enough
+    support (at least 5 weighted samples in the window).
+    """
+    j = np.arange(-half, half + 1, dtype=np.float64)
+    M = [correlate1d(w, j**k, mode="constant") for k in range(5)]
+    wy = w[:, None] * y
+    Bk = [correlate1d(wy, j**k, axis=0, mode="constant") for k in range(3)]
+    A = np.stack([np.stack([M[0], M[1], M[2]], -1), np.stack([M[1], M[2], M[3]], -1),
+                  np.stack([M[2], M[3], M[4]], -1)], -2)
+    supported = M[0] >= 5
+    A[~supported] = np.eye(3)
+    rhs = np.stack(Bk, axis=1)  # (n, 3, d)
+    fit = np.linalg.solve(A, rhs)[:, 0, :]
+    fit[~supported] = y[~supported]
+    return fit, supported
+
+
+def _robust_mask(c: np.ndarray, half: int, k: float, floor: float, passes: int) -> np.ndarray:
+    """Inliers of the (n, 2) cross-line coordinates ``c`` of an ordered line.
+
+    The local fits run over the sample index (samples come evenly in time). Each pass
+    excludes, among the samples above the threshold, those with the largest residual within
+    their window (the spikes themselves, not the neighbours they pull), and refits; the
+    final test is against the last fit.
+    """
+    if len(c) < 5:
+        return np.ones(len(c), dtype=bool)
+    half = min(half, (len(c) - 1) // 2)
+    excluded = np.zeros(len(c), dtype=bool)
     for _ in range(passes):
-        ci, ui = c[ok], u[ok]
-        w = min(2 * half + 1, len(ci) if len(ci) % 2 == 1 else len(ci) - 1)
-        if w < 3:
-            break
-        smooth = savgol_filter(ci, w, polyorder=min(2, w - 1), axis=0, mode="interp")
-        fit = np.column_stack([np.interp(u, ui, smooth[:, j]) for j in range(c.shape[1])])
+        fit, _ = _local_quadratic(c, (~excluded).astype(np.float64), half)
         r = np.linalg.norm(c - fit, axis=1)
-        sigma = MAD_TO_SIGMA * np.median(r[ok])
-        new = r <= max(k * sigma, floor)
-        if np.array_equal(new, ok):
+        thr = max(k * MAD_TO_SIGMA * np.median(r[~excluded]), floor)
+        cand = np.where((r > thr) & ~excluded, r, 0.0)
+        peaks = (cand > 0) & (cand >= maximum_filter1d(cand, 2 * half + 1, mode="constant"))
+        if not peaks.any():
             break
-        ok = new
-    return ok
+        excluded |= peaks
+    fit, _ = _local_quadratic(c, (~excluded).astype(np.float64), half)
+    r = np.linalg.norm(c - fit, axis=1)
+    thr = max(k * MAD_TO_SIGMA * np.median(r[~excluded]), floor)
+    return r <= thr
 
 
 def remove_outliers(cloud: LineCloud, window_m: float = OUTLIER_WINDOW_M, k: float = OUTLIER_K,
@@ -219,10 +265,9 @@ def remove_outliers(cloud: LineCloud, window_m: float = OUTLIER_WINDOW_M, k: flo
     n_out = 0
     for p, ix in zip(cloud.lines, cloud.index):
         if len(p) >= 5:
-            u = p @ cloud.direction
-            spacing = np.median(np.diff(u))
+            spacing = np.median(np.diff(p @ cloud.direction))
             half = int(max(2, round(0.5 * window_m / max(spacing, 1e-12))))
-            ok = _robust_mask(p @ cross.T, u, half, k, min_residual_m, passes)
+            ok = _robust_mask(p @ cross.T, half, k, min_residual_m, passes)
             n_out += int((~ok).sum())
             p, ix = p[ok], ix[ok]
         lines.append(p)
