@@ -120,12 +120,15 @@ def pca_normals(points, k: int = 16, orient=None) -> np.ndarray:
         raise NormalsError(f"points must be finite (N, 3), got shape {P.shape}")
     if not (isinstance(k, (int, np.integer)) and 3 <= k <= len(P)):
         raise NormalsError(f"k must be an integer in [3, {len(P)}], got {k!r}")
-    _, nb = cKDTree(P).query(P, k=int(k))
-    Q = P[nb]
-    Q = Q - Q.mean(axis=1, keepdims=True)
-    C = np.einsum("nki,nkj->nij", Q, Q)
-    _, V = np.linalg.eigh(C)
-    n = V[:, :, 0]
+    tree = cKDTree(P)
+    n = np.empty_like(P)
+    step = max(1, 2_000_000 // int(k))  # bound the (chunk, k, 3) neighbourhood array
+    for c0 in range(0, len(P), step):
+        _, nb = tree.query(P[c0:c0 + step], k=int(k))
+        Q = P[nb]
+        Q = Q - Q.mean(axis=1, keepdims=True)
+        _, V = np.linalg.eigh(np.einsum("nki,nkj->nij", Q, Q))
+        n[c0:c0 + step] = V[:, :, 0]
     if orient is not None:
         o = np.asarray(orient, dtype=np.float64)
         n = np.where((n @ o)[:, None] < 0, -n, n)
