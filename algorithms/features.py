@@ -77,6 +77,11 @@ FEATURE_TYPES: tuple[str, ...] = (
 #: to it is below this fraction of the faces' bounding-box diagonal (generated and CAD meshes
 #: have their vertices on the exact surface; float32 STL rounding is ~1e-7 relative).
 FIT_TOL_REL = 1e-5
+#: A fitted primitive must also agree with the faces' normals: at every face centroid the
+#: primitive's normal is within this angle of the face normal (a tessellation's facets
+#: deviate by half their angular size at most; two rings of vertices also lie on a sphere,
+#: the eight corners of a box on a cylinder: the normals tell them apart).
+FIT_NORMAL_TOL_RAD = float(np.radians(5.0))
 #: Extruded surface: every face normal must be perpendicular to the sweep direction within
 #: this angle [rad].
 EXTRUDED_TOL_RAD = 1e-4
@@ -278,7 +283,7 @@ class SymmetryGroup:
                 f"{self.quotient_dim} fixed direction(s)").replace("  ", " ")
 
 
-def symmetry_group(kind: str, origin=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 1.0)) -> SymmetryGroup:
+def symmetry_group(kind: str, origin=(0.0, 0.0, 0.0), axis=None) -> SymmetryGroup:
     """The subgroup ``G_0`` of a table feature, with bases of ``g_0`` and ``m_0``.
 
     Args:
@@ -287,6 +292,7 @@ def symmetry_group(kind: str, origin=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 1.0)) -> S
             line or plane). For the 2D features a 2-vector (x, y) is accepted; z must be 0.
         axis: (3,) axis / normal / direction (normalised here). For ``circle2d`` it is the
             plane normal and must be +-z; for ``line2d`` the line direction, in the xy plane.
+            Default: +x for ``line2d``, +z otherwise.
 
     Raises:
         AlgorithmError: unknown kind (the message lists the valid ones), bad vectors, or a
@@ -295,6 +301,8 @@ def symmetry_group(kind: str, origin=(0.0, 0.0, 0.0), axis=(0.0, 0.0, 1.0)) -> S
     check_feature_type(kind)
     info = FEATURE_TABLE[kind]
     c = _point(origin, "origin")
+    if axis is None:
+        axis = (1.0, 0.0, 0.0) if kind == "line2d" else (0.0, 0.0, 1.0)
     a = _unit(axis, "axis")
     if info.planar:
         if abs(c[2]) > 1e-12:
@@ -560,6 +568,12 @@ class Feature:
             if k == "freeform":
                 break
             feat, rms = _fit(k, sub_v, normals, area, tri)
+            if feat is not None and k != "extruded" and rms <= tol:
+                # the primitive's normals at the face centroids must match the faces'
+                pn = feat.closest(tri.mean(axis=1)).normals[:, 0, :]
+                cosang = np.abs(np.einsum("ij,ij->i", pn, normals))[area > 0]
+                if cosang.size and cosang.min() < np.cos(FIT_NORMAL_TOL_RAD):
+                    rms = max(rms, float(np.arccos(np.clip(cosang.min(), -1, 1))) * size)
             last_rms = rms
             if feat is not None and rms <= tol:
                 if k == "extruded" or surface == "faces":
