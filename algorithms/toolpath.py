@@ -15,8 +15,10 @@ Options the process may need (``heading``, ``axis``, ``lead``/``tilt``):
   the default for rotationally symmetric tools such as a polishing spindle).
 * ``axis="normal"`` (eq. 11): tool z along the surface normal; ``"fixed"``: tool z along a
   fixed direction (a 3-axis process), constant along the path.
-* ``lead`` (rad) tilts the tool axis towards +x (the travel or heading direction), ``tilt``
-  (rad) towards +y (sideways): ``R_tool = R_contact Ry(lead) Rx(-tilt)``.
+* ``lead`` (rad) leans the tool axis towards +x (the travel or heading direction), ``tilt``
+  (rad) then turns it about the contact frame's x towards +y (sideways):
+  ``R_tool = R_contact Rx(-tilt) Ry(lead)``, so that the axis in the contact frame is
+  ``(sin lead, cos lead sin tilt, cos lead cos tilt)``.
 * ``tip_radius_m``: a ball-end tool of that radius touches the surface at ``p`` whatever the
   lead and tilt: its centre is ``p + r v_n`` and the tool frame origin (the TCP, the tip of
   the tool on its axis) is ``p + r (v_n - z_tool)``. With ``r = 0`` the TCP is ``p``.
@@ -135,7 +137,7 @@ def tool_frames(T_contact, lead_rad: float = 0.0, tilt_rad: float = 0.0, tip_rad
             raise ToolPathError(f"{name} must be a finite angle below 90 degrees, got {v!r} rad")
     if not (np.isfinite(tip_radius_m) and tip_radius_m >= 0):
         raise ToolPathError(f"tip_radius_m must be >= 0, got {tip_radius_m!r}")
-    R_off = Rotation.from_euler("yx", [lead_rad, -tilt_rad]).as_matrix()
+    R_off = Rotation.from_euler("yx", [lead_rad, -tilt_rad]).as_matrix()  # extrinsic: Rx(-tilt) @ Ry(lead)
     out = T.copy()
     out[:, :3, :3] = T[:, :3, :3] @ R_off
     out[:, :3, 3] = T[:, :3, 3] + tip_radius_m * (T[:, :3, 2] - out[:, :3, 2])
