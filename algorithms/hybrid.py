@@ -34,9 +34,10 @@ What the document leaves open, and the choices made here:
   hold the margin down (within ``LIMIT_TOL_REL`` of the size of the rough-point set of the
   minimum). When it is not negative, Algorithm 3 starts from there.
 * A rough point that even at the max-min placement lies inside the finished model by more
-  than the stock (``stock_m``, default the median signed distance of the rough points there)
-  is not on a rough surface (a finished-surface or fixture point, or the wrong model): that
-  is an input error naming the points.
+  than the stock (``stock_m``, default the 10th percentile of the rough points' signed
+  distances there: the thin end of the stock) is not on a rough surface (a finished-surface
+  or fixture point, or the wrong model): that is an input error naming the points. A point
+  inside by less is a casting with too little stock there: the infeasibility report.
 * Directions of ``G_0`` that neither the objective nor any allowance depends on (the rough
   points' information along them is below ``DETECTION_TOL`` of the strongest, e.g. rotation
   about the axis of a round boss) stay free and are reported as such.
@@ -66,6 +67,10 @@ MAX_ITERATIONS = 200
 #: Points whose margin is within this fraction of the rough points' size of the minimum
 #: margin at the max-min placement are reported as limiting it.
 LIMIT_TOL_REL = 1e-6
+#: Default stock for the inside-the-model check: this percentile of the rough points' signed
+#: distances at the max-min placement (the thin end of the stock; robust to the few bad
+#: points it is looking for).
+STOCK_PERCENTILE = 10.0
 #: Trust region: initial and smallest half-width, relative to the rough points' size.
 TRUST0_REL = 0.05
 TRUST_MIN_REL = 1e-12
@@ -201,8 +206,8 @@ def localize_hybrid(
             :class:`~algorithms.features.Feature` or a
             :class:`~algorithms.features.SymmetryGroup`.
         init: initial pose (4x4) or None (identity); also fixes the ``G_0`` start.
-        stock_m: nominal stock [m] for the inside-the-model check (default: the median
-            stock of the rough points at the max-min placement).
+        stock_m: nominal stock [m] for the inside-the-model check (default: the 10th
+            percentile of the rough points' stock at the max-min placement).
         sigma, outlier: for the finished points (see :func:`localize_symmetric`).
         max_iterations: cap on LP steps per stage.
         tolerance: ``delta`` of ``1 - e_k/e_(k-1) < delta``.
@@ -279,14 +284,14 @@ def localize_hybrid(
     limiting = order[margin[order] <= best + lim_tol]
 
     # inside the model by more than the stock: not a rough-surface point
-    s_ref = float(stock_m) if stock_m is not None else float(np.median(d))
+    s_ref = float(stock_m) if stock_m is not None else float(np.percentile(d, STOCK_PERCENTILE))
     if s_ref > 0:
         deep = np.nonzero(d < -s_ref)[0]
         if len(deep):
             deep = deep[np.argsort(d[deep])]
             names = ", ".join(f"{i} ({-d[i] * 1e3:.3g} mm inside)" for i in deep[:10])
             more = f" and {len(deep) - 10} more" if len(deep) > 10 else ""
-            what = "the given stock" if stock_m is not None else "the median stock"
+            what = "the given stock" if stock_m is not None else f"the stock's {STOCK_PERCENTILE:g}th percentile"
             raise AlgorithmError(
                 f"rough point(s) {names}{more} of {M} lie inside the finished model by more than "
                 f"{what} ({s_ref * 1e3:.3g} mm) even at the best placement: they are not on a rough "
