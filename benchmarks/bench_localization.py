@@ -251,6 +251,7 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
                 success=succ,
                 crlb_ratio=ratio,
                 time_ms=float(np.median(times)) * 1e3 if times else float("nan"),
+                time_min_ms=float(np.min(times)) * 1e3 if times else float("nan"),
                 note=extra,
             )
         )
@@ -336,14 +337,14 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
 
 def markdown(rows):
     out = [
-        "| problem | sigma [mm] | N | start [deg] | method | success | RMS error / CRLB | median time [ms] | notes |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| problem | sigma [mm] | N | start [deg] | method | success | RMS error / CRLB | median time [ms] | min time [ms] | notes |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ratio = "-" if not np.isfinite(r["crlb_ratio"]) else f"{r['crlb_ratio']:.2f}"
         out.append(
             f"| {r['problem']} | {r['sigma_mm']:.3f} | {r['n']} | {r['start']} | {r['method']} | "
-            f"{r['success']:.0%} | {ratio} | {r['time_ms']:.2f} | {r['note']} |"
+            f"{r['success']:.0%} | {ratio} | {r['time_ms']:.2f} | {r['time_min_ms']:.2f} | {r['note']} |"
         )
     return "\n".join(out)
 
@@ -368,6 +369,7 @@ def main(argv=None):
     all_rows = []
     notes = []
     t_all = time.perf_counter()
+    load0 = os.getloadavg() if hasattr(os, "getloadavg") else None
     for name in args.problems:
         mesh = make_workpiece(name)
         t0 = time.perf_counter()
@@ -426,14 +428,16 @@ def main(argv=None):
         f"{os.cpu_count()} CPUs, Python {platform.python_version()}, numpy {np.__version__}, "
         f"{', '.join(peers_v) or 'no peers installed'}, {nb}.",
         "",
-        f"Load average at the end: {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} (1 / 5 / 15 min); "
+        f"Load average (1 / 5 / 15 min) at the start {load0[0]:.1f} / {load0[1]:.1f} / {load0[2]:.1f}, "
+        f"at the end {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} on {os.cpu_count()} CPUs; "
         "other processes share this machine, so times are indicative.",
         "",
         "Success: rotation error < 0.5 deg and translation error < 0.5 mm. RMS error / CRLB: "
         "`sqrt(mean(xi^T C^-1 xi) / 6)` over the successes, C the Cramer-Rao bound of that "
         "point set (1.00 attains the bound). Local methods start 5 / 90 / 180 deg and 10 mm "
         "from the truth (the 90 and 180 deg rows use `--far-trials` trials); global methods ('any') "
-        "get no start. Times are medians per call.",
+        "get no start. Times per call: median and minimum over the trials (the minimum is the "
+        "least disturbed by other processes).",
         "",
         table,
         "",
