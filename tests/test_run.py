@@ -1,0 +1,137 @@
+"""The closed loop: scan -> localize -> path -> IK -> replay, its report, recording and bad input."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from algorithms.se3 import make_pose
+from algorithms.toolpath import transform_path
+from tests.helpers import SCENARIOS, scenario
+from twin.cell import build_cell
+from twin.cmd_run import run_loop
+from twin.replay import replay
+from twin.trajectory import plan_joint_trajectory
+
+# Bars of the issue (default S-surface scenario, IL-065 noise on).
+MAX_DEVIATION_MM = 0.5
+MAX_SURFACE_ERROR_MM = 0.05
+TRIANGULATION_RMS_DEG = 2.0
+SHORT = {"scan": {"max_lines": 3}, "path": {"line_spacing_m": 0.02}}
+
+
+@pytest.fixture(scope="module")
+def loop(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    sc = scenario("s_surface", **SHORT)
+    artifacts = {}
+    report = run_loop(sc, out, out / "run.rrd", quiet=True, artifacts=artifacts)
+    return sc, out, report, artifacts
+
+
+def test_report_has_the_promised_fields_and_meets_the_bars(loop):
+    sc, out, report, _ = loop
+    assert json.loads((out / "report.json").read_text()) == json.loads(json.dumps(report))
+    loc = report["localization"]
+    assert loc["rotation_error_deg"] < 0.01 and loc["translation_error_mm"] < 0.02
+    pv = report["path_verification"]
+    assert pv["path"] == "scan_path"
+    assert 0 < pv["max_deviation_mm"] < MAX_DEVIATION_MM and 0 < pv["rms_deviation_mm"] <= pv["max_deviation_mm"]
+    assert pv["unintended_contacts"] == 0 and pv["joint_limit_hits"] == []
+    assert all(c["intended"] for c in pv["contacts"])
+    assert any(c["geom"] == "tool_tip" for c in pv["contacts"])  # the process does touch
+    assert report["max_surface_error_mm"] < MAX_SURFACE_ERROR_MM
+    # without the localization the same CAD path misses the part by about a millimetre
+    assert report["cad_path"]["uncompensated_max_surface_error_mm"] > 10 * report["max_surface_error_mm"]
+    sp = report["scan_path"]
+    assert sp["lines"] == 3
+    assert sp["contact_surface_error_max_um"] < sp["contact_surface_bound_um"]
+    assert sp["normals_triangulation_rms_deg"] < TRIANGULATION_RMS_DEG
+    assert sp["ik"]["problems"] == [] and sp["ik"]["max_joint_velocity_ratio"] <= 1.0
+    for key in ("scan_s", "localize_s", "scan_path_ik_s", "scan_path_replay_s", "cad_path_replay_s", "recording_s"):
+        assert report["timings_s"][key] >= 0.0
+    v = sp["verification"]
+    assert v["simulated_s"] > 0 and v["sim_speed_x_realtime"] > 1
+
+
+def test_replay_log_is_consistent(loop):
+    _, _, report, art = loop
+    run = art["runs"][0]
+    log, path = run["log"], run["path"]
+    assert log.process.any()
+    # the replayed TCP follows the commanded one to within the servo lag
+    assert np.nanmax(log.deviation_m) <= log.tracking_error_m.max() + 1e-9
+    # the ball end is on the part along the process lines, within the servo lag
+    assert np.abs(log.tip_surface_m[log.process]).max() < MAX_DEVIATION_MM * 1e-3
+    # and clear of it during the transits
+    assert log.tip_surface_m[log.kind == "transit"].min() > 0.005
+    assert len(log.t) == int(round(log.sim_s / 0.001))
+    assert path.n_lines == 3
+
+
+def test_recording_has_the_paths_frames_and_normals(loop):
+    from rerun.chunk import RrdReader  # rerun 0.41: recordings are read back as chunks
+
+    _, out, _, _ = loop
+    entities = {c.entity_path for c in RrdReader(str(out / "run.rrd")).stream().to_chunks()}
+    for name in ("scan_path", "cad_path"):
+        for leaf in ("planned", "actual", "tool_frames", "normals", "tcp"):
+            assert f"/world/path/{name}/{leaf}" in entities
+    assert "/world/robot/tool" in entities and "/world/scan/beam" in entities
+
+
+def test_a_tool_driven_into_the_part_is_an_unintended_contact(loop):
+    sc, _, _, art = loop
+    cell = art["replay_cell"]
+    cad = art["runs"][1]["path"]
+    a = cad.segments[0][0]
+    b = cad.segments[3][1]  # approach, first line, retract: one line only
+    one = type(cad)(cad.T_tool[a:b + 1], cad.contact[a:b + 1], cad.normal[a:b + 1], cad.segment[a:b + 1],
+                    cad.segments[:3], cad.s[a:b + 1], cad.tip_radius_m)
+    sunk = transform_path(make_pose(p=[0.0, 0.0, -0.009]), one)  # 9 mm into the part
+    nominal = build_cell(sc, "nominal")
+    p = sc.path
+    _, traj = plan_joint_trajectory(nominal, sunk, p.T_flange_tool, p.feed_m_s, p.transit_speed_m_s,
+                                    p.acceleration_m_s2, touchdown_acceleration_m_s2=p.touchdown_acceleration_m_s2)
+    log = replay(cell, traj, sunk)
+    bad = [c for c in log.contacts if not c.intended]
+    assert any(c.geom == "tool_shank" and c.other == "workpiece_collision" for c in bad)
+    shank = next(c for c in bad if c.geom == "tool_shank")
+    # a physical contact: the servos push the shank into the height field, which pushes back
+    assert shank.steps > 0 and shank.max_penetration_m > 0.0
+    assert np.nanmax(log.deviation_m) > 0.001
+    tip = next(c for c in log.contacts if c.geom == "tool_tip" and c.intended)
+    # the ball end is buried until the shank, 4 mm above the contact point, hits the part
+    assert 0.003 < tip.max_penetration_m < 0.009
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True)
+
+
+def write(tmp_path, edit):
+    text = (SCENARIOS / "s_surface.toml").read_text().replace('line_axis = "x"', 'line_axis = "x"\nmax_lines = 2')
+    p = tmp_path / "s.toml"
+    p.write_text(edit(text))
+    return p
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t + "\n[path]\nfeed_m_s = 0.0\n", "path.feed_m_s = 0.0 is outside the allowed range (0, 1]"),
+    (lambda t: t + "\n[path]\nfeed_m_s = -0.02\n", "path.feed_m_s = -0.02 is outside"),
+    (lambda t: t + "\n[path]\ntool = { matrix = [[1, 0.1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.1], [0, 0, 0, 1]] }\n",
+     "path.tool.matrix rotation is not orthonormal"),
+    (lambda t: t + "\n[path]\nfeed = 0.03\n", "unknown key(s) path.feed"),
+    (lambda t: t.replace("max_lines = 2", "max_lines = 1"), "needs at least 2 lines with valid points, got 1 (scan line 0)"),
+    (lambda t: t + "\n[path]\ntool = { xyz = [0.0, 0.0, 0.7], rpy_deg = [180.0, 0.0, 0.0] }\n",
+     "unreachable pose(s)"),
+])
+def test_bad_input_is_one_clear_line_and_no_report(tmp_path, edit, message):
+    out = tmp_path / "out"
+    r = run_cli("run", str(write(tmp_path, edit)), "--out", str(out))
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert message in r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not (out / "report.json").exists()
