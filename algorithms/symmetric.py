@@ -801,11 +801,12 @@ def localize_symmetric(
     tol: float = DETECTION_TOL,
     index: MeshIndex | None = None,
     discrete: bool = True,
+    method: str = "hong_tan",
 ) -> SymmetricResult:
     """Localize with the symmetry the data leave free: Algorithm 1, detection, Algorithm 2.
 
-    1. Algorithm 1 (Hong-Tan; its minimum-norm solve tolerates the singular systems) from
-       ``init`` gives a pose and the feet.
+    1. Algorithm 1 (Hong-Tan by default; its minimum-norm solve tolerates the singular
+       systems) from ``init`` gives a pose and the feet.
     2. ``symmetric="auto"``: :func:`detect_symmetry` on the feet and smooth normals picks
        ``G_0``; a feature type (``"cylinder"``, ...): the primitive of that type is fitted to
        the model faces the points landed on and its ``G_0`` used (an error when they are not
@@ -827,6 +828,7 @@ def localize_symmetric(
         tol: detection tolerance (relative eigenvalue).
         index: prebuilt MeshIndex of ``mesh``.
         discrete: look for discrete model symmetries.
+        method: the pose update of the Algorithm 1 stage (default Hong-Tan).
 
     Raises:
         AlgorithmError: bad input, an unknown ``symmetric`` (the valid choices are listed),
@@ -849,7 +851,7 @@ def localize_symmetric(
     if not (np.isfinite(tol) and 0 < tol < 1):
         raise AlgorithmError(f"tol must be in (0, 1), got {tol}")
     index = index if index is not None else (mesh if isinstance(mesh, MeshIndex) else MeshIndex(mesh))
-    res1 = localize(points, index=index, method="hong_tan", init=init, rng=rng, sigma=sigma, outlier=outlier)
+    res1 = localize(points, index=index, method=method, init=init, rng=rng, sigma=sigma, outlier=outlier)
     T1 = res1.T_world_workpiece
     P = np.asarray(points, dtype=np.float64)
     finite = np.all(np.isfinite(P), axis=1)

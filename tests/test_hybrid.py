@@ -169,3 +169,68 @@ def test_cast_blank_scan_through_the_cell_keeps_the_allowance_on_the_true_part(p
     bad = localize_hybrid(F, R, parts["finished"], TOO_MUCH_M, groups=groups, init=T_nom)
     assert not bad.feasible and len(bad.limiting_points) >= 2
     assert "limited by point(s)" in bad.status
+
+
+# ------------------------------------------------------------------------------- the CLI
+def _cli(capsys, *argv):
+    from twin import cli
+
+    rc = cli.main(["localize", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+@pytest.fixture(scope="module")
+def hybrid_files(tmp_path_factory, parts, synthetic):
+    import json
+
+    from twin.io import write_points_ply
+
+    d = tmp_path_factory.mktemp("hyb_cli")
+    parts["finished"].export(d / "finished.ply")
+    write_points_ply(d / "finished_pts.ply", synthetic["Y"])
+    rows = ["x,y,z,allowance,group"] + [
+        f"{p[0]:.9f},{p[1]:.9f},{p[2]:.9f},{TIGHT_ALLOWANCE_M},{g}" for p, g in zip(synthetic["Z"], synthetic["labels"])]
+    (d / "rough.csv").write_text("\n".join(rows) + "\n")
+    bad = rows[:4] + [rows[4].replace(f",{TIGHT_ALLOWANCE_M},", ",-0.001,")] + rows[5:]
+    (d / "negative.csv").write_text("\n".join(bad) + "\n")
+    (d / "noallow.csv").write_text("\n".join(r.rsplit(",", 2)[0] for r in rows) + "\n")
+    (d / "init.json").write_text(json.dumps(synthetic["T_nom"].tolist()))
+    return d
+
+
+def test_cli_hybrid_reports_min_allowance_per_group(hybrid_files, capsys):
+    import json
+
+    d = hybrid_files
+    rc, out, err = _cli(capsys, "--model", d / "finished.ply", "--points", d / "finished_pts.ply",
+                        "--allowance", d / "rough.csv", "--init", d / "init.json", "--json")
+    assert rc == 0, err
+    res = json.loads(out)
+    assert res["feasible"] and res["method"] == "algorithm3" and res["feature"] == "plane"
+    assert set(res["min_allowance_m"]) == {"boss_a", "boss_b"}
+    assert min(res["min_allowance_m"].values()) >= TIGHT_ALLOWANCE_M - FEASIBLE_M
+    assert res["free_dofs"] == 0 and len(res["solutions"]) == 1
+    # too much allowance: a report (exit 0), not an error, naming the limiting points
+    rc, out, err = _cli(capsys, "--model", d / "finished.ply", "--points", d / "finished_pts.ply",
+                        "--allowance", d / "noallow.csv", "--allowance-value", str(TOO_MUCH_M),
+                        "--init", d / "init.json", "--json")
+    assert rc == 0, err
+    res = json.loads(out)
+    assert not res["feasible"] and res["status"].startswith("infeasible")
+    assert res["best_min_margin_m"] < 0 and len(res["limiting_points"]) >= 2
+
+
+@pytest.mark.parametrize("csv, extra, message", [
+    ("negative.csv", [], "allowance must be >= 0"),
+    ("noallow.csv", [], "give the machining allowance"),
+    ("rough.csv", ["--symmetric", "none"], "--allowance needs the finished features' symmetry"),
+    ("rough.csv", ["--allowance-value", "0.001"], "has an allowance column"),
+    ("missing.csv", [], "--allowance file not found"),
+])
+def test_cli_hybrid_errors_are_one_line(hybrid_files, capsys, csv, extra, message):
+    d = hybrid_files
+    rc, out, err = _cli(capsys, "--model", d / "finished.ply", "--points", d / "finished_pts.ply",
+                        "--allowance", d / csv, "--init", d / "init.json", *extra)
+    assert rc == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and message in err

@@ -266,3 +266,77 @@ def test_cube_scan_gives_all_24_poses_one_of_them_true(scans):
     assert best[0] < SCAN_FIXED_RAD and best[1] < SCAN_FIXED_M
     # the others are the cube's rotations: at least 90 degrees away
     assert sorted(e[0] for e in errs)[1] > np.radians(89.0)
+
+
+# ------------------------------------------------------------------------------- the CLI
+def _cli(capsys, *argv):
+    from twin import cli
+
+    rc = cli.main(["localize", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+@pytest.fixture(scope="module")
+def cube_files(tmp_path_factory):
+    import json
+
+    from twin.io import write_points_ply
+
+    d = tmp_path_factory.mktemp("sym_cli")
+    cube = trimesh.creation.box([0.04, 0.04, 0.04])
+    cube.export(d / "cube.ply")
+    rng = np.random.default_rng(8)
+    T = _random_pose(rng)
+    write_points_ply(d / "three.ply", transform_points(T, _cube_faces(rng, [(0, 1), (1, 1), (2, 1)])))
+    write_points_ply(d / "top.ply", transform_points(T, _cube_faces(rng, [(2, 1)])))
+    (d / "init.json").write_text(json.dumps((T @ exp_se3([0.02, 0.01, -0.02, 0.001, 0, 0.001])).tolist()))
+    return d, T
+
+
+def test_cli_symmetric_auto_reports_free_directions_and_all_poses(cube_files, capsys):
+    import json
+
+    d, T = cube_files
+    rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "three.ply", "--init", d / "init.json",
+                        "--symmetric", "auto", "--json")
+    assert rc == 0, err
+    res = json.loads(out)
+    assert res["free_dofs"] == 0 and res["free_directions"] == [] and len(res["solutions"]) == 24
+    assert all(np.asarray(S).shape == (4, 4) for S in res["solutions"])
+    assert rotation_error_rad(np.asarray(res["T_world_workpiece"]), T) < 1e-6
+    rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "top.ply", "--init", d / "init.json",
+                        "--symmetric", "plane", "--json")
+    assert rc == 0, err
+    res = json.loads(out)
+    assert res["feature"] == "plane" and res["free_dofs"] == 3 and len(res["solutions"]) == 6
+    W = np.asarray(res["free_directions"])
+    assert W.shape == (3, 6)
+    # angular part first, workpiece frame: one rotation about the top face's normal, two slides
+    assert np.linalg.matrix_rank(W[:, :3], tol=1e-9) == 1
+    assert abs(abs(W[np.argmax(np.linalg.norm(W[:, :3], axis=1)), 2]) - 1.0) < 1e-6
+
+
+def test_cli_default_json_has_the_new_fields(cube_files, capsys):
+    import json
+
+    d, _ = cube_files
+    rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "top.ply", "--init", d / "init.json",
+                        "--json")
+    assert rc == 0, err
+    res = json.loads(out)
+    assert res["method"] == "hong_tan" and res["free_dofs"] == 3 and len(res["solutions"]) == 1
+    assert np.asarray(res["free_directions"]).shape == (3, 6)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--symmetric", "torus"], "--symmetric must be auto, none or a feature type (circle2d, line2d, sphere"),
+    (["--symmetric", "circle2d"], "2D feature"),
+    (["--symmetric", "cylinder"], "the faces are not a cylinder"),
+    (["--symmetric", "auto", "--stock", "1"], "apply with --allowance only"),
+])
+def test_cli_symmetric_errors_are_one_line(cube_files, capsys, argv, message):
+    d, _ = cube_files
+    rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "top.ply", "--init", d / "init.json", *argv)
+    assert rc == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and message in err
