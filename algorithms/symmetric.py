@@ -31,7 +31,8 @@ axis, pitch and the translations beside them (tolerances ``MATCH_TOL``). A subsp
 table does not name (a screw, say) is used as it is (``kind = "other"``).
 
 Discrete symmetries (:func:`model_symmetries`). A model that a finite set of rigid motions
-maps onto itself (a cube: 24; a square plate with four identical holes: 8) gives the same
+maps onto itself (a cube: 24; a square plate with four identical blind holes: 4, with
+through holes 8) gives the same
 residual at ``T S`` as at ``T`` for every such ``S``: no measurement on the model can tell
 them apart. The candidates are the motions about the surface centroid that map the largest
 flat-face normal clusters onto clusters of equal area (and the principal-axis flips and

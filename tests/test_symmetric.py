@@ -152,6 +152,23 @@ def test_model_symmetries_of_a_cube_and_a_box():
     assert len(model_symmetries(bumpy_mesh())) == 1
 
 
+def test_square_plate_with_four_identical_blind_holes_has_four_symmetries():
+    from twin import workpieces as wp
+
+    patches, holes = [], []
+    for x, y in [(0.02, 0.02), (-0.02, 0.02), (0.02, -0.02), (-0.02, -0.02)]:
+        prof, edges = wp._sample_profile([wp._line((0.005, 0.01), (0.005, 0.004)),
+                                          wp._line((0.005, 0.004), (0.0, 0.004))], 0.001, 1e-5)
+        v, f, rings = wp._revolve(prof, edges, origin=(x, y, 0.0))
+        patches.append((v, f))
+        holes.append(v[rings[0]])
+    patches += wp._box_patches((-0.04, -0.04, 0.0), (0.04, 0.04, 0.01), 0.005, top_holes=holes)
+    plate = wp._assemble(patches, "plate")
+    S = model_symmetries(plate)
+    assert len(S) == 4  # the turns by 90 degrees about the plate's axis (the holes are blind)
+    assert all(np.allclose(s[:3, 2], [0, 0, 1], atol=1e-9) for s in S)
+
+
 def _cube_faces(rng, which, n=100, a=0.04):
     pts = []
     for ax, sign in which:
