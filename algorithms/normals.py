@@ -1,7 +1,8 @@
 """Normals of scan-line clouds (document 004, section 3.2, eqs. 8-10) and k-NN PCA normals.
 
 Cross-line triangulation (document 004): a point ``p = p_i,j`` of line ``i`` has its
-neighbours ``a = p_i,j+1`` and ``b = p_i,j-1`` on its own line and the nearest points
+neighbours ``a = p_i,j+1`` and ``b = p_i,j-1`` on its own line (the nearest samples at least a
+tenth of the line's median step away: a sensor at rest repeats its point) and the nearest points
 ``n+ `` and ``n-`` on the adjacent lines ``i + 1`` and ``i - 1``. The four triangles of the
 fan around ``p``,
 
@@ -75,10 +76,19 @@ def triangulation_normals(lines, orient=None) -> tuple:
     for i, p in enumerate(L):
         n = len(p)
         acc = np.zeros((n, 3))
-        has_a = np.arange(n) < n - 1
-        has_b = np.arange(n) > 0
-        a = np.vstack([p[1:], p[-1:]]) - p
-        b = np.vstack([p[:1], p[:-1]]) - p
+        # Neighbours on the line: the nearest samples at least a tenth of the median step away
+        # (a sensor at rest repeats its point; a near-duplicate neighbour has no direction).
+        step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(step)])
+        tau = 0.1 * np.median(step) if n > 1 else 0.0
+        ia = np.searchsorted(s, s + tau, side="left")
+        ia = np.where(ia == np.arange(n), ia + 1, ia)
+        ib = np.searchsorted(s, s - tau, side="right") - 1
+        ib = np.where(ib == np.arange(n), ib - 1, ib)
+        has_a = ia < n
+        has_b = ib >= 0
+        a = p[np.minimum(ia, n - 1)] - p
+        b = p[np.maximum(ib, 0)] - p
         for adj, sign in ((i + 1, 1.0), (i - 1, -1.0)):
             if adj < 0 or adj >= len(L):
                 continue

@@ -308,6 +308,8 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
     q_true = np.empty((n, 6))
     cdata = np.empty((n, len(contact_names), 5))
     vel_cols = [sl[f"vel_{j}"].start for j in JOINT_NAMES]
+    contact_cols = np.concatenate([np.arange(sl[nm].start, sl[nm].stop) for nm in contact_names]) \
+        if contact_names else np.zeros(0, dtype=np.int64)
 
     def on_chunk(i0, sens, q_before):
         i1 = i0 + len(sens)
@@ -315,8 +317,7 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
         zax[i0:i1] = sens[:, sl["tcp_zaxis"]]
         qd[i0:i1] = sens[:, vel_cols]
         q_true[i0:i1] = q_before
-        for k, nm in enumerate(contact_names):
-            cdata[i0:i1, k] = sens[:, sl[nm]]
+        cdata[i0:i1] = sens[:, contact_cols].reshape(len(sens), len(contact_names), 5)
 
     t0 = time.perf_counter()
     simulate(cell, trajectory.q, trajectory.qd, on_chunk)
