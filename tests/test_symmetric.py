@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from algorithms.errors import AlgorithmError
-from algorithms.features import FEATURE_TABLE, FEATURE_TYPES, Feature
+from algorithms.features import FEATURE_TABLE, FEATURE_TYPES
 from algorithms.localization import localize
 from algorithms.se3 import exp_se3, inv_pose, rotation_error_rad, transform_points
 from algorithms.symmetric import (
