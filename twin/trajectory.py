@@ -145,12 +145,23 @@ class _Solver:
         pe, oe = self.errors()
         it = 0
         while it < max_iter and (pe > POSITION_TOL_M or oe > ORIENTATION_TOL_RAD):
-            v = mink.solve_ik(self.configuration, [self.task, self.posture], dt, solver="daqp",
-                              damping=1e-12, limits=limits)
+            try:
+                v = mink.solve_ik(self.configuration, [self.task, self.posture], dt, solver="daqp",
+                                  damping=1e-12, limits=limits)
+            except mink.exceptions.NoSolutionFound:
+                # No step satisfies the limits from here (a joint pressed against its range):
+                # the pose stays where it is and is reported if it is off.
+                break
             self.configuration.integrate_inplace(v, dt)
             pe, oe = self.errors()
             it += 1
         return pe, oe, it
+
+    def predict(self, q: np.ndarray) -> None:
+        """Warm start at ``q``, kept inside the joint ranges (the limits' QP needs a feasible start)."""
+        lo = self.model.jnt_range[:6, 0] + 1e-6
+        hi = self.model.jnt_range[:6, 1] - 1e-6
+        self.configuration.update(np.clip(q, lo, hi))
 
     def sigma_min(self) -> float:
         mujoco.mj_jacSite(self.model, self.configuration.data, self.jacp, self.jacr, self.site_id)
@@ -211,7 +222,7 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
         else:
             if i >= 2:
                 # First-order predictor: on a smooth path one QP step then usually suffices.
-                s.configuration.update(2.0 * q[i - 1] - q[i - 2])
+                s.predict(2.0 * q[i - 1] - q[i - 2])
             pe[i], oe[i], its[i] = s.solve(T_world[i], float(dt[i]), MAX_ITERATIONS)
         q[i] = s.configuration.q[:6]
         sig[i] = s.sigma_min()
