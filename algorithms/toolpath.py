@@ -10,9 +10,14 @@ line takes the previous chord).
 Options the process may need (``heading``, ``axis``, ``lead``/``tilt``):
 
 * ``heading="travel"`` (eq. 11): x along the travel direction; ``"fixed"``: x along a fixed
-  reference direction projected onto the tangent plane, so the tool keeps its orientation
-  about its axis along the whole path (no half turn of the wrist at each raster line change;
-  the default for rotationally symmetric tools such as a polishing spindle).
+  reference direction projected onto the plane normal to the tool axis, so the tool keeps
+  its orientation about its axis along the whole path (no half turn of the wrist at each
+  raster line change); ``"smooth"`` (the default for rotationally symmetric tools such as a
+  polishing spindle): x starts along the reference direction at each line's first point and
+  is then carried along the line by parallel transport (each x is the previous one projected
+  onto the new plane), the tool turning as little as possible about its axis. "fixed" turns
+  fast where the axis comes near the reference direction (steep flanks facing it); "smooth"
+  does not.
 * ``axis="normal"`` (eq. 11): tool z along the surface normal; ``"fixed"``: tool z along a
   fixed direction (a 3-axis process), constant along the path.
 * ``lead`` (rad) leans the tool axis towards +x (the travel or heading direction), ``tilt``
@@ -80,8 +85,8 @@ def contact_frames(points, normals, heading: str = "travel", heading_direction=N
     Args:
         points: (K, 3) [m] contact points in travel order, K >= 2.
         normals: (K, 3) unit outward surface normals.
-        heading: ``"travel"`` or ``"fixed"`` (see module).
-        heading_direction: (3,) reference x for ``heading="fixed"`` (same frame as points).
+        heading: ``"travel"``, ``"fixed"`` or ``"smooth"`` (see module).
+        heading_direction: (3,) reference x for ``"fixed"`` and ``"smooth"`` (same frame as points).
         axis: ``"normal"`` or ``"fixed"``.
         axis_direction: (3,) tool z for ``axis="fixed"``.
 
@@ -94,8 +99,8 @@ def contact_frames(points, normals, heading: str = "travel", heading_direction=N
         raise ToolPathError(f"points and normals must both be (K, 3) with K >= 2, got {p.shape} and {n.shape}")
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n))):
         raise ToolPathError("points or normals contain NaN or infinite values")
-    if heading not in ("travel", "fixed") or axis not in ("normal", "fixed"):
-        raise ToolPathError(f"heading must be travel|fixed and axis normal|fixed, got {heading!r}, {axis!r}")
+    if heading not in ("travel", "fixed", "smooth") or axis not in ("normal", "fixed"):
+        raise ToolPathError(f"heading must be travel|fixed|smooth and axis normal|fixed, got {heading!r}, {axis!r}")
     z = _unit(n, "normal") if axis == "normal" else np.broadcast_to(_fixed_vector(axis_direction, "axis_direction"), p.shape)
     if heading == "travel":
         d = np.diff(p, axis=0)
@@ -111,6 +116,13 @@ def contact_frames(points, normals, heading: str = "travel", heading_direction=N
             f"{'chord to the next point' if heading == 'travel' else 'heading direction'} is parallel to the tool axis"
         )
     x = x / norm[:, None]
+    if heading == "smooth":
+        for k in range(1, len(x)):
+            v = x[k - 1] - (x[k - 1] @ z[k]) * z[k]
+            nv = np.linalg.norm(v)
+            if nv < 1e-9:
+                raise ToolPathError(f"heading undefined at point {k}: the tool axis turns by 90 degrees in one step")
+            x[k] = v / nv
     y = np.cross(z, x)
     T = np.zeros((len(p), 4, 4))
     T[:, :3, 0], T[:, :3, 1], T[:, :3, 2], T[:, :3, 3] = x, y, z, p
@@ -306,7 +318,7 @@ def assemble_path(lines_T_tool, lines_contact, lines_normal, retract_m: float = 
 class ToolSettings:
     """How contact points become tool poses (see the module docstring; angles in radians)."""
 
-    heading: str = "fixed"
+    heading: str = "smooth"
     heading_direction: tuple = (1.0, 0.0, 0.0)
     axis: str = "normal"
     axis_direction: tuple = (0.0, 0.0, 1.0)

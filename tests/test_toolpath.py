@@ -156,3 +156,21 @@ def test_cad_raster_on_the_s_surface():
         cad_raster(mesh, region=((1.0, 1.0), (1.1, 1.1)))
     with pytest.raises(ToolPathError, match="point_spacing_m must be > 0"):
         cad_raster(mesh, point_spacing_m=0.0)
+
+
+def test_smooth_heading_does_not_twist_about_the_tool_axis():
+    # normals sweep round a cone about +x: a fixed x heading spins about the tool axis here
+    t = np.linspace(0, np.pi, 60)
+    n = np.column_stack([np.full_like(t, 0.8), 0.6 * np.cos(t), 0.6 * np.sin(t)])
+    p = np.column_stack([np.zeros_like(t), 0.01 * t, np.zeros_like(t)])
+    from scipy.spatial.transform import Rotation
+
+    def twist(T):
+        rel = np.einsum("nji,njk->nik", T[:-1, :3, :3], T[1:, :3, :3])
+        return np.abs(Rotation.from_matrix(rel).as_rotvec()[:, 2])  # about the (local) tool axis
+
+    smooth = contact_frames(p, n, heading="smooth", heading_direction=[0.0, 0.0, 1.0])
+    fixed = contact_frames(p, n, heading="fixed", heading_direction=[0.0, 0.0, 1.0])
+    assert twist(smooth).max() < 0.02 * twist(fixed).max()  # second order in the step
+    start = np.array([0.0, 0.0, 1.0]) - n[0] @ [0.0, 0.0, 1.0] * n[0]
+    np.testing.assert_allclose(smooth[0, :3, 0], start / np.linalg.norm(start), atol=1e-12)

@@ -264,8 +264,9 @@ class PathSpec:
         margin_m: the CAD raster stays this far inside the part's footprint [m].
         line_axis: "x" or "y": workpiece axis the CAD raster lines run along.
         retract_m: lift along the tool axis before and after each line [m].
-        heading: "fixed" (tool x along ``heading_direction`` projected on the tangent plane,
-            constant along the path) or "travel" (eq. 11: along the travel direction).
+        heading: "smooth" (tool x starts along ``heading_direction`` on each line and turns as
+            little as possible about the tool axis), "fixed" (x along ``heading_direction``
+            projected on the plane normal to the axis) or "travel" (eq. 11: along the travel).
         heading_direction: (3,) in the workpiece frame.
         axis: "normal" (tool axis along the surface normal, eq. 11) or "fixed".
         axis_direction: (3,) tool axis in the workpiece frame for ``axis = "fixed"``.
@@ -509,7 +510,7 @@ def _parse_path(s: _Section) -> PathSpec:
     margin = s.number("margin_m", 0.005, 0.0, 1.0)
     axis_name = s.choice("line_axis", "x", ("x", "y"))
     retract = s.number("retract_m", 0.02, 0.0, 0.5, lo_open=True)
-    heading = s.choice("heading", "fixed", ("fixed", "travel"))
+    heading = s.choice("heading", "smooth", ("smooth", "fixed", "travel"))
     heading_dir = s.vector("heading_direction", [1.0, 0.0, 0.0], 3)
     axis = s.choice("axis", "normal", ("normal", "fixed"))
     axis_dir = s.vector("axis_direction", [0.0, 0.0, 1.0], 3)

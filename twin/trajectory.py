@@ -458,6 +458,13 @@ def plan_joint_trajectory(cell: Cell, path: ProcessPath, T_flange_tool: np.ndarr
         raise TwinError(str(exc)) from None
     speed = np.full(len(T_bf), transit_speed_m_s)
     speed[path.process_mask()] = feed_m_s
-    ik = solve_path(cell, T_bf, q_start=q_start, dt=_step_dt(path.T_tool, speed))
+    try:
+        ik = solve_path(cell, T_bf, q_start=q_start, dt=_step_dt(path.T_tool, speed))
+    except PathError as exc:
+        # Say where on the program the first bad pose is (line, move), not only its index.
+        first = exc.problems[0]
+        a, b, kind, line = path.segments[path.segment[first.index]]
+        where = f"process line {line}" if kind == "process" else f"{kind} move (poses {a}..{b})"
+        raise PathError(f"{exc} [{where}]", exc.problems) from None
     return ik, time_law(path, ik.q, feed_m_s, transit_speed_m_s, acceleration_m_s2,
                         touchdown_acceleration_m_s2=touchdown_acceleration_m_s2)
