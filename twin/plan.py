@@ -123,13 +123,14 @@ def scan_region(cell: Cell) -> tuple[tuple[float, float], tuple[float, float]]:
 
 def _cast_line(cell: Cell, batch, u: np.ndarray, v: float, axis: str, direction_wp: np.ndarray):
     """Cast planning rays at the nominal CAD model; returns hit mask, points and normals (workpiece frame)."""
-    top = cell.mesh.bounds[1, 2] + 0.05
+    top = cell.mesh.bounds[1, 2]
     if axis == "x":
         xy = np.column_stack([u, np.full_like(u, v)])
     else:
         xy = np.column_stack([np.full_like(u, v), u])
     start_wp = np.column_stack([xy, np.full(len(u), top)])
-    # Move the start back against the beam so a slanted fixed beam still reaches the grid point.
+    # The region is a grid on the plane of the part's top (z = max z of the mesh): each ray
+    # passes through its grid point and starts 50 mm higher, back along the beam.
     start_wp = start_wp - direction_wp * (0.05 / max(-direction_wp[2], 0.2))
     T = cell.T_world_workpiece
     start_w = transform_points(T, start_wp)
