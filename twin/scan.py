@@ -27,7 +27,7 @@ from twin.ik import IKSolver
 from twin.plan import ScanPlan, plan_scan
 from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH, VELOCITY_LIMIT_RAD_S
 from twin.scenario import Scenario
-from twin.sensor import Measurement, RawRays, measure
+from twin.sensor import RAY_THREADS, Measurement, RawRays, measure
 
 IK_KNOT_STEPS = 10   # IK every 10 ms; joint references in between by a cubic spline
 ROLLOUT_CHUNK_STEPS = 2000
@@ -216,7 +216,7 @@ def run_scan(scenario: Scenario, rng: np.random.Generator | None = None, mesh=No
         origin[:] = site_pos[:, None, :]
         receiver += site_pos[:, None, :]
     rays = RawRays(dist, origin, direction, normal, receiver)
-    batch = mujoco.batch.Batch(model, 1, nthread=1)
+    batch = mujoco.batch.Batch(model, RAY_THREADS, nthread=RAY_THREADS)
     meas: Measurement = measure(rays, sensor, scenario.noise, rng_sensor, model, STATIC_GROUPS, batch)
     timings["sensor_model_s"] = time.perf_counter() - t0
 

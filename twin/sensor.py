@@ -35,6 +35,8 @@ STATUS_NAMES = {VALID: "valid", NO_HIT: "no_hit", OUT_OF_WINDOW: "out_of_window"
                 INCIDENCE: "incidence", OCCLUDED: "occluded"}
 # Start the receiver ray this far off the surface so it does not hit its own start point.
 OCCLUSION_RAY_OFFSET_M = 1e-7
+# The receiver rays of a long scan are cast on this many threads.
+RAY_THREADS = 2
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,24 @@ def linearity_error_m(d: np.ndarray, sensor: SensorSpec) -> np.ndarray:
     return sensor.linearity_m * np.sin(np.pi * u)
 
 
+def cast_static_rays(batch, start: np.ndarray, unit: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Distances of many rays against static geoms, split over the batch's simulations (threads).
+
+    The geoms hit are static, so every simulation of the batch sees the same scene whatever
+    its joint state; -1 where a ray hits nothing.
+    """
+    nsim = batch.nsim if hasattr(batch, "nsim") else 1
+    n = len(start)
+    per = -(-n // nsim)
+    pad = per * nsim - n
+    if pad:
+        start = np.vstack([start, np.repeat(start[-1:], pad, axis=0)])
+        unit = np.vstack([unit, np.repeat(unit[-1:], pad, axis=0)])
+    dist, _ = batch.ray(start.reshape(nsim, per, 3), unit.reshape(nsim, per, 3),
+                        geomgroup=groups, flg_static=True)
+    return dist.reshape(-1)[:n]
+
+
 def occluded(model: mujoco.MjModel, rays: RawRays, hit: np.ndarray, static_groups: np.ndarray,
              batch: "mujoco.batch.Batch | None" = None) -> np.ndarray:
     """True where the receiver cannot see the laser spot (blocked, or the surface faces away)."""
@@ -89,9 +109,8 @@ def occluded(model: mujoco.MjModel, rays: RawRays, hit: np.ndarray, static_group
     facing = np.einsum("ij,ij->i", unit, n) > 0.0
     start = spot + OCCLUSION_RAY_OFFSET_M * n
     if batch is None:
-        batch = mujoco.batch.Batch(model, 1, nthread=1)
-    dist, _ = batch.ray(start, unit, geomgroup=static_groups, flg_static=True)
-    dist = dist[0]
+        batch = mujoco.batch.Batch(model, RAY_THREADS, nthread=RAY_THREADS)
+    dist = cast_static_rays(batch, start, unit, static_groups)
     blocked = (dist >= 0.0) & (dist < length)
     out[hit] = blocked | ~facing
     return out
