@@ -361,7 +361,6 @@ def main(argv=None):
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results_localization.md"))
     args = ap.parse_args(argv)
 
-    lines = []
 
     def log(msg):
         print(msg, flush=True)
