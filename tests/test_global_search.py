@@ -214,10 +214,14 @@ def test_same_seed_same_result(part):
     m, idx, pts = part
     T = _pose(TRUE_ROTVECS[0])
     y = pts @ T[:3, :3].T + T[:3, 3]
-    a = global_localize(y, m, "pso", index=idx, noise_sigma_m=0.0, rng=np.random.default_rng(7))
-    b = global_localize(y, m, "pso", index=idx, noise_sigma_m=0.0, rng=np.random.default_rng(7))
-    assert np.array_equal(a.extra["pso_only_T"], b.extra["pso_only_T"])
-    assert np.array_equal(a.T_world_workpiece, b.T_world_workpiece)
+    for method in ("multistart", "genetic"):
+        a = global_localize(y, m, method, index=idx, noise_sigma_m=0.0, rng=np.random.default_rng(7), ga_restarts=1)
+        b = global_localize(y, m, method, index=idx, noise_sigma_m=0.0, rng=np.random.default_rng(7), ga_restarts=1)
+        assert np.array_equal(a.T_world_workpiece, b.T_world_workpiece)
+        assert a.extra["perturbations"] == b.extra["perturbations"]
+        if method == "genetic":
+            assert np.array_equal(a.extra["T_coarse"], b.extra["T_coarse"])
+            assert np.array_equal(a.extra["ga_fitness_history"], b.extra["ga_fitness_history"])
 
 
 # ------------------------------------------------------------------ symmetric parts
