@@ -96,7 +96,7 @@ import numpy as np
 
 from algorithms.closest_point import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose, transform_points
+from algorithms.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose
 from algorithms.uncertainty import OBSERVABILITY_TOL, _sym_inverse, observability
 
 __all__ = [

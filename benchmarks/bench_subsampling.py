@@ -48,7 +48,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from scipy.spatial.transform import Rotation
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from algorithms.closest_point import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.localization import METHODS, LocalizationResult, localize
+from algorithms.localization import LocalizationResult, localize
 from algorithms.se3 import make_pose, rotation_error_rad, transform_points, translation_error_m
 from algorithms.uncertainty import crlb, pose_error_twist, whitened_error
 

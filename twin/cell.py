@@ -15,7 +15,6 @@ hit the real mesh triangles; contacts use convex hulls (see ``models/ur5e/README
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import mujoco
 import numpy as np

@@ -20,12 +20,12 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from algorithms.kinematics import reconstruct_points
-from algorithms.se3 import inv_pose, transform_points
+from algorithms.se3 import inv_pose
 from twin.cell import STATIC_GROUPS, Cell, build_cell, load_workpiece_mesh
 from twin.errors import TwinError
 from twin.ik import IKSolver
 from twin.plan import ScanPlan, plan_scan
-from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH, VELOCITY_LIMIT_RAD_S
+from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH
 from twin.scenario import Scenario
 from twin.sensor import RAY_THREADS, Measurement, RawRays, measure
 
