@@ -89,3 +89,27 @@ def reconstruct_points(q, d, dh: DHTable, T_flange_sensor) -> np.ndarray:
     T_fs = as_pose(T_flange_sensor, "T_flange_sensor")
     T_base_sensor = dh_forward(q, dh) @ T_fs
     return T_base_sensor[:, :3, 3] + T_base_sensor[:, :3, 2] * d[:, None]
+
+
+def reconstruct_line_points(q, d, beam_dirs_sensor, dh: DHTable, T_flange_sensor) -> np.ndarray:
+    """Eq. (2) for a line profiler: ``p = T_base_flange(q) T_flange_sensor [d_b u_b, 1]`` per beam b.
+
+    Args:
+        q: (N, 6) joint readings [rad], one per profile.
+        d: (N, B) distances along each beam [m]; NaN where invalid.
+        beam_dirs_sensor: (B, 3) unit beam directions in the sensor frame.
+        dh: the believed (nominal) kinematics.
+        T_flange_sensor: (4, 4) the believed hand-eye transform.
+
+    Returns:
+        (N, B, 3) points in the robot base frame [m]; NaN where ``d`` is NaN.
+    """
+    d = np.asarray(d, dtype=np.float64)
+    u = np.asarray(beam_dirs_sensor, dtype=np.float64)
+    q = np.atleast_2d(np.asarray(q, dtype=np.float64))
+    if d.ndim != 2 or d.shape[0] != q.shape[0] or u.shape != (d.shape[1], 3):
+        raise AlgorithmError(
+            f"q (N, 6), d (N, B) and beam_dirs_sensor (B, 3) must agree, got {q.shape}, {d.shape}, {u.shape}")
+    T = dh_forward(q, dh) @ as_pose(T_flange_sensor, "T_flange_sensor")
+    local = d[:, :, None] * u[None, :, :]
+    return np.einsum("nij,nbj->nbi", T[:, :3, :3], local) + T[:, None, :3, 3]

@@ -19,7 +19,7 @@ import mujoco.rollout
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from algorithms.kinematics import reconstruct_points
+from algorithms.kinematics import reconstruct_line_points, reconstruct_points
 from algorithms.se3 import inv_pose
 from twin.cell import STATIC_GROUPS, Cell, build_cell, load_workpiece_mesh
 from twin.errors import TwinError
@@ -107,7 +107,11 @@ def _check_reachable(plan: ScanPlan, i: int, pos_err: float, rot_err: float) -> 
     if pos_err < UNREACHABLE_POSITION_M and rot_err < UNREACHABLE_ORIENTATION_RAD:
         return
     line = int(plan.line[i])
-    where = f"scan line {line}" if line >= 0 else f"the move before scan line {int(plan.line[i:][plan.line[i:] >= 0][0]) if np.any(plan.line[i:] >= 0) else 'end'}"
+    if line >= 0:
+        where = f"scan line {line}"
+    else:
+        later = plan.line[i:][plan.line[i:] >= 0]
+        where = f"the move before scan line {int(later[0])}" if len(later) else "the final retract"
     p = plan.T_world_sensor[i, :3, 3]
     raise TwinError(
         f"{where} is unreachable: at t = {plan.t[i]:.3f} s the sensor pose at world "
@@ -237,7 +241,7 @@ def run_scan(scenario: Scenario, rng: np.random.Generator | None = None, mesh=No
         points = reconstruct_points(q_log, meas.d, UR5E_DH, T_fs_nominal)
     else:
         beam_dirs = fan_directions_sensor(sensor)
-        points = reconstruct_line_points(q_log, meas.d, beam_dirs, T_fs_nominal)
+        points = reconstruct_line_points(q_log, meas.d, beam_dirs, UR5E_DH, T_fs_nominal)
     timings["reconstruct_s"] = time.perf_counter() - t0
 
     T_base_world = inv_pose(scenario.T_world_base)
@@ -273,13 +277,3 @@ def fan_directions_sensor(sensor) -> np.ndarray:
     x = ((np.arange(b) + 0.5) / b * 2.0 - 1.0) * half_width
     dirs = np.column_stack([x, np.zeros(b), np.ones(b)])
     return dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-
-
-def reconstruct_line_points(q: np.ndarray, d: np.ndarray, beam_dirs_sensor: np.ndarray,
-                            T_flange_sensor: np.ndarray) -> np.ndarray:
-    """Eq. (2) for a fan: ``p = T_base_flange(q) T_flange_sensor [d * u_b, 1]`` for every beam b."""
-    from algorithms.kinematics import dh_forward
-
-    T = dh_forward(q, UR5E_DH) @ T_flange_sensor
-    local = d[:, :, None] * beam_dirs_sensor[None, :, :]
-    return np.einsum("nij,nbj->nbi", T[:, :3, :3], local) + T[:, None, :3, 3]
