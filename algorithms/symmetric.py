@@ -60,6 +60,7 @@ from algorithms.features import (
     symmetry_group,
 )
 from algorithms.localization import OUTLIER_K, OUTLIER_K_COARSE, localize
+from algorithms.localization import _outlier_config as _outlier_mode
 from algorithms.se3 import as_pose, exp_se3, inv_pose, rotation_error_rad, transform_points
 from algorithms.uncertainty import OBSERVABILITY_TOL, Observability, observability
 
@@ -261,22 +262,6 @@ def _inlier_mask(d, mode, floor, k):
     if mask.sum() < MIN_POINTS:
         mask = d <= np.median(d)
     return mask
-
-
-def _outlier_mode(outlier):
-    if outlier is None or outlier == "none":
-        return None
-    if isinstance(outlier, str):
-        if outlier != "mad":
-            raise AlgorithmError(f"outlier must be 'mad', a distance [m] or None, got {outlier!r}")
-        return "mad"
-    try:
-        v = float(outlier)
-    except (TypeError, ValueError):
-        raise AlgorithmError(f"outlier must be 'mad', a distance [m] or None, got {outlier!r}") from None
-    if not (np.isfinite(v) and v > 0):
-        raise AlgorithmError(f"outlier distance must be a positive length [m], got {outlier!r}")
-    return v
 
 
 def _check_points(points, planar):
