@@ -637,20 +637,25 @@ def _update_icp(T, Ym, cp, mask):
     return T @ inv_pose(D), None
 
 
-def _update_va(T, Ym, cp, mask):
-    y = Ym[mask]
-    r = y - cp.foot[mask]
-    # omega x y + v = r  (3 rows per point): rows [y x e_k, e_k]
+def _small_motion_system(u, r):
+    """Normal equations of ``omega x u_i + v = r_i`` (three rows per point, rows ``[u x e_k, e_k]``)."""
     A = np.zeros((6, 6))
     g = np.zeros(6)
     for k in range(3):
         e = np.zeros(3)
         e[k] = 1.0
-        Jk = np.hstack([np.cross(y, e), np.broadcast_to(e, y.shape)])
+        Jk = np.hstack([np.cross(u, e), np.broadcast_to(e, u.shape)])
         Ak, gk = _normal_equations(Jk, r[:, k])
         A += Ak
         g += gk
-    xi = _solve(A, g)
+    return A, g
+
+
+def _update_va(T, Ym, cp, mask):
+    y = Ym[mask]
+    r = y - cp.foot[mask]
+    # omega x y + v = r  (3 rows per point)
+    xi = _solve(*_small_motion_system(y, r))
     return T @ exp_se3(xi), None
 
 
@@ -693,16 +698,7 @@ def _update_fine_001(T, Ym, cp, mask):
     u = y - S
     b = x - y
     # theta x u + Delta = Q' - P  (linearised T_d), 3 rows per point
-    A = np.zeros((6, 6))
-    g = np.zeros(6)
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = 1.0
-        Jk = np.hstack([np.cross(u, e), np.broadcast_to(e, u.shape)])
-        Ak, gk = _normal_equations(Jk, b[:, k])
-        A += Ak
-        g += gk
-    p = _solve(A, g)
+    p = _solve(*_small_motion_system(u, b))
     theta, delta = p[:3], p[3:]
     Td = make_pose(_rot_xyz(theta), delta)
     Ak = make_pose(None, S)
