@@ -38,11 +38,11 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import trimesh  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from algorithms.closest_point import HAVE_NUMBA, MeshIndex  # noqa: E402
-from algorithms.localization import METHODS, _morton_order, localize  # noqa: E402
-from algorithms.se3 import make_pose, rotation_error_rad, transform_points, translation_error_m  # noqa: E402
-from algorithms.uncertainty import crlb, pose_error_twist, whitened_error  # noqa: E402
-from twin.workpieces import make_workpiece  # noqa: E402
+from algorithms.geometry.mesh_index import HAVE_NUMBA, MeshIndex  # noqa: E402
+from algorithms.registration.local import METHODS, _morton_order, localize  # noqa: E402
+from algorithms.geometry.se3 import make_pose, rotation_error_rad, transform_points, translation_error_m  # noqa: E402
+from algorithms.registration.uncertainty import crlb, pose_error_twist, whitened_error  # noqa: E402
+from twin.parts import make_workpiece  # noqa: E402
 
 PARTS = ("s_surface", "hemisphere_punch", "bottle_punch")
 

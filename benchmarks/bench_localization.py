@@ -6,7 +6,7 @@ Not a test: a script that measures and writes a table. Run from the repository r
     python benchmarks/bench_localization.py --trials 3      # quicker, noisier numbers
 
 Problems (document 000's workpiece A and document 004's S-surface part, from
-``twin.workpieces``):
+``twin.parts``):
 
 * ``hemisphere_punch``: points on the hemisphere and two adjacent side faces of the plate
   (document 000, section 9.2);
@@ -22,8 +22,8 @@ methods get no start; the true orientation is random per trial.
 
 Methods:
 
-* ours, local: ``algorithms.localization.localize(method="hong_tan")`` with a prebuilt index.
-* ours, global: ``algorithms.global_search.global_localize`` with ``"multistart"``,
+* ours, local: ``algorithms.registration.local.localize(method="hong_tan")`` with a prebuilt index.
+* ours, global: ``algorithms.registration.global_search.global_localize`` with ``"multistart"``,
   ``"genetic"``, ``"pso"`` (noise sigma given).
 * Open3D point-to-plane ICP (``registration_icp``) against a dense sample of the CAD model
   (0.5 mm spacing, exact face normals); Open3D builds the target's KD-tree inside every call,
@@ -41,7 +41,7 @@ translation error for local methods.
 Reported per (problem, sigma, N, start, method): success rate (rotation error < 0.5 degree and
 translation error < 0.5 mm: the right basin), RMS pose error relative to the Cramer-Rao bound
 over the successes (``sqrt(mean(xi^T C^-1 xi) / 6)``, 1.00 = attains the bound; C from
-``algorithms.uncertainty.crlb`` at the true pose with smooth normals), and the median time per
+``algorithms.registration.uncertainty.crlb`` at the true pose with smooth normals), and the median time per
 call. Targets: ours within 1.1x of the bound; local method under 2 / 8 / 40 ms for 150 /
 1,000 / 20,000 points; global success 100 % in under 300 ms for 1,000 points.
 """
@@ -63,12 +63,12 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from algorithms.closest_point import MeshIndex  # noqa: E402
-from algorithms.global_search import global_localize  # noqa: E402
-from algorithms.localization import localize  # noqa: E402
-from algorithms.se3 import inv_pose, rotation_error_rad, translation_error_m  # noqa: E402
-from algorithms.uncertainty import crlb, observability, pose_error_twist, whitened_error  # noqa: E402
-from twin.workpieces import make_workpiece  # noqa: E402
+from algorithms.geometry.mesh_index import MeshIndex  # noqa: E402
+from algorithms.registration.global_search import global_localize  # noqa: E402
+from algorithms.registration.local import localize  # noqa: E402
+from algorithms.geometry.se3 import inv_pose, rotation_error_rad, translation_error_m  # noqa: E402
+from algorithms.registration.uncertainty import crlb, observability, pose_error_twist, whitened_error  # noqa: E402
+from twin.parts import make_workpiece  # noqa: E402
 
 try:
     import open3d as o3d

@@ -28,19 +28,19 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from algorithms.closest_point import MeshIndex  # noqa: E402
-from algorithms.normals import angle_deg, pca_normals, triangulation_normals  # noqa: E402
-from algorithms.pointcloud import organize_scan_lines, prepare_scan_lines, remove_outliers  # noqa: E402
-from algorithms.se3 import inv_pose, transform_points  # noqa: E402
-from algorithms.spline import fit_lines  # noqa: E402
-from algorithms.toolpath import build_path, cad_raster, flange_poses, transform_path  # noqa: E402
+from algorithms.geometry.mesh_index import MeshIndex  # noqa: E402
+from algorithms.paths.normals import angle_deg, pca_normals, triangulation_normals  # noqa: E402
+from algorithms.paths.pointcloud import organize_scan_lines, prepare_scan_lines, remove_outliers  # noqa: E402
+from algorithms.geometry.se3 import inv_pose, transform_points  # noqa: E402
+from algorithms.paths.spline import fit_lines  # noqa: E402
+from algorithms.paths.toolpath import build_path, cad_raster, flange_poses, transform_path  # noqa: E402
 from tests.helpers import scenario  # noqa: E402
 from twin.cell import build_cell, load_workpiece_mesh  # noqa: E402
-from twin.cmd_run import tool_settings  # noqa: E402
+from twin.cli.run import tool_settings  # noqa: E402
 from twin.replay import build_replay_cell, replay  # noqa: E402
 from twin.scan import run_scan, simulate  # noqa: E402
 from twin.trajectory import plan_joint_trajectory, solve_path, time_law  # noqa: E402
-from twin.workpieces import s_surface_normal  # noqa: E402
+from twin.parts import s_surface_normal  # noqa: E402
 
 
 def cad_path_on_true_part(sc, mesh, index, point_spacing):

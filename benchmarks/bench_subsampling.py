@@ -53,17 +53,17 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from algorithms.closest_point import MeshIndex  # noqa: E402
-from algorithms.localization import localize  # noqa: E402
-from algorithms.uncertainty import crlb, observability  # noqa: E402
-from algorithms.se3 import rotation_error_rad, translation_error_m  # noqa: E402
-from algorithms.subsampling import (  # noqa: E402
+from algorithms.geometry.mesh_index import MeshIndex  # noqa: E402
+from algorithms.registration.local import localize  # noqa: E402
+from algorithms.registration.uncertainty import crlb, observability  # noqa: E402
+from algorithms.geometry.se3 import rotation_error_rad, translation_error_m  # noqa: E402
+from algorithms.registration.subsampling import (  # noqa: E402
     full_grid,
     pseudo_hammersley_subsample,
     random_subsample,
     uniform_subsample,
 )
-from twin.workpieces import make_workpiece  # noqa: E402
+from twin.parts import make_workpiece  # noqa: E402
 
 GRIDS = ((10, 10), (20, 31), (40, 60))
 PROBLEMS = {

@@ -15,11 +15,11 @@ import time
 
 import numpy as np
 
-from algorithms.closest_point import MeshIndex
-from algorithms.features import FEATURE_TABLE, FEATURE_TYPES
-from algorithms.hybrid import envelope_distances, localize_hybrid
-from algorithms.se3 import exp_se3, inv_pose, transform_points
-from algorithms.symmetric import algorithm2, localize_symmetric
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.registration.symmetric.features import FEATURE_TABLE, FEATURE_TYPES
+from algorithms.registration.hybrid import envelope_distances, localize_hybrid
+from algorithms.geometry.se3 import exp_se3, inv_pose, transform_points
+from algorithms.registration.symmetric import algorithm2, localize_symmetric
 from tests.helpers import scenario
 from tests.test_features import example_features, sample_feature
 from tests.test_symmetric import SYMMETRIC_MESHES, _cube_faces, _random_pose, _scan_like
@@ -76,7 +76,7 @@ def bar_cube():
 
 def bar_hybrid():
     from twin.scan import run_scan
-    from twin.symmetric_parts import (cast_blank, cast_blank_finished, cast_blank_geometry,
+    from twin.parts.symmetric import (cast_blank, cast_blank_finished, cast_blank_geometry,
                                       cast_blank_rough_points, classify_cast_blank_points)
 
     sc = scenario("cast_blank")

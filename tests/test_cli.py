@@ -65,7 +65,7 @@ def test_mesh_with_no_faces_is_refused(tmp_path):
 
 
 def test_user_mesh_scan_and_recording(tmp_path):
-    from twin.workpieces import make_workpiece
+    from twin.parts import make_workpiece
 
     mesh = make_workpiece("through_hole")
     mesh.apply_scale(1000.0)

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from algorithms.se3 import rotation_error_rad, transform_points, translation_error_m
+from algorithms.geometry.se3 import rotation_error_rad, transform_points, translation_error_m
 from tests.test_localization import part, random_pose, sample_surface
 from twin import cli
 from twin.io import write_points_ply

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from algorithms.closest_point import HAVE_NUMBA, MeshIndex, closest_points_on_triangles
+from algorithms.geometry.mesh_index import HAVE_NUMBA, MeshIndex, closest_points_on_triangles
 from algorithms.errors import AlgorithmError
 
 # Named tolerances (relative to the mesh's bounding-box diagonal).

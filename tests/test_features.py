@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from algorithms.errors import AlgorithmError
-from algorithms.features import (
+from algorithms.registration.symmetric.features import (
     FEATURE_TABLE,
     FEATURE_TYPES,
     Feature,
@@ -15,7 +15,7 @@ from algorithms.features import (
     make_feature,
     symmetry_group,
 )
-from algorithms.se3 import exp_se3, transform_points
+from algorithms.geometry.se3 import exp_se3, transform_points
 
 # Named tolerances of this file.
 ON_FEATURE_M = 1e-12  # points moved along g_0 stay on the feature
@@ -60,7 +60,7 @@ def example_features() -> dict:
 
 def sample_feature(f: Feature, n: int, rng: np.random.Generator) -> np.ndarray:
     """(n, 3) points exactly on the feature (z = 0 for the 2D ones), workpiece frame [m]."""
-    from algorithms.features import _perp_basis
+    from algorithms.registration.symmetric.features import _perp_basis
 
     c, a = f.origin, f.axis
     e1, e2 = _perp_basis(a)

@@ -7,12 +7,12 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from algorithms import global_search as gs
-from algorithms.closest_point import MeshIndex
+from algorithms.registration.global_search import search as gs
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.global_search import global_localize, orientation_table
-from algorithms.localization import LocalizationResult
-from algorithms.se3 import rotation_error_rad, translation_error_m
+from algorithms.registration.global_search import global_localize, orientation_table
+from algorithms.registration.local import LocalizationResult
+from algorithms.geometry.se3 import rotation_error_rad, translation_error_m
 
 # Named tolerances (DESIGN.md rule 8).
 POSE_TOL_M = 1e-6
@@ -287,7 +287,7 @@ def test_printed_start_table_and_stop_at_first(part):
 
 
 def test_result_type_and_localize_global_init(part):
-    from algorithms.localization import localize
+    from algorithms.registration.local import localize
 
     m, idx, pts = part
     T = _pose(TRUE_ROTVECS[2])

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.hybrid import envelope_distances, localize_hybrid
-from algorithms.se3 import exp_se3, inv_pose, make_pose, transform_points
+from algorithms.registration.hybrid import envelope_distances, localize_hybrid
+from algorithms.geometry.se3 import exp_se3, inv_pose, make_pose, transform_points
 from tests.helpers import scenario
-from twin.symmetric_parts import (
+from twin.parts.symmetric import (
     cast_blank,
     cast_blank_finished,
     cast_blank_geometry,

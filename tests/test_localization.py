@@ -11,11 +11,11 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.localization import LocalizationResult, localize
-from algorithms.se3 import make_pose, rotation_error_rad, transform_points, translation_error_m
-from algorithms.uncertainty import crlb, pose_error_twist, whitened_error
+from algorithms.registration.local import LocalizationResult, localize
+from algorithms.geometry.se3 import make_pose, rotation_error_rad, transform_points, translation_error_m
+from algorithms.registration.uncertainty import crlb, pose_error_twist, whitened_error
 
 # Named tolerances
 RECOVER_M = 1e-6            # translation error after noise-free localization [m]
@@ -28,8 +28,8 @@ PARTS = ("s_surface", "hemisphere_punch", "bottle_punch")
 
 @functools.lru_cache(maxsize=None)
 def part(name):
-    """(mesh, index) of a workpiece of the documents (twin.workpieces), cached per run."""
-    from twin.workpieces import make_workpiece
+    """(mesh, index) of a workpiece of the documents (twin.parts), cached per run."""
+    from twin.parts import make_workpiece
 
     mesh = make_workpiece(name)
     return mesh, MeshIndex(mesh)
@@ -290,9 +290,9 @@ def test_global_init_calls_the_global_search(monkeypatch):
         calls["args"] = (len(points), index, rng)
         return types.SimpleNamespace(T_world_workpiece=T_true)
 
-    fake = types.ModuleType("algorithms.global_search")
+    fake = types.ModuleType("algorithms.registration.global_search")
     fake.global_localize = fake_global_localize
-    monkeypatch.setitem(sys.modules, "algorithms.global_search", fake)
+    monkeypatch.setitem(sys.modules, "algorithms.registration.global_search", fake)
     g = np.random.default_rng(0)
     res = localize(transform_points(T_true, X), index=idx, init="global", rng=g)
     assert calls["args"] == (150, idx, g)

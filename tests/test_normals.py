@@ -5,13 +5,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from algorithms.normals import NormalsError, angle_deg, pca_normals, smooth_line_normals, triangulation_normals
-from algorithms.pointcloud import prepare_scan_lines
-from algorithms.se3 import inv_pose, transform_points
-from algorithms.spline import fit_lines
+from algorithms.paths.normals import NormalsError, angle_deg, pca_normals, smooth_line_normals, triangulation_normals
+from algorithms.paths.pointcloud import prepare_scan_lines
+from algorithms.geometry.se3 import inv_pose, transform_points
+from algorithms.paths.spline import fit_lines
 from tests.helpers import scenario
 from twin.scan import run_scan
-from twin.workpieces import s_surface_normal
+from twin.parts import s_surface_normal
 
 EXACT_DEG = 1e-5           # planar data: the floor of arccos near 1 in float64
 TRIANGULATION_BAR_DEG = 2.0  # issue bar: RMS against the true normals, S-surface, noise off

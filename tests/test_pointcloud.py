@@ -5,8 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from algorithms.closest_point import MeshIndex
-from algorithms.pointcloud import (
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.paths.pointcloud import (
     PointCloudError,
     boundary_polygon,
     extract_boundary,
@@ -15,11 +15,11 @@ from algorithms.pointcloud import (
     remove_outliers,
     simplify_lines,
 )
-from algorithms.se3 import inv_pose, transform_points
-from algorithms.spline import SplineError, centripetal_parameters, fit_line, fit_lines
+from algorithms.geometry.se3 import inv_pose, transform_points
+from algorithms.paths.spline import SplineError, centripetal_parameters, fit_line, fit_lines
 from tests.helpers import scenario
 from twin.cell import load_workpiece_mesh
-from twin.cmd_run import sensor_sigma_m
+from twin.cli.run import sensor_sigma_m
 from twin.scan import run_scan
 
 # Named tolerances of this module.

@@ -1,7 +1,7 @@
 import mujoco
 import numpy as np
 
-from algorithms.kinematics import dh_forward
+from algorithms.geometry.kinematics import dh_forward
 from tests.tolerances import FK_AGREEMENT_M
 from twin.robot import FLANGE_SITE, SCENE_XML, UR5E_DH
 

@@ -7,11 +7,11 @@ import sys
 import numpy as np
 import pytest
 
-from algorithms.se3 import make_pose
-from algorithms.toolpath import transform_path
+from algorithms.geometry.se3 import make_pose
+from algorithms.paths.toolpath import transform_path
 from tests.helpers import SCENARIOS, scenario
 from twin.cell import build_cell
-from twin.cmd_run import run_loop
+from twin.cli.run import run_loop
 from twin.replay import replay
 from twin.trajectory import plan_joint_trajectory
 

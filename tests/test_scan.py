@@ -7,8 +7,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from algorithms.closest_point import MeshIndex
-from algorithms.se3 import inv_pose, transform_points
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import inv_pose, transform_points
 from tests.helpers import scenario
 from tests.tolerances import ANALYTIC_DISTANCE_M, ON_SURFACE_M
 from twin.cell import build_cell, build_spec, compile_cell, load_workpiece_mesh

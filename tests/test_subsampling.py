@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from algorithms.errors import AlgorithmError
-from algorithms.subsampling import (
+from algorithms.registration.subsampling import (
     bit_reverse,
     full_grid,
     pseudo_hammersley_columns,

@@ -8,10 +8,10 @@ import pytest
 import trimesh
 
 from algorithms.errors import AlgorithmError
-from algorithms.features import FEATURE_TABLE, FEATURE_TYPES
-from algorithms.localization import localize
-from algorithms.se3 import exp_se3, inv_pose, rotation_error_rad, transform_points
-from algorithms.symmetric import (
+from algorithms.registration.symmetric.features import FEATURE_TABLE, FEATURE_TYPES
+from algorithms.registration.local import localize
+from algorithms.geometry.se3 import exp_se3, inv_pose, rotation_error_rad, transform_points
+from algorithms.registration.symmetric import (
     DETECTION_TOL,
     algorithm2,
     detect_symmetry,
@@ -153,7 +153,7 @@ def test_model_symmetries_of_a_cube_and_a_box():
 
 
 def test_square_plate_with_four_identical_blind_holes_has_four_symmetries():
-    from twin import workpieces as wp
+    from twin.parts import workpieces as wp
 
     patches, holes = [], []
     for x, y in [(0.02, 0.02), (-0.02, 0.02), (0.02, -0.02), (-0.02, -0.02)]:
@@ -196,7 +196,7 @@ def test_cube_reports_every_equally_good_pose(which, solutions, free, feature):
     assert (res.feature, res.free_dofs, len(res.solutions)) == (feature, free, solutions)
     # all equally good, pairwise distinct, one of them the truth (modulo the free motions)
     assert np.ptp(res.solution_rmse_m) < 1e-3 * res.solution_rmse_m.max() + 1e-12
-    from algorithms.symmetric import _move_group
+    from algorithms.registration.symmetric.algorithm2 import _move_group
 
     for j in range(len(res.solutions)):
         g_j = _move_group(res.group, res.solutions[0], res.solutions[j])  # G_0 seen from pose j
@@ -249,7 +249,7 @@ def scans():
 
 
 def _scan_result(scans, name):
-    from twin.workpieces import make_workpiece
+    from twin.parts import make_workpiece
 
     sc, scan = scans[name]
     mesh = make_workpiece(sc.workpiece.shape, **sc.workpiece.params)

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import make_pose
-from algorithms.toolpath import (
+from algorithms.geometry.se3 import make_pose
+from algorithms.paths.toolpath import (
     ToolPathError,
     ToolSettings,
     build_path,
@@ -18,7 +18,7 @@ from algorithms.toolpath import (
     tool_frames,
     transform_path,
 )
-from twin.workpieces import make_workpiece, s_surface_height, s_surface_normal
+from twin.parts import make_workpiece, s_surface_height, s_surface_normal
 
 ORTHONORMAL = 1e-12
 ANGLE_RAD = 1e-9

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from algorithms.closest_point import MeshIndex
-from algorithms.kinematics import dh_forward
-from algorithms.toolpath import build_path, cad_raster, flange_poses, transform_path
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.kinematics import dh_forward
+from algorithms.paths.toolpath import build_path, cad_raster, flange_poses, transform_path
 from tests.helpers import scenario
 from twin.cell import build_cell, load_workpiece_mesh
-from twin.cmd_run import tool_settings
+from twin.cli.run import tool_settings
 from twin.errors import TwinError
 from twin.robot import ACCELERATION_LIMIT_RAD_S2, HOME_Q, UR5E_DH, VELOCITY_LIMIT_RAD_S
 from twin.trajectory import POSITION_TOL_M, PathError, plan_joint_trajectory, solve_path, time_law

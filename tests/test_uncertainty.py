@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from algorithms import uncertainty as U
-from algorithms.closest_point import MeshIndex
+from algorithms.registration import uncertainty as U
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import exp_se3, make_pose, rotation_error_rad, translation_error_m
+from algorithms.geometry.se3 import exp_se3, make_pose, rotation_error_rad, translation_error_m
 
 WEAK_REL = 1e-10          # relative eigenvalue of an exactly unconstrained direction
 CONVENTION_TOL = 1e-12    # log/exp round trip of the error twist

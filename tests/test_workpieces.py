@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from twin import workpieces as wp
+from twin.parts import workpieces as wp
 from twin.errors import TwinError
 
 # Named tolerances of this file.

@@ -21,7 +21,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from algorithms.se3 import inv_pose
+from algorithms.geometry.se3 import inv_pose
 from twin.errors import TwinError
 from twin.robot import FLANGE_BODY, JOINT_NAMES, LINK_BODIES, SCENE_XML, UR5E_DH
 from twin.scenario import Scenario
@@ -98,7 +98,7 @@ class Cell:
 
 def load_workpiece_mesh(scenario: Scenario) -> trimesh.Trimesh:
     """The scenario's workpiece mesh in the workpiece frame [m]."""
-    from twin.workpieces import load_mesh, make_workpiece
+    from twin.parts import load_mesh, make_workpiece
 
     wp = scenario.workpiece
     if wp.shape is not None:

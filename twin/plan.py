@@ -18,7 +18,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation, Slerp
 
-from algorithms.se3 import transform_points
+from algorithms.geometry.se3 import transform_points
 from twin.cell import Cell
 from twin.errors import TwinError
 

@@ -39,10 +39,10 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from algorithms.closest_point import MeshIndex
-from algorithms.kinematics import dh_forward
-from algorithms.se3 import inv_pose, transform_points
-from algorithms.toolpath import ProcessPath, raycast_parallel
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.kinematics import dh_forward
+from algorithms.geometry.se3 import inv_pose, transform_points
+from algorithms.paths.toolpath import ProcessPath, raycast_parallel
 from twin.cell import GROUP_ARM, GROUP_WORKPIECE, Cell, build_spec, compile_cell, load_workpiece_mesh, quat_wxyz
 from twin.errors import TwinError
 from twin.robot import FLANGE_BODY, JOINT_NAMES, UR5E_DH, VELOCITY_LIMIT_RAD_S

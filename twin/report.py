@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from algorithms.closest_point import MeshIndex
-from algorithms.kinematics import dh_forward
-from algorithms.se3 import inv_pose, transform_points
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.kinematics import dh_forward
+from algorithms.geometry.se3 import inv_pose, transform_points
 from twin.robot import UR5E_DH
 from twin.sensor import STATUS_NAMES
 

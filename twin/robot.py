@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from algorithms.kinematics import DHTable
+from algorithms.geometry.kinematics import DHTable
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 UR5E_DIR = MODELS_DIR / "ur5e"

@@ -19,8 +19,8 @@ import mujoco.rollout
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from algorithms.kinematics import reconstruct_line_points, reconstruct_points
-from algorithms.se3 import inv_pose
+from algorithms.geometry.kinematics import reconstruct_line_points, reconstruct_points
+from algorithms.geometry.se3 import inv_pose
 from twin.cell import STATIC_GROUPS, Cell, build_cell, load_workpiece_mesh
 from twin.errors import TwinError
 from twin.ik import IKSolver

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import as_pose
+from algorithms.geometry.se3 import as_pose
 from twin.errors import TwinError
 
 SENSOR_WINDOW_M = (0.055, 0.105)  # Keyence IL-065 measuring window
@@ -384,7 +384,7 @@ def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = No
 
 
 def _parse_workpiece(s: _Section, base_dir: Path | None) -> WorkpieceSpec:
-    from twin.workpieces import WORKPIECE_NAMES
+    from twin.parts import WORKPIECE_NAMES
 
     shape = s.string("shape", None)
     mesh = s.string("mesh", None)

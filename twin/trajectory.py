@@ -43,7 +43,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
-from algorithms.toolpath import ROTATION_LENGTH_M_PER_RAD, ProcessPath
+from algorithms.paths.toolpath import ROTATION_LENGTH_M_PER_RAD, ProcessPath
 from twin.cell import Cell
 from twin.errors import TwinError
 from twin.robot import ACCELERATION_LIMIT_RAD_S2, HOME_Q, JOINT_NAMES, VELOCITY_LIMIT_RAD_S
@@ -446,7 +446,7 @@ def plan_joint_trajectory(cell: Cell, path: ProcessPath, T_flange_tool: np.ndarr
         TwinError: bad tool transform, feed or speeds.
     """
     from algorithms.errors import AlgorithmError
-    from algorithms.toolpath import flange_poses
+    from algorithms.paths.toolpath import flange_poses
 
     for name, v in (("feed rate", feed_m_s), ("transit speed", transit_speed_m_s),
                     ("path acceleration", acceleration_m_s2)):

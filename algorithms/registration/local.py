@@ -13,7 +13,7 @@ Algorithm 1 (document 000), for every method:
    points mapped into the model frame, ``y_i^0 = (g^0)^-1 y_i``.
 2. ``e_0`` = mean squared point-to-model distance.
 3. ``k = k + 1``: update ``g^k`` from the pairs (the update names the method, below).
-4. New feet for ``g^k`` (exact closest points, :class:`algorithms.closest_point.MeshIndex`),
+4. New feet for ``g^k`` (exact closest points, :class:`algorithms.geometry.mesh_index.MeshIndex`),
    ``e_k`` = their mean squared distance.
 5. Stop when ``1 - e_k / e_(k-1) < delta`` (``tolerance``) or when ``e_k`` reaches the
    numerical floor (RMS below ``1e-12`` times the model's size, i.e. the data fit exactly),
@@ -35,7 +35,7 @@ The updates, all computed in the workpiece frame from the model-frame points ``y
   of the points and applied through the exact exponential map (a Gauss-Newton step on SE(3)
   for the point-to-surface distance; quadratic convergence on exact data). Document 000
   finds it the fastest and most accurate of the family; it is the efficient estimator whose
-  covariance reaches the Cramer-Rao bound here (see :mod:`algorithms.uncertainty`).
+  covariance reaches the Cramer-Rao bound here (see :mod:`algorithms.registration.uncertainty`).
 * ``"menq"``: nonlinear least squares (Levenberg-Marquardt) on SE(3) of the true
   point-to-surface distances: each trial step re-computes the closest points and is accepted
   only when the mean squared distance drops (the damping grows otherwise). More closest-point
@@ -94,10 +94,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose
-from algorithms.uncertainty import OBSERVABILITY_TOL, _sym_inverse, observability
+from algorithms.geometry.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose
+from algorithms.registration.uncertainty import OBSERVABILITY_TOL, _sym_inverse, observability
 
 __all__ = [
     "METHODS",
@@ -260,7 +260,7 @@ def localize(
     elif isinstance(init, str):
         if init != "global":
             raise AlgorithmError(f"init must be None, a 4x4 rigid transform or 'global', got {init!r}")
-        from algorithms.global_search import global_localize  # lazy: optional heavy module
+        from algorithms.registration.global_search import global_localize  # lazy: optional heavy module
 
         g = global_localize(Y, index.mesh, index=index, rng=rng)
         T0 = as_pose(getattr(g, "T_world_workpiece", g), name="global search result")

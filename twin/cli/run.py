@@ -28,13 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.normals import angle_deg, pca_normals, smooth_line_normals, triangulation_normals
-from algorithms.pointcloud import CloudParams, prepare_scan_lines
-from algorithms.se3 import inv_pose, rotation_error_rad, transform_points, translation_error_m
-from algorithms.spline import fit_lines
-from algorithms.toolpath import ProcessPath, ToolSettings, build_path, cad_raster, transform_path
+from algorithms.paths.normals import angle_deg, pca_normals, smooth_line_normals, triangulation_normals
+from algorithms.paths.pointcloud import CloudParams, prepare_scan_lines
+from algorithms.geometry.se3 import inv_pose, rotation_error_rad, transform_points, translation_error_m
+from algorithms.paths.spline import fit_lines
+from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, cad_raster, transform_path
 from twin.cell import build_cell, load_workpiece_mesh
 from twin.errors import TwinError
 from twin.replay import build_replay_cell, replay
@@ -295,7 +295,7 @@ def run_loop(scenario: Scenario, out: Path, rrd: Path | None = None, mesh=None, 
 
 
 def _localize(scan: Scan, index: MeshIndex) -> dict:
-    from algorithms.localization import localize
+    from algorithms.registration.local import localize
 
     pts = scan.valid_points_base.reshape(-1, 3)
     rows = np.nonzero(scan.valid)[0]

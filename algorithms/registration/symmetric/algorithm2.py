@@ -2,7 +2,7 @@
 discrete symmetries (every equally good pose).
 
 Algorithm 2 (document 000, section 4.2). A feature with symmetry subgroup ``G_0`` (see
-:mod:`algorithms.features`) fixes the pose only on ``SE(3)/G_0``. Its points make the linear
+:mod:`algorithms.registration.symmetric.features`) fixes the pose only on ``SE(3)/G_0``. Its points make the linear
 systems of the Tangent and Hong-Tan updates singular (the ``G_0`` directions carry no
 information). Algorithm 2 never forms them: with a basis ``eta_1..eta_q`` of the complement
 ``m_0`` (``q = dim SE(3)/G_0``) it
@@ -22,7 +22,7 @@ the nominal pose), and the result says so: ``free_directions`` (the ``G_0`` basi
 
 Symmetry from the data (:func:`detect_symmetry`). At the pose found by Algorithm 1 the feet
 and the ideal-surface normals give the scaled Fisher information of
-:func:`algorithms.uncertainty.observability`; a direction is **free** when its eigenvalue is
+:func:`algorithms.registration.uncertainty.observability`; a direction is **free** when its eigenvalue is
 below ``DETECTION_TOL`` (1e-4) times the largest, i.e. when the points fix it more than 100
 times worse (in standard deviation, over the part's size) than the best-fixed direction.
 The free subspace is then matched to a subgroup of document 000's table (plane, cylinder,
@@ -49,9 +49,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.features import (
+from algorithms.registration.symmetric.features import (
     FEATURE_TABLE,
     Feature,
     SymmetryGroup,
@@ -59,10 +59,10 @@ from algorithms.features import (
     other_group,
     symmetry_group,
 )
-from algorithms.localization import OUTLIER_K, OUTLIER_K_COARSE, localize
-from algorithms.localization import _outlier_config as _outlier_mode
-from algorithms.se3 import as_pose, exp_se3, inv_pose, rotation_error_rad, transform_points
-from algorithms.uncertainty import OBSERVABILITY_TOL, Observability, observability
+from algorithms.registration.local import OUTLIER_K, OUTLIER_K_COARSE, localize
+from algorithms.registration.local import _outlier_config as _outlier_mode
+from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, rotation_error_rad, transform_points
+from algorithms.registration.uncertainty import OBSERVABILITY_TOL, Observability, observability
 
 __all__ = [
     "DETECTION_TOL",
@@ -79,7 +79,7 @@ __all__ = [
 ]
 
 #: A pose direction is free when its scaled information eigenvalue is below this fraction
-#: of the largest (same scale as :data:`algorithms.uncertainty.OBSERVABILITY_TOL`).
+#: of the largest (same scale as :data:`algorithms.registration.uncertainty.OBSERVABILITY_TOL`).
 DETECTION_TOL = OBSERVABILITY_TOL
 #: Matching a free subspace to the table: dimensionless (angles in rad, lengths / L).
 MATCH_TOL = 1e-3
@@ -810,7 +810,7 @@ def localize_symmetric(
         init: initial pose (4x4), "global" (Algorithm 5) or None (identity).
         rng: generator for the global search.
         sigma: noise sigma along the normals [m] (estimated when None).
-        outlier: as for :func:`algorithms.localization.localize`.
+        outlier: as for :func:`algorithms.registration.local.localize`.
         tol: detection tolerance (relative eigenvalue).
         index: prebuilt MeshIndex of ``mesh``.
         discrete: look for discrete model symmetries.
@@ -832,7 +832,7 @@ def localize_symmetric(
         if FEATURE_TABLE[symmetric].planar:
             raise AlgorithmError(
                 f"{symmetric} is a 2D feature (planar problem in SE(2)); localize 2D points "
-                "with algorithms.symmetric.algorithm2 and Feature.{symmetric}(...)"
+                "with algorithms.registration.symmetric.algorithm2 and Feature.{symmetric}(...)"
             )
     if not (np.isfinite(tol) and 0 < tol < 1):
         raise AlgorithmError(f"tol must be in (0, 1), got {tol}")

@@ -1589,4 +1589,4 @@ def register_workpiece(name: str, generator: Callable[..., trimesh.Trimesh]) -> 
         WORKPIECE_NAMES = WORKPIECE_NAMES + (name,)
 
 
-import twin.symmetric_parts  # noqa: E402,F401  (registers its parts through the hook above)
+import twin.parts.symmetric  # noqa: E402,F401  (registers its parts through the hook above)

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from twin.cmd_run import _headline, run_loop
+from twin.cli.run import _headline, run_loop
 from twin.io import write_scan
 from twin.robot import MODELS_DIR
 from twin.scenario import load_scenario

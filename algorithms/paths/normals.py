@@ -17,7 +17,7 @@ garbled; the fan above is the reading whose sum is the central difference
 ``(a - b) x (n+ - n-)``: second-order accurate when the neighbours sit symmetrically.)
 
 Orientation: with lines ordered across the part by ``across`` and points along each line by
-``direction`` (as :func:`algorithms.pointcloud.organize_scan_lines` orders them), the fan's
+``direction`` (as :func:`algorithms.paths.pointcloud.organize_scan_lines` orders them), the fan's
 normal is ``direction x across``; ``orient`` (a direction the normals should face, e.g.
 towards the sensor) flips the whole set when most of it faces away.
 

@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import as_pose, inv_pose
+from algorithms.geometry.se3 import as_pose, inv_pose
 
 # Rotation-only moves count this many metres per radian when a length is needed.
 ROTATION_LENGTH_M_PER_RAD = 0.1

@@ -2,7 +2,7 @@
 
 Each generator returns one watertight, outward-wound ``trimesh.Trimesh`` in the workpiece
 frame (metres, z up, resting on z = 0, centred in x and y), built with the same surface-by-
-surface helpers as :mod:`twin.workpieces`, and registers itself there so that scenarios can
+surface helpers as :mod:`twin.parts`, and registers itself there so that scenarios can
 name it (``workpiece.shape``):
 
 * ``bore_and_face``: a plate with a blind cylindrical bore; measured on the bore and the top
@@ -29,7 +29,7 @@ import math
 import numpy as np
 import trimesh
 
-from twin import workpieces as _wp
+from twin.parts import workpieces as _wp
 from twin.errors import TwinError
 
 __all__ = [

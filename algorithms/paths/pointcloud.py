@@ -32,7 +32,7 @@ The steps and their parameters (the defaults are the ones ``twin run`` uses):
    the first points of the lines and the last points in reverse order.
 4. :func:`simplify_lines`: even spacing by bin averaging along the arc length: one point per
    ``spacing_m`` of line (the mean of the points in the bin). High-frequency noise is left to
-   the per-line B-spline least-squares fit (:mod:`algorithms.spline`), which is document
+   the per-line B-spline least-squares fit (:mod:`algorithms.paths.spline`), which is document
    004's smoothing step.
 
 All points are in one frame (the robot base frame for a scan), in metres.

@@ -9,7 +9,7 @@ model point, ``n_i`` the outward normal there).
 
 The solution (document 000, section 5.2):
 
-1. The finished points fix the pose on ``SE(3)/G_0`` (Algorithm 2, :mod:`algorithms.symmetric`,
+1. The finished points fix the pose on ``SE(3)/G_0`` (Algorithm 2, :mod:`algorithms.registration.symmetric`,
    with ``G_0`` found from the data or given); the pose ``g_0`` is left free along ``G_0``.
 2. Over ``g(lambda) = g_0 exp(sum lambda_j eta_j)`` (``eta_j`` a basis of ``g_0``) the rough
    points are kept outside by their allowances while the envelope objective
@@ -54,10 +54,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linprog
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import as_pose, exp_se3, inv_pose, transform_points
-from algorithms.symmetric import DETECTION_TOL, SymmetricResult, localize_symmetric, pseudo_normals
+from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, transform_points
+from algorithms.registration.symmetric import DETECTION_TOL, SymmetricResult, localize_symmetric, pseudo_normals
 
 __all__ = ["HybridResult", "localize_hybrid", "envelope_distances", "LIMIT_TOL_REL", "TOLERANCE"]
 
@@ -203,8 +203,8 @@ def localize_hybrid(
         groups: (M,) labels of the rough points (e.g. one per cast surface) for the
             per-group minimum stock; default all "rough".
         symmetric: ``G_0`` of the finished points: "auto" (detected), a feature type, a
-            :class:`~algorithms.features.Feature` or a
-            :class:`~algorithms.features.SymmetryGroup`.
+            :class:`~algorithms.registration.symmetric.features.Feature` or a
+            :class:`~algorithms.registration.symmetric.features.SymmetryGroup`.
         init: initial pose (4x4) or None (identity); also fixes the ``G_0`` start.
         stock_m: nominal stock [m] for the inside-the-model check (default: the 10th
             percentile of the rough points' stock at the max-min placement).

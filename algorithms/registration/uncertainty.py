@@ -1,7 +1,7 @@
 """Uncertainty of a workpiece localization: Fisher information, Cramer-Rao bound,
 observability, and document 000's accuracy metrics.
 
-Conventions (shared with :mod:`algorithms.localization`):
+Conventions (shared with :mod:`algorithms.registration.local`):
 
 * The pose is ``T_world_workpiece`` (maps workpiece/model coordinates to world coordinates).
 * A pose error is the twist ``xi = [omega, v]`` (angular part first, radians and metres) of
@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import inv_pose, log_se3, rotation_error_rad, translation_error_m
+from algorithms.geometry.se3 import inv_pose, log_se3, rotation_error_rad, translation_error_m
 
 __all__ = [
     "OBSERVABILITY_TOL",

@@ -1,6 +1,6 @@
 """The ``twin`` command line.
 
-Each subcommand lives in its own module ``twin/cmd_<name>.py`` exposing
+Each subcommand lives in its own module ``twin/cli/<name>.py`` exposing
 ``add_parser(subparsers)`` and ``run(args) -> int``. Domain errors become one line on
 stderr and a non-zero exit, never a traceback.
 """
@@ -24,7 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
-        module = importlib.import_module(f"twin.cmd_{name}")
+        module = importlib.import_module(f"twin.cli.{name}")
         module.add_parser(sub)
     return parser
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import as_pose
+from algorithms.geometry.se3 import as_pose
 
 
 @dataclass(frozen=True)

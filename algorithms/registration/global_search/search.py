@@ -42,8 +42,8 @@ Three methods from the source documents, one entry point :func:`global_localize`
     * Speed: all starts run at once, batched. The first phase uses a coarse nearest-surface
       field (a voxel grid storing the nearest surface sample, built once per mesh, about a
       millimetre resolution), then the best distinct minima are refined with the exact
-      closest points (:class:`algorithms.closest_point.MeshIndex`) and the best is polished
-      with the library's local method (:func:`algorithms.localization.localize`).
+      closest points (:class:`algorithms.geometry.mesh_index.MeshIndex`) and the best is polished
+      with the library's local method (:func:`algorithms.registration.local.localize`).
     * The document stops at the first start that passes all tests. Here every start is run
       (unless ``stop_at_first=True``), because hypotheses are verified (below).
 
@@ -105,7 +105,7 @@ Three methods from the source documents, one entry point :func:`global_localize`
 
 Hypothesis verification (all methods): the best pose is a success only if its RMS residual
 is consistent with the noise (``rms <= 2 sigma_eff``) and the points constrain all six
-degrees of freedom (:func:`algorithms.uncertainty.observability` with smooth normals). The
+degrees of freedom (:func:`algorithms.registration.uncertainty.observability` with smooth normals). The
 best is compared with the second-best *distinct* solution found (rotation differing by more
 than 2 degrees or translation by more than 1 % of the part's size, refined with exact closest
 points on the same points): if the two are statistically indistinguishable
@@ -129,10 +129,10 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.localization import LocalizationResult, localize
-from algorithms.se3 import inv_pose, rotation_error_rad, translation_error_m
+from algorithms.registration.local import LocalizationResult, localize
+from algorithms.geometry.se3 import inv_pose, rotation_error_rad, translation_error_m
 
 __all__ = [
     "GLOBAL_METHODS",
@@ -747,7 +747,7 @@ def _pso(oracle, y_p, T_init, L, rng, *, rot_range, trans_range, particles, iter
 # =============================================================================================
 @dataclass(frozen=True)
 class GlobalLocalizationResult(LocalizationResult):
-    """:class:`algorithms.localization.LocalizationResult` of a global search, plus:
+    """:class:`algorithms.registration.local.LocalizationResult` of a global search, plus:
 
     Attributes:
         success: True only for a unique pose whose residual is consistent with the noise and
@@ -812,13 +812,13 @@ def global_localize(
         method: ``"multistart"`` | ``"genetic"`` | ``"pso"``.
         rng: random generator (perturbations, GA, PSO, subsets); default
             ``np.random.default_rng(0)`` so that a call is reproducible.
-        index: a prebuilt :class:`algorithms.closest_point.MeshIndex` of ``mesh``.
+        index: a prebuilt :class:`algorithms.geometry.mesh_index.MeshIndex` of ``mesh``.
         noise_sigma_m: measurement noise sigma [m] along the normals. Sets Algorithm 5's
             ``delta2`` and the residual check. None: estimated from the best fit (the residual
             check then cannot reject the best pose; ambiguity is still tested).
         model_error_m: allowance for model error (tessellation, form) [m], added in
             quadrature to sigma in the residual and ambiguity tests.
-        polish: local method of :func:`algorithms.localization.localize` applied to the
+        polish: local method of :func:`algorithms.registration.local.localize` applied to the
             best pose with all points (None: no polish; the GA's fine stage still runs).
         outlier: passed to ``localize`` for the polish (default None: keep every point).
         start_table: multistart start orientations (see :func:`orientation_table`).

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from algorithms.features import FEATURE_TYPES
-from algorithms.localization import DEFAULT_METHOD, METHODS, localize
-from algorithms.se3 import as_pose
+from algorithms.registration.symmetric.features import FEATURE_TYPES
+from algorithms.registration.local import DEFAULT_METHOD, METHODS, localize
+from algorithms.geometry.se3 import as_pose
 from twin.errors import TwinError
 
 UNIT_SCALE = {"m": 1.0, "mm": 1e-3}
@@ -77,7 +77,7 @@ def add_parser(sub) -> None:
 
 def _load_mesh(path: str, units: str):
     try:
-        from twin.workpieces import load_mesh
+        from twin.parts import load_mesh
     except ImportError:  # pragma: no cover - the module is part of the package
         load_mesh = None
     if load_mesh is not None:
@@ -351,7 +351,7 @@ def _symmetric_json(sym, hybrid=None) -> dict:
 
 
 def _run_symmetric(args, mesh, points, init, rng, sigma, outlier, symmetric, scale) -> int:
-    from algorithms.symmetric import localize_symmetric
+    from algorithms.registration.symmetric import localize_symmetric
 
     if args.allowance is None:
         if args.allowance_value is not None or args.stock is not None:
@@ -361,7 +361,7 @@ def _run_symmetric(args, mesh, points, init, rng, sigma, outlier, symmetric, sca
         out = _symmetric_json(sym)
         hybrid = None
     else:
-        from algorithms.hybrid import localize_hybrid
+        from algorithms.registration.hybrid import localize_hybrid
 
         rough, allowance, groups = read_allowance(args.allowance, args.units, args.allowance_value)
         stock = None
@@ -370,7 +370,7 @@ def _run_symmetric(args, mesh, points, init, rng, sigma, outlier, symmetric, sca
                 raise TwinError(f"--stock must be a positive number, got {args.stock}")
             stock = args.stock * scale
         if isinstance(init, str):
-            from algorithms.localization import localize as _loc
+            from algorithms.registration.local import localize as _loc
 
             init = _loc(points, mesh, init="global", rng=rng).T_world_workpiece
         hybrid = localize_hybrid(points, rough, mesh, allowance, groups=groups, symmetric=symmetric,

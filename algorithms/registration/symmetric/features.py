@@ -23,7 +23,7 @@ The two 2D features live in the plane z = 0 of the workpiece frame and their pro
 planar: the ambient group is SE(2) (rotation about z, translation in x and y), so
 ``dim Q = 3 - dim G_0``. The others live in SE(3): ``dim Q = 6 - dim G_0``.
 
-Conventions (those of :mod:`algorithms.localization` and :mod:`algorithms.uncertainty`):
+Conventions (those of :mod:`algorithms.registration.local` and :mod:`algorithms.registration.uncertainty`):
 
 * A twist is a 6-vector ``[omega, v]`` (angular part first; rad and m) of the right
   perturbation in the **workpiece frame**: the pose ``T`` becomes ``T @ exp_se3(xi)``, which
@@ -42,7 +42,7 @@ Conventions (those of :mod:`algorithms.localization` and :mod:`algorithms.uncert
 Features are given explicitly (``Feature.cylinder(point, axis, radius)``, ...) or as mesh
 faces (:meth:`Feature.from_mesh`: the primitive is fitted to the faces and classified when no
 kind is given). Closest points are analytic for the primitives and exact on the triangles
-(:class:`algorithms.closest_point.MeshIndex`) for extruded and free-form surfaces.
+(:class:`algorithms.geometry.mesh_index.MeshIndex`) for extruded and free-form surfaces.
 """
 
 from __future__ import annotations
@@ -51,9 +51,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from algorithms.closest_point import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.se3 import log_se3
+from algorithms.geometry.se3 import log_se3
 
 __all__ = [
     "FEATURE_TYPES",
