@@ -1,4 +1,4 @@
-"""Tests of the procedural workpieces and of loading user meshes (twin/workpieces.py)."""
+"""Tests of the procedural workpieces and of loading user meshes (twin/parts)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,18 @@ import numpy as np
 import pytest
 import trimesh
 
-from twin.parts import workpieces as wp
 from twin.errors import TwinError
+from twin.parts import (
+    MESH_EXTENSIONS,
+    WORKPIECE_NAMES,
+    bottle_profile_bezier,
+    load_mesh,
+    make_workpiece,
+    s_surface,
+    s_surface_height,
+    s_surface_normal,
+    through_hole,
+)
 
 # Named tolerances of this file.
 S_CHORD_M = 2e-6  # S-surface top vs its analytic height (default tessellation)
@@ -25,7 +35,7 @@ ROUND_TRIP_M = 1e-7  # float32 STL coordinates of a ~0.1 m part
 
 @pytest.fixture(scope="module")
 def meshes() -> dict[str, trimesh.Trimesh]:
-    return {name: wp.make_workpiece(name) for name in wp.WORKPIECE_NAMES}
+    return {name: make_workpiece(name) for name in WORKPIECE_NAMES}
 
 
 def _face_samples(mesh: trimesh.Trimesh, faces: np.ndarray) -> np.ndarray:
@@ -58,7 +68,7 @@ def _faces_on(mesh: trimesh.Trimesh, on_vertex: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", wp.WORKPIECE_NAMES)
+@pytest.mark.parametrize("name", WORKPIECE_NAMES)
 def test_solid_is_closed_outward_and_well_shaped(meshes, name):
     mesh = meshes[name]
     assert mesh.is_watertight
@@ -75,7 +85,7 @@ def test_solid_is_closed_outward_and_well_shaped(meshes, name):
     assert mesh.euler_number == (0 if name == "through_hole" else 2)
 
 
-@pytest.mark.parametrize("name", wp.WORKPIECE_NAMES)
+@pytest.mark.parametrize("name", WORKPIECE_NAMES)
 def test_part_rests_on_z0_centred_in_xy(meshes, name):
     mesh = meshes[name]
     assert mesh.bounds[0, 2] == 0.0
@@ -87,13 +97,13 @@ def test_part_rests_on_z0_centred_in_xy(meshes, name):
     assert np.all(np.abs(mesh.bounds[:, :2].mean(axis=0)) < 1e-9)
 
 
-@pytest.mark.parametrize("name", wp.WORKPIECE_NAMES)
+@pytest.mark.parametrize("name", WORKPIECE_NAMES)
 def test_generation_is_deterministic(name):
     coarse = {"resolution_m": 0.003}
     if name != "s_surface":
         coarse["chord_tolerance_m"] = 1e-4
-    first = wp.make_workpiece(name, **coarse)
-    again = wp.make_workpiece(name, **coarse)
+    first = make_workpiece(name, **coarse)
+    again = make_workpiece(name, **coarse)
     assert np.array_equal(again.vertices, first.vertices)
     assert np.array_equal(again.faces, first.faces)
     assert first.is_watertight and first.is_winding_consistent and first.volume > 0
@@ -114,9 +124,9 @@ def test_s_surface_top_matches_analytic_height_and_normal(meshes):
     hits, ray_idx, tri_idx = mesh.ray.intersects_location(origins, directions,
                                                           multiple_hits=False)
     assert len(hits) == n
-    z_true = wp.s_surface_height(hits[:, 0], hits[:, 1])
+    z_true = s_surface_height(hits[:, 0], hits[:, 1])
     assert np.max(np.abs(hits[:, 2] - z_true)) < S_CHORD_M
-    n_true = wp.s_surface_normal(hits[:, 0], hits[:, 1])
+    n_true = s_surface_normal(hits[:, 0], hits[:, 1])
     cos = np.einsum("ij,ij->i", mesh.face_normals[tri_idx], n_true)
     assert np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max() < NORMAL_DEG
 
@@ -125,15 +135,15 @@ def test_s_surface_chord_error_over_every_top_face(meshes):
     mesh = meshes["s_surface"]
     top = np.nonzero(mesh.face_normals[:, 2] > 0.5)[0]
     pts = _face_samples(mesh, top)
-    err = pts[:, 2] - wp.s_surface_height(pts[:, 0], pts[:, 1])
+    err = pts[:, 2] - s_surface_height(pts[:, 0], pts[:, 1])
     assert np.max(np.abs(err)) < S_CHORD_M
 
 
 def test_s_surface_resolution_controls_chord_error():
-    coarse = wp.s_surface(resolution_m=0.002)
+    coarse = s_surface(resolution_m=0.002)
     top = np.nonzero(coarse.face_normals[:, 2] > 0.5)[0]
     pts = _face_samples(coarse, top)
-    err = np.max(np.abs(pts[:, 2] - wp.s_surface_height(pts[:, 0], pts[:, 1])))
+    err = np.max(np.abs(pts[:, 2] - s_surface_height(pts[:, 0], pts[:, 1])))
     # Chord error grows with the square of the spacing: 4x the spacing, ~16x the error.
     assert S_CHORD_M < err < 16 * 2 * S_CHORD_M
     assert coarse.is_watertight and coarse.volume > 0
@@ -142,7 +152,7 @@ def test_s_surface_resolution_controls_chord_error():
 def test_s_surface_volume_and_parameters():
     params = dict(length_m=0.1, width_m=0.06, base_thickness_m=0.025, amplitude_m=0.008,
                   amplitude_gradient=-0.2, crown_m=-0.001)
-    mesh = wp.s_surface(resolution_m=0.001, **params)
+    mesh = s_surface(resolution_m=0.001, **params)
     # The sine integrates to zero over its period; the crown y^2 term to crown / 3.
     expected = 0.1 * 0.06 * (0.025 + params["crown_m"] / 3.0)
     # |volume error| <= curved area x chord error; the chord error at 1 mm is ~4x the default.
@@ -151,27 +161,27 @@ def test_s_surface_volume_and_parameters():
     # Heights at the four top corners are the analytic ones.
     for x in (-0.05, 0.05):
         for y in (-0.03, 0.03):
-            z = wp.s_surface_height(x, y, **params)
+            z = s_surface_height(x, y, **params)
             assert np.min(np.linalg.norm(mesh.vertices - [x, y, z], axis=1)) < 1e-12
 
 
 def test_s_surface_normal_is_unit_and_orthogonal_to_gradient():
     rng = np.random.default_rng(0)
     x, y = rng.uniform(-0.06, 0.06, 50), rng.uniform(-0.04, 0.04, 50)
-    n = wp.s_surface_normal(x, y)
+    n = s_surface_normal(x, y)
     assert n.shape == (50, 3)
     assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
     h = 1e-6
     tx = np.column_stack([np.full(50, 2 * h), np.zeros(50),
-                          wp.s_surface_height(x + h, y) - wp.s_surface_height(x - h, y)])
+                          s_surface_height(x + h, y) - s_surface_height(x - h, y)])
     ty = np.column_stack([np.zeros(50), np.full(50, 2 * h),
-                          wp.s_surface_height(x, y + h) - wp.s_surface_height(x, y - h)])
+                          s_surface_height(x, y + h) - s_surface_height(x, y - h)])
     assert np.max(np.abs(np.einsum("ij,ij->i", n, tx)) / (2 * h)) < 1e-6
     assert np.max(np.abs(np.einsum("ij,ij->i", n, ty)) / (2 * h)) < 1e-6
 
 
 def test_s_surface_height_accepts_the_generator_keywords():
-    z = wp.s_surface_height(0.01, 0.02, resolution_m=0.001, amplitude_m=0.0)
+    z = s_surface_height(0.01, 0.02, resolution_m=0.001, amplitude_m=0.0)
     assert float(z) == pytest.approx(0.03 + 0.002 * 0.25)
 
 
@@ -218,7 +228,7 @@ def test_hemisphere_punch_volume_and_exact_hemisphere(meshes):
 
 def test_hemisphere_punch_symmetric_when_centred():
     chord = 1e-4
-    mesh = wp.make_workpiece("hemisphere_punch", hemisphere_offset_x_m=0.0, resolution_m=0.003,
+    mesh = make_workpiece("hemisphere_punch", hemisphere_offset_x_m=0.0, resolution_m=0.003,
                              chord_tolerance_m=chord)
     half_turn = trimesh.transformations.rotation_matrix(math.pi, [0, 0, 1])
     samples, _ = trimesh.sample.sample_surface_even(mesh, 200, seed=2)
@@ -227,7 +237,7 @@ def test_hemisphere_punch_symmetric_when_centred():
 
 
 def test_bottle_profile_is_tangent_continuous_and_volume_matches(meshes):
-    ctrl = wp.bottle_profile_bezier()
+    ctrl = bottle_profile_bezier()
     assert ctrl.shape == (8, 4, 2)
     for a, b in zip(ctrl[:-1], ctrl[1:], strict=True):
         assert np.array_equal(a[3], b[0])  # C0
@@ -295,7 +305,7 @@ def test_through_hole_volume_is_box_minus_cylinder(meshes):
 
 
 def test_through_hole_parameters_change_the_hole():
-    mesh = wp.make_workpiece("through_hole", hole_diameter_m=0.01, hole_center_height_m=0.012,
+    mesh = make_workpiece("through_hole", hole_diameter_m=0.01, hole_center_height_m=0.012,
                              resolution_m=0.002)
     expected = 0.08 * 0.06 * 0.04 - math.pi * 0.005**2 * 0.08
     assert mesh.volume == pytest.approx(expected, abs=2 * math.pi * 0.005 * 0.08 * CHORD_M)
@@ -316,14 +326,14 @@ def _one_line_error(fn, *args, **kwargs) -> str:
 
 
 def test_make_workpiece_refuses_unknown_name():
-    message = _one_line_error(wp.make_workpiece, "teapot")
+    message = _one_line_error(make_workpiece, "teapot")
     assert "'teapot'" in message
-    for name in wp.WORKPIECE_NAMES:
+    for name in WORKPIECE_NAMES:
         assert name in message
 
 
 def test_make_workpiece_refuses_unknown_parameter():
-    message = _one_line_error(wp.make_workpiece, "through_hole", hole_radius_m=0.01)
+    message = _one_line_error(make_workpiece, "through_hole", hole_radius_m=0.01)
     assert "'hole_radius_m'" in message
     assert "hole_diameter_m" in message and "block_length_m" in message
 
@@ -344,7 +354,7 @@ def test_make_workpiece_refuses_unknown_parameter():
     ],
 )
 def test_generators_refuse_bad_values(name, params, fragment):
-    assert fragment in _one_line_error(wp.make_workpiece, name, **params)
+    assert fragment in _one_line_error(make_workpiece, name, **params)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -354,7 +364,7 @@ def test_generators_refuse_bad_values(name, params, fragment):
 
 @pytest.fixture(scope="module")
 def small_part() -> trimesh.Trimesh:
-    return wp.through_hole(resolution_m=0.003)
+    return through_hole(resolution_m=0.003)
 
 
 @pytest.mark.parametrize("ext", [".stl", ".ply", ".obj", ".STL"])
@@ -365,7 +375,7 @@ def test_load_mesh_round_trips_with_scaling(tmp_path, small_part, ext, units):
     stored.apply_scale(scale)
     path = tmp_path / f"part{ext}"
     stored.export(path, file_type=ext[1:].lower())
-    mesh = wp.load_mesh(path, units)
+    mesh = load_mesh(path, units)
     assert isinstance(mesh, trimesh.Trimesh)
     assert len(mesh.faces) == len(small_part.faces)
     assert np.allclose(mesh.bounds, small_part.bounds, rtol=0, atol=ROUND_TRIP_M)
@@ -380,29 +390,29 @@ def test_load_mesh_concatenates_a_scene(tmp_path, monkeypatch):
     b = trimesh.creation.box((1.0, 1.0, 1.0))
     b.apply_translation((3.0, 0.0, 0.0))
     monkeypatch.setattr(trimesh, "load", lambda *args, **kwargs: trimesh.Scene([a, b]))
-    mesh = wp.load_mesh(path, "mm")
+    mesh = load_mesh(path, "mm")
     assert len(mesh.faces) == 24
     assert np.allclose(mesh.bounds, [[-0.0005, -0.0005, -0.0005], [0.0035, 0.0005, 0.0005]])
 
 
 def test_load_mesh_refuses_missing_file(tmp_path):
-    message = _one_line_error(wp.load_mesh, tmp_path / "nowhere.stl", "mm")
+    message = _one_line_error(load_mesh, tmp_path / "nowhere.stl", "mm")
     assert "not found" in message and "nowhere.stl" in message
 
 
 def test_load_mesh_refuses_unsupported_extension(tmp_path):
     path = tmp_path / "part.step"
     path.write_text("ISO-10303-21;\n")
-    message = _one_line_error(wp.load_mesh, path, "mm")
+    message = _one_line_error(load_mesh, path, "mm")
     assert "'.step'" in message
-    for ext in wp.MESH_EXTENSIONS:
+    for ext in MESH_EXTENSIONS:
         assert ext in message
 
 
 def test_load_mesh_refuses_bad_units(tmp_path, small_part):
     path = tmp_path / "part.stl"
     small_part.export(path)
-    message = _one_line_error(wp.load_mesh, path, "cm")
+    message = _one_line_error(load_mesh, path, "cm")
     assert "'cm'" in message and "'m'" in message and "'mm'" in message
 
 
@@ -419,10 +429,10 @@ def test_load_mesh_refuses_bad_units(tmp_path, small_part):
 def test_load_mesh_refuses_a_file_without_faces(tmp_path, filename, content):
     path = tmp_path / filename
     path.write_text(content)
-    assert "no faces" in _one_line_error(wp.load_mesh, path, "m")
+    assert "no faces" in _one_line_error(load_mesh, path, "m")
 
 
 def test_load_mesh_refuses_a_directory(tmp_path):
     folder = tmp_path / "folder.stl"
     folder.mkdir()
-    assert "not a file" in _one_line_error(wp.load_mesh, folder, "m")
+    assert "not a file" in _one_line_error(load_mesh, folder, "m")

@@ -1,9 +1,9 @@
 """Generated parts for symmetric and hybrid localization (document 000, sections 4 and 5).
 
 Each generator returns one watertight, outward-wound ``trimesh.Trimesh`` in the workpiece
-frame (metres, z up, resting on z = 0, centred in x and y), built with the same surface-by-
-surface helpers as :mod:`twin.parts`, and registers itself there so that scenarios can
-name it (``workpiece.shape``):
+frame (metres, z up, resting on z = 0, centred in x and y), built with the meshing kernel
+(:mod:`twin.parts.kernel`) like the other parts; :mod:`twin.parts` lists them in its
+registry so that scenarios can name them (``workpiece.shape``):
 
 * ``bore_and_face``: a plate with a blind cylindrical bore; measured on the bore and the top
   face, the points leave only the rotation about the bore axis free (G_0 = SO(2)).
@@ -29,8 +29,22 @@ import math
 import numpy as np
 import trimesh
 
-from twin.parts import workpieces as _wp
 from twin.errors import TwinError
+from twin.parts.kernel import (
+    CHORD_TOL_M,
+    PLANAR_MAX_EDGE_M,
+    assemble,
+    box_patches,
+    check_finite,
+    check_nonnegative,
+    check_positive,
+    check_resolution,
+    format_mm,
+    line_segment,
+    require,
+    revolve,
+    sample_profile,
+)
 
 __all__ = [
     "bore_and_face",
@@ -41,11 +55,8 @@ __all__ = [
     "cast_blank_geometry",
     "cast_blank_rough_points",
     "classify_cast_blank_points",
-    "SYMMETRIC_PART_NAMES",
 ]
 
-SYMMETRIC_PART_NAMES = ("bore_and_face", "sphere", "cube", "cast_blank", "cast_blank_finished")
-_CHORD = _wp._CHORD_TOL_M
 _GAP = 0.001
 
 
@@ -58,7 +69,7 @@ def bore_and_face(
     bore_x_m: float = 0.012,
     bore_y_m: float = 0.006,
     resolution_m: float = 0.001,
-    chord_tolerance_m: float = _CHORD,
+    chord_tolerance_m: float = CHORD_TOL_M,
 ) -> trimesh.Trimesh:
     """A plate [-L/2, L/2] x [-W/2, W/2] x [0, T] with a blind bore from the top face.
 
@@ -68,32 +79,32 @@ def bore_and_face(
     Raises:
         TwinError: a size is not positive, or the bore leaves less than 2 mm of wall or floor.
     """
-    length = _wp._positive("plate_length_m", plate_length_m)
-    width = _wp._positive("plate_width_m", plate_width_m)
-    thick = _wp._positive("plate_thickness_m", plate_thickness_m)
-    radius = _wp._positive("bore_diameter_m", bore_diameter_m) / 2.0
-    depth = _wp._positive("bore_depth_m", bore_depth_m)
-    bx = _wp._finite("bore_x_m", bore_x_m)
-    by = _wp._finite("bore_y_m", bore_y_m)
-    res, tol = _wp._check_resolution(resolution_m, chord_tolerance_m)
-    _wp._require(
+    length = check_positive("plate_length_m", plate_length_m)
+    width = check_positive("plate_width_m", plate_width_m)
+    thick = check_positive("plate_thickness_m", plate_thickness_m)
+    radius = check_positive("bore_diameter_m", bore_diameter_m) / 2.0
+    depth = check_positive("bore_depth_m", bore_depth_m)
+    bx = check_finite("bore_x_m", bore_x_m)
+    by = check_finite("bore_y_m", bore_y_m)
+    res, tol = check_resolution(resolution_m, chord_tolerance_m)
+    require(
         abs(bx) + radius + 0.002 <= length / 2 and abs(by) + radius + 0.002 <= width / 2
         and depth + 0.002 <= thick,
-        f"the bore (diameter {_wp._mm(2 * radius)}, depth {_wp._mm(depth)} at "
-        f"({_wp._mm(bx)}, {_wp._mm(by)})) must leave >= 2 mm of wall and floor in the "
-        f"{_wp._mm(length)} x {_wp._mm(width)} x {_wp._mm(thick)} plate",
+        f"the bore (diameter {format_mm(2 * radius)}, depth {format_mm(depth)} at "
+        f"({format_mm(bx)}, {format_mm(by)})) must leave >= 2 mm of wall and floor in the "
+        f"{format_mm(length)} x {format_mm(width)} x {format_mm(thick)} plate",
     )
     # Down the wall, then across the floor to the axis: triangles face out of the material.
-    profile, edges = _wp._sample_profile(
-        [_wp._line((radius, thick), (radius, thick - depth)),
-         _wp._line((radius, thick - depth), (0.0, thick - depth))],
+    profile, edges = sample_profile(
+        [line_segment((radius, thick), (radius, thick - depth)),
+         line_segment((radius, thick - depth), (0.0, thick - depth))],
         res, tol,
     )
-    v, f, rings = _wp._revolve(profile, edges, origin=(bx, by, 0.0))
+    v, f, rings = revolve(profile, edges, origin=(bx, by, 0.0))
     patches = [(v, f)]
-    patches.extend(_wp._box_patches((-length / 2, -width / 2, 0.0), (length / 2, width / 2, thick),
-                                    max(res, _wp._PLANAR_MAX_EDGE_M), top_holes=[v[rings[0]]]))
-    return _wp._assemble(patches, "bore_and_face")
+    patches.extend(box_patches((-length / 2, -width / 2, 0.0), (length / 2, width / 2, thick),
+                               max(res, PLANAR_MAX_EDGE_M), top_holes=[v[rings[0]]]))
+    return assemble(patches, "bore_and_face")
 
 
 def sphere(
@@ -103,7 +114,7 @@ def sphere(
     base_size_m: float = 0.07,
     base_thickness_m: float = 0.010,
     resolution_m: float = 0.001,
-    chord_tolerance_m: float = _CHORD,
+    chord_tolerance_m: float = CHORD_TOL_M,
 ) -> trimesh.Trimesh:
     """A reference sphere on a cylindrical stem standing on a square base plate.
 
@@ -114,14 +125,14 @@ def sphere(
         TwinError: a size is not positive, the stem is not thinner than the sphere, or the
             base does not reach beyond the sphere by 1 mm.
     """
-    R = _wp._positive("sphere_radius_m", sphere_radius_m)
-    rs = _wp._positive("stem_radius_m", stem_radius_m)
-    ls = _wp._positive("stem_length_m", stem_length_m)
-    base = _wp._positive("base_size_m", base_size_m)
-    thick = _wp._positive("base_thickness_m", base_thickness_m)
-    res, tol = _wp._check_resolution(resolution_m, chord_tolerance_m)
-    _wp._require(rs <= 0.5 * R, f"stem_radius_m ({_wp._mm(rs)}) must be at most half the sphere radius")
-    _wp._require(base / 2 >= R + _GAP, f"base_size_m ({_wp._mm(base)}) must exceed the sphere's diameter by 2 mm")
+    R = check_positive("sphere_radius_m", sphere_radius_m)
+    rs = check_positive("stem_radius_m", stem_radius_m)
+    ls = check_positive("stem_length_m", stem_length_m)
+    base = check_positive("base_size_m", base_size_m)
+    thick = check_positive("base_thickness_m", base_thickness_m)
+    res, tol = check_resolution(resolution_m, chord_tolerance_m)
+    require(rs <= 0.5 * R, f"stem_radius_m ({format_mm(rs)}) must be at most half the sphere radius")
+    require(base / 2 >= R + _GAP, f"base_size_m ({format_mm(base)}) must exceed the sphere's diameter by 2 mm")
     zc = thick + ls + R
     z_join = zc - math.sqrt(R * R - rs * rs)
     a0 = math.atan2(z_join - zc, rs)  # angle of the stem-sphere circle (below the equator)
@@ -130,28 +141,28 @@ def sphere(
         ang = a0 + (0.5 * math.pi - a0) * t
         return np.column_stack([R * np.cos(ang), zc + R * np.sin(ang)])
 
-    profile, edges = _wp._sample_profile(
-        [_wp._line((rs, thick), (rs, z_join)), arc], res, tol)
+    profile, edges = sample_profile(
+        [line_segment((rs, thick), (rs, z_join)), arc], res, tol)
     profile[-1] = (0.0, zc + R)
-    v, f, rings = _wp._revolve(profile, edges)
+    v, f, rings = revolve(profile, edges)
     patches = [(v, f)]
-    patches.extend(_wp._box_patches((-base / 2, -base / 2, 0.0), (base / 2, base / 2, thick),
-                                    max(res, _wp._PLANAR_MAX_EDGE_M), top_holes=[v[rings[0]]]))
-    return _wp._assemble(patches, "sphere")
+    patches.extend(box_patches((-base / 2, -base / 2, 0.0), (base / 2, base / 2, thick),
+                               max(res, PLANAR_MAX_EDGE_M), top_holes=[v[rings[0]]]))
+    return assemble(patches, "sphere")
 
 
 def cube(side_m: float = 0.04, resolution_m: float = 0.001,
-         chord_tolerance_m: float = _CHORD) -> trimesh.Trimesh:
+         chord_tolerance_m: float = CHORD_TOL_M) -> trimesh.Trimesh:
     """A cube [-a/2, a/2]^2 x [0, a]: the 24 rotations of the cube map it onto itself.
 
     ``resolution_m`` and ``chord_tolerance_m`` are accepted for a uniform interface (the
     faces are planar, meshed at 5 mm or ``resolution_m`` when coarser).
     """
-    a = _wp._positive("side_m", side_m)
-    res, _ = _wp._check_resolution(resolution_m, chord_tolerance_m)
-    _wp._require(0.005 <= a <= 0.5, f"side_m must be between 5 mm and 500 mm, got {_wp._mm(a)}")
-    patches = _wp._box_patches((-a / 2, -a / 2, 0.0), (a / 2, a / 2, a), max(res, _wp._PLANAR_MAX_EDGE_M))
-    return _wp._assemble(patches, "cube")
+    a = check_positive("side_m", side_m)
+    res, _ = check_resolution(resolution_m, chord_tolerance_m)
+    require(0.005 <= a <= 0.5, f"side_m must be between 5 mm and 500 mm, got {format_mm(a)}")
+    patches = box_patches((-a / 2, -a / 2, 0.0), (a / 2, a / 2, a), max(res, PLANAR_MAX_EDGE_M))
+    return assemble(patches, "cube")
 
 
 # ------------------------------------------------------------------------------ cast blank
@@ -188,21 +199,21 @@ def cast_blank_geometry(
         TwinError: a size is not positive, the stock is not positive, the core shift exceeds
             the stock, or the domes do not fit on the plate 1 mm apart.
     """
-    L = _wp._positive("plate_length_m", plate_length_m)
-    W = _wp._positive("plate_width_m", plate_width_m)
-    T = _wp._positive("plate_thickness_m", plate_thickness_m)
-    s = _wp._positive("stock_m", stock_m)
-    e = _wp._nonnegative("core_shift_m", core_shift_m)
-    dd = _wp._nonnegative("dome_depth_m", dome_depth_m)
-    _wp._require(e < s, f"core_shift_m ({_wp._mm(e)}) must be smaller than stock_m ({_wp._mm(s)})")
+    L = check_positive("plate_length_m", plate_length_m)
+    W = check_positive("plate_width_m", plate_width_m)
+    T = check_positive("plate_thickness_m", plate_thickness_m)
+    s = check_positive("stock_m", stock_m)
+    e = check_nonnegative("core_shift_m", core_shift_m)
+    dd = check_nonnegative("dome_depth_m", dome_depth_m)
+    require(e < s, f"core_shift_m ({format_mm(e)}) must be smaller than stock_m ({format_mm(s)})")
     bosses = []
     for name, r, h, x, shift in (
         ("boss_a", boss_a_radius_m, boss_a_height_m, boss_a_x_m, (e, 0.0)),
         ("boss_b", boss_b_radius_m, boss_b_height_m, boss_b_x_m, (0.0, e)),
     ):
-        r = _wp._positive(f"{name}_radius_m", r)
-        h = _wp._positive(f"{name}_height_m", h)
-        x = _wp._finite(f"{name}_x_m", x)
+        r = check_positive(f"{name}_radius_m", r)
+        h = check_positive(f"{name}_height_m", h)
+        x = check_finite(f"{name}_x_m", x)
         rho = s + math.hypot(r, h + dd)
         base = math.sqrt(rho * rho - dd * dd)
         center = np.array([x + shift[0], shift[1], T - dd])
@@ -210,13 +221,13 @@ def cast_blank_geometry(
                        "dome_center": center, "dome_radius": rho, "dome_base_radius": base})
     for b in bosses:
         cx, cy = b["dome_center"][:2]
-        _wp._require(abs(cx) + b["dome_base_radius"] + _GAP <= L / 2
-                     and abs(cy) + b["dome_base_radius"] + _GAP <= W / 2,
-                     f"the dome over {b['name']} (base radius {_wp._mm(b['dome_base_radius'])}) "
-                     f"does not fit on the {_wp._mm(L)} x {_wp._mm(W)} plate with 1 mm to spare")
+        require(abs(cx) + b["dome_base_radius"] + _GAP <= L / 2
+                and abs(cy) + b["dome_base_radius"] + _GAP <= W / 2,
+                f"the dome over {b['name']} (base radius {format_mm(b['dome_base_radius'])}) "
+                f"does not fit on the {format_mm(L)} x {format_mm(W)} plate with 1 mm to spare")
     ca, cb = bosses[0]["dome_center"][:2], bosses[1]["dome_center"][:2]
-    _wp._require(np.linalg.norm(ca - cb) >= bosses[0]["dome_base_radius"] + bosses[1]["dome_base_radius"] + _GAP,
-                 "the two domes overlap: move the bosses apart (boss_a_x_m, boss_b_x_m)")
+    require(np.linalg.norm(ca - cb) >= bosses[0]["dome_base_radius"] + bosses[1]["dome_base_radius"] + _GAP,
+            "the two domes overlap: move the bosses apart (boss_a_x_m, boss_b_x_m)")
     return {"plate": (L, W, T), "bosses": bosses, "stock_m": s, "core_shift_m": e}
 
 
@@ -248,7 +259,7 @@ def cast_blank(
     core_shift_m: float = 0.0008,
     dome_depth_m: float = 0.004,
     resolution_m: float = 0.001,
-    chord_tolerance_m: float = _CHORD,
+    chord_tolerance_m: float = CHORD_TOL_M,
 ) -> trimesh.Trimesh:
     """The physical cast blank: the machined plate with a cast dome over each boss.
 
@@ -256,7 +267,7 @@ def cast_blank(
     shift, dome depth) plus the tessellation ``resolution_m`` and ``chord_tolerance_m``.
     """
     g = _geometry({k: v for k, v in locals().items() if k in _GEOMETRY_KEYS})
-    res, tol = _wp._check_resolution(resolution_m, chord_tolerance_m)
+    res, tol = check_resolution(resolution_m, chord_tolerance_m)
     L, W, T = g["plate"]
     patches, holes = [], []
     for b in g["bosses"]:
@@ -268,15 +279,15 @@ def cast_blank(
             ang = a0 + (0.5 * math.pi - a0) * t
             return np.column_stack([rho * np.cos(ang), cz + rho * np.sin(ang)])
 
-        profile, edges = _wp._sample_profile([arc], res, tol)
+        profile, edges = sample_profile([arc], res, tol)
         profile[0] = (base, T)
         profile[-1] = (0.0, cz + rho)
-        v, f, rings = _wp._revolve(profile, edges, origin=(b["dome_center"][0], b["dome_center"][1], 0.0))
+        v, f, rings = revolve(profile, edges, origin=(b["dome_center"][0], b["dome_center"][1], 0.0))
         patches.append((v, f))
         holes.append(v[rings[0]])
-    patches.extend(_wp._box_patches((-L / 2, -W / 2, 0.0), (L / 2, W / 2, T),
-                                    max(res, _wp._PLANAR_MAX_EDGE_M), top_holes=holes))
-    return _wp._assemble(patches, "cast_blank")
+    patches.extend(box_patches((-L / 2, -W / 2, 0.0), (L / 2, W / 2, T),
+                               max(res, PLANAR_MAX_EDGE_M), top_holes=holes))
+    return assemble(patches, "cast_blank")
 
 
 def cast_blank_finished(
@@ -293,26 +304,26 @@ def cast_blank_finished(
     core_shift_m: float = 0.0008,
     dome_depth_m: float = 0.004,
     resolution_m: float = 0.001,
-    chord_tolerance_m: float = _CHORD,
+    chord_tolerance_m: float = CHORD_TOL_M,
 ) -> trimesh.Trimesh:
     """The finished part (CAD model of the hybrid problem): the plate with two bosses.
 
     Same keyword parameters as :func:`cast_blank` (the stock and core shift do not change it).
     """
     g = _geometry({k: v for k, v in locals().items() if k in _GEOMETRY_KEYS})
-    res, tol = _wp._check_resolution(resolution_m, chord_tolerance_m)
+    res, tol = check_resolution(resolution_m, chord_tolerance_m)
     L, W, T = g["plate"]
     patches, holes = [], []
     for b in g["bosses"]:
         r, h = b["radius"], b["height"]
-        profile, edges = _wp._sample_profile(
-            [_wp._line((r, T), (r, T + h)), _wp._line((r, T + h), (0.0, T + h))], res, tol)
-        v, f, rings = _wp._revolve(profile, edges, origin=(b["axis_xy"][0], b["axis_xy"][1], 0.0))
+        profile, edges = sample_profile(
+            [line_segment((r, T), (r, T + h)), line_segment((r, T + h), (0.0, T + h))], res, tol)
+        v, f, rings = revolve(profile, edges, origin=(b["axis_xy"][0], b["axis_xy"][1], 0.0))
         patches.append((v, f))
         holes.append(v[rings[0]])
-    patches.extend(_wp._box_patches((-L / 2, -W / 2, 0.0), (L / 2, W / 2, T),
-                                    max(res, _wp._PLANAR_MAX_EDGE_M), top_holes=holes))
-    return _wp._assemble(patches, "cast_blank_finished")
+    patches.extend(box_patches((-L / 2, -W / 2, 0.0), (L / 2, W / 2, T),
+                               max(res, PLANAR_MAX_EDGE_M), top_holes=holes))
+    return assemble(patches, "cast_blank_finished")
 
 
 def cast_blank_rough_points(n: int, rng: np.random.Generator, max_slope_deg: float = 60.0,
@@ -340,7 +351,7 @@ def cast_blank_rough_points(n: int, rng: np.random.Generator, max_slope_deg: flo
     counts = [int(round(n * c[2] / total)) for c in caps]
     counts[-1] = n - sum(counts[:-1])
     pts, labels = [], []
-    for (b, th_max, _), k in zip(caps, counts):
+    for (b, th_max, _), k in zip(caps, counts, strict=True):
         cos_t = rng.uniform(math.cos(th_max), 1.0, k)
         phi = rng.uniform(0.0, 2 * math.pi, k)
         sin_t = np.sqrt(1 - cos_t**2)
@@ -382,9 +393,3 @@ def classify_cast_blank_points(points_wp, guard_m: float = 0.001, **params) -> n
     out[on_dome & ~near_base] = "rough"
     return out.astype(str)
 
-
-# ------------------------------------------------------------------------- registration
-for _name, _gen in (("bore_and_face", bore_and_face), ("sphere", sphere), ("cube", cube),
-                    ("cast_blank", cast_blank), ("cast_blank_finished", cast_blank_finished)):
-    if hasattr(_wp, "register_workpiece"):
-        _wp.register_workpiece(_name, _gen)
