@@ -332,10 +332,28 @@ def test_make_workpiece_refuses_unknown_name():
         assert name in message
 
 
-def test_make_workpiece_refuses_unknown_parameter():
-    message = _one_line_error(make_workpiece, "through_hole", hole_radius_m=0.01)
-    assert "'hole_radius_m'" in message
-    assert "hole_diameter_m" in message and "block_length_m" in message
+@pytest.mark.parametrize(
+    ("name", "wrong", "listed"),
+    [
+        ("through_hole", "hole_radius_m", ("hole_diameter_m", "block_length_m")),
+        ("cube", "edge_m", ("side_m", "resolution_m")),
+        ("cast_blank", "stock_mm", ("stock_m", "core_shift_m", "chord_tolerance_m")),
+    ],
+)
+def test_make_workpiece_refuses_unknown_parameter(name, wrong, listed):
+    # The generator's keyword signature is the schema, for every family of the registry.
+    message = _one_line_error(make_workpiece, name, **{wrong: 0.01})
+    assert f"'{wrong}'" in message and f"'{name}'" in message
+    for key in listed:
+        assert key in message
+
+
+def test_registry_names_its_generators():
+    import twin.parts
+
+    assert len(set(WORKPIECE_NAMES)) == len(WORKPIECE_NAMES)
+    for name in WORKPIECE_NAMES:
+        assert name in twin.parts.__all__ and callable(getattr(twin.parts, name))
 
 
 @pytest.mark.parametrize(
