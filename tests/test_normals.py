@@ -10,7 +10,7 @@ from algorithms.paths.pointcloud import prepare_scan_lines
 from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.spline import fit_lines
 from tests.helpers import scenario
-from twin.scan import run_scan
+from twin.scan import scan_scenario
 from twin.parts import s_surface_normal
 
 EXACT_DEG = 1e-5           # planar data: the floor of arccos near 1 in float64
@@ -96,8 +96,8 @@ def test_bad_input():
 
 def test_triangulation_normals_on_the_s_surface_scan():
     sc = scenario("s_surface", scan={"max_lines": 4})
-    scan = run_scan(dataclasses.replace(sc, noise=sc.noise.all_off()))
-    cloud = prepare_scan_lines(scan.points_base, scan.line)
+    scan = scan_scenario(dataclasses.replace(sc, noise=sc.noise.all_off()))
+    cloud = prepare_scan_lines(scan.points_base[:, 0], scan.line)
     fits = fit_lines(cloud.lines, 0.001)
     pts = np.concatenate(fits.lines)
     est = np.concatenate(triangulation_normals(fits.lines, orient=scan.T_base_workpiece_nominal[:3, 2]))

@@ -18,9 +18,9 @@ from algorithms.paths.pointcloud import (
 from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.spline import SplineError, centripetal_parameters, fit_line, fit_lines
 from tests.helpers import scenario
-from twin.cell import load_workpiece_mesh
-from twin.cli.run import sensor_sigma_m
-from twin.scan import run_scan
+from twin.realize import load_workpiece_mesh
+from twin.pipeline import sensor_sigma_m
+from twin.scan import scan_scenario
 
 # Named tolerances of this module.
 ON_TRUE_SURFACE_M = 1e-4       # bar: noise-off contact points on the true surface
@@ -176,7 +176,7 @@ def s_index(s_mesh):
 
 
 def _contact_points(scan, spacing=0.001):
-    cloud = prepare_scan_lines(scan.points_base, scan.line)
+    cloud = prepare_scan_lines(scan.points_base[:, 0], scan.line)
     return cloud, fit_lines(cloud.lines, spacing)
 
 
@@ -189,7 +189,7 @@ def test_planned_contact_points_lie_on_the_true_surface(noise, s_mesh, s_index):
     sc = scenario("s_surface", scan={"max_lines": 3})
     if noise == "off":
         sc = dataclasses.replace(sc, noise=sc.noise.all_off())
-    scan = run_scan(sc, mesh=s_mesh)
+    scan = scan_scenario(sc, mesh=s_mesh)
     cloud, fits = _contact_points(scan)
     assert len(fits.lines) == 3
     d = _surface_distance(np.concatenate(fits.lines), scan, s_index)

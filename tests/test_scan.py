@@ -11,11 +11,12 @@ from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
 from tests.helpers import scenario
 from tests.tolerances import ANALYTIC_DISTANCE_M, ON_SURFACE_M
-from twin.cell import build_cell, build_spec, compile_cell, load_workpiece_mesh
+from twin.cell import build_cell, build_spec, compile_cell
 from twin.ik import IKSolver
+from twin.realize import load_workpiece_mesh, realize
 from twin.robot import HOME_Q
-from twin.scan import run_scan
-from twin.sensor import OUT_OF_WINDOW, VALID
+from twin.scan import IK_ORIENTATION_TOL_RAD, IK_POSITION_TOL_M, scan_scenario
+from twin.sensors.base import OUT_OF_WINDOW, VALID
 
 SHORT = {"max_lines": 3}
 
@@ -41,12 +42,12 @@ def s_index(s_mesh):
 @pytest.fixture(scope="module")
 def noise_off_scan(s_mesh):
     sc = scenario("s_surface", scan=SHORT)
-    return run_scan(dataclasses.replace(sc, noise=sc.noise.all_off()), mesh=s_mesh)
+    return scan_scenario(dataclasses.replace(sc, noise=sc.noise.all_off()), mesh=s_mesh)
 
 
 @pytest.fixture(scope="module")
 def default_scan(s_mesh):
-    return run_scan(scenario("s_surface"), mesh=s_mesh)
+    return scan_scenario(scenario("s_surface"), mesh=s_mesh)
 
 
 def test_noise_off_points_lie_on_the_true_surface(noise_off_scan, s_index):
@@ -57,14 +58,16 @@ def test_noise_off_points_lie_on_the_true_surface(noise_off_scan, s_index):
 
 def _point_sensor_at(sc, T_world_sensor, extra=None):
     """A compiled cell with the sensor driven (by IK) to ``T_world_sensor``."""
-    mesh = load_workpiece_mesh(sc)
-    spec, poses = build_spec(sc, "true", mesh)
+    realized = realize(sc)
+    spec, poses = build_spec(realized, "true")
     if extra:
         extra(spec)
-    cell = compile_cell(spec, sc, "true", mesh, poses)
-    q, pe, oe = IKSolver(cell.model).solve(T_world_sensor, HOME_Q, 0.05, 500, velocity_limited=False)
+    cell = compile_cell(spec, realized, "true", poses)
+    ik = IKSolver(cell.model, "laser", IK_POSITION_TOL_M, IK_ORIENTATION_TOL_RAD)
+    ik.set_q(HOME_Q)
+    pe, oe, _ = ik.solve(T_world_sensor, 0.05, 500, velocity_limited=False)
     assert pe < 1e-7 and oe < 1e-6
-    cell.set_q(q)
+    cell.set_q(ik.q)
     ray = cell.data.sensordata[cell.model.sensor("laser_ray").adr[0]:][:13]
     return cell, ray
 
@@ -116,7 +119,7 @@ def test_residual_rms_matches_the_configured_noise(s_mesh, s_index):
     # Gaussian and quantisation only: the normal residual is sigma * z plus the rounding.
     sc = scenario("s_surface", scan=SHORT, noise={"linearity": False},
                   sensor={"sigma_m": 5e-6})
-    scan = run_scan(sc, mesh=s_mesh)
+    scan = scan_scenario(sc, mesh=s_mesh)
     r = residuals_m(scan, s_index)
     expected = np.sqrt(5e-6**2 + 1e-6**2 / 12)
     assert 0.9 < np.sqrt(np.mean(r**2)) / expected < 1.1
@@ -125,7 +128,7 @@ def test_residual_rms_matches_the_configured_noise(s_mesh, s_index):
 def test_linearity_curve_shows_as_a_systematic_error(s_mesh, s_index):
     sc = scenario("s_surface", scan={"max_lines": 2, "standoff_m": 0.0675},
                   noise={"gaussian": False, "quantization": False, "incidence": False})
-    scan = run_scan(sc, mesh=s_mesh)
+    scan = scan_scenario(sc, mesh=s_mesh)
     # At a quarter window below the reference the curve is at its -10 um extreme.
     r = residuals_m(scan, s_index)
     on_line = scan.line[np.nonzero(scan.valid)[0]] >= 0
@@ -134,7 +137,7 @@ def test_linearity_curve_shows_as_a_systematic_error(s_mesh, s_index):
 
 def test_out_of_window_samples_are_nan_never_clamped(s_mesh):
     sc = scenario("s_surface", scan={"max_lines": 1, "standoff_m": 0.104, "retract_m": 0.01})
-    scan = run_scan(sc, mesh=s_mesh)
+    scan = scan_scenario(sc, mesh=s_mesh)
     out = scan.status == OUT_OF_WINDOW
     assert out.any()
     assert np.all(np.isnan(scan.d[out])) and not scan.valid[out].any()
@@ -143,7 +146,7 @@ def test_out_of_window_samples_are_nan_never_clamped(s_mesh):
 
 def test_same_seed_same_numbers(s_mesh):
     sc = scenario("s_surface", scan={"max_lines": 1})
-    a, b = run_scan(sc, mesh=s_mesh), run_scan(sc, mesh=s_mesh)
+    a, b = scan_scenario(sc, mesh=s_mesh), scan_scenario(sc, mesh=s_mesh)
     assert np.array_equal(a.d, b.d, equal_nan=True) and np.array_equal(a.q, b.q)
 
 
@@ -156,7 +159,7 @@ def test_same_seed_same_numbers(s_mesh):
 def test_robot_side_error_sources_move_the_points(s_mesh, s_index, noise, lo_m, hi_m):
     off = {k: False for k in ("gaussian", "linearity", "quantization", "incidence", "occlusion")}
     sc = scenario("s_surface", scan=SHORT, noise={**off, **noise})
-    r = residuals_m(run_scan(sc, mesh=s_mesh), s_index)
+    r = residuals_m(scan_scenario(sc, mesh=s_mesh), s_index)
     assert lo_m < np.sqrt(np.mean(r**2)) < hi_m
 
 
@@ -166,14 +169,14 @@ def test_unreachable_region_names_the_line():
     sc = scenario("s_surface", workpiece={"true_pose": {"xyz": [1.2, 0.1, 0.0]},
                                           "nominal_pose": {"xyz": [1.2, 0.1, 0.0]}})
     with pytest.raises(TwinError, match=r"scan line \d+ is unreachable|is unreachable"):
-        run_scan(sc)
+        scan_scenario(sc)
 
 
 def test_line_profiler_points_on_surface_noise_off(s_mesh, s_index):
     sc = scenario("s_surface", sensor={"kind": "line", "beams": 64, "fan_deg": 20.0},
                   scan={"max_lines": 1, "line_axis": "y", "region_m": [[-0.02, -0.03], [0.02, 0.03]]})
     sc = dataclasses.replace(sc, noise=sc.noise.all_off())
-    scan = run_scan(sc, mesh=s_mesh)
+    scan = scan_scenario(sc, mesh=s_mesh)
     assert scan.d.shape[1] == 64
     assert scan.valid.sum() > 1000
     assert residuals_m(scan, s_index).max() < ON_SURFACE_M
@@ -195,12 +198,10 @@ def test_scan_files(tmp_path, noise_off_scan):
 
 
 def test_line_profiler_fan_matches_the_camera_rays():
-    from twin.scan import fan_directions_sensor
-
     sc = scenario("s_surface", sensor={"kind": "line", "beams": 16, "fan_deg": 30.0})
-    cell = build_cell(sc, "true")
+    cell = build_cell(realize(sc), "true")
     cell.set_q(HOME_Q)
     R = cell.data.site_xmat[cell.sensor_site].reshape(3, 3)
     adr = cell.model.sensor("laser_ray").adr[0]
     dirs_w = cell.data.sensordata[adr:adr + 16 * 7].reshape(16, 7)[:, 1:4]
-    assert np.allclose(dirs_w @ R, fan_directions_sensor(sc.sensor), atol=1e-9)
+    assert np.allclose(dirs_w @ R, cell.sensor.beam_dirs_sensor(), atol=1e-9)

@@ -6,6 +6,7 @@ import trimesh
 
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
+from algorithms.geometry.raycast import raycast_parallel
 from algorithms.geometry.se3 import make_pose
 from algorithms.paths.toolpath import (
     ToolPathError,
@@ -14,7 +15,6 @@ from algorithms.paths.toolpath import (
     cad_raster,
     contact_frames,
     flange_poses,
-    raycast_parallel,
     tool_frames,
     transform_path,
 )

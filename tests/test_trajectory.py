@@ -7,11 +7,14 @@ from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.kinematics import dh_forward
 from algorithms.paths.toolpath import build_path, cad_raster, flange_poses, transform_path
 from tests.helpers import scenario
-from twin.cell import build_cell, load_workpiece_mesh
-from twin.cli.run import tool_settings
+from twin.cell import build_cell
+from twin.pipeline import tool_settings
+from twin.realize import realize
 from twin.errors import TwinError
 from twin.robot import ACCELERATION_LIMIT_RAD_S2, HOME_Q, UR5E_DH, VELOCITY_LIMIT_RAD_S
-from twin.trajectory import POSITION_TOL_M, PathError, plan_joint_trajectory, solve_path, time_law
+from algorithms.errors import AlgorithmError
+from algorithms.paths.timing import time_law
+from twin.trajectory import POSITION_TOL_M, PathError, plan_joint_trajectory, solve_path
 
 LIMIT_RATIO = 1.0 + 1e-9
 FEED_REL = 1e-3
@@ -20,8 +23,9 @@ FEED_REL = 1e-3
 @pytest.fixture(scope="module")
 def setup():
     sc = scenario("s_surface")
-    mesh = load_workpiece_mesh(sc)
-    nominal = build_cell(sc, "nominal", mesh)
+    realized = realize(sc)
+    mesh = realized.workpiece.mesh
+    nominal = build_cell(realized, "nominal")
     lines, normals = cad_raster(mesh, line_spacing_m=0.02, point_spacing_m=0.001, margin_m=0.005,
                                 normals=MeshIndex(mesh).smooth_normals)
     path_wp = build_path(lines[:2], normals[:2], tool_settings(sc))
@@ -67,7 +71,8 @@ def test_time_law_respects_the_limits_and_the_feed(setup):
 
 def test_a_slower_feed_takes_longer(setup):
     sc, nominal, path, ik, traj = setup
-    slow = time_law(path, ik.q, sc.path.feed_m_s / 2, sc.path.transit_speed_m_s, sc.path.acceleration_m_s2)
+    slow = time_law(path, ik.q, sc.path.feed_m_s / 2, sc.path.transit_speed_m_s, sc.path.acceleration_m_s2,
+                    VELOCITY_LIMIT_RAD_S, ACCELERATION_LIMIT_RAD_S2)
     a, b, _, _ = path.segments[1]
     assert (slow.t_path[b] - slow.t_path[a]) > 1.9 * (traj.t_path[b] - traj.t_path[a]) - 0.2
 
@@ -75,8 +80,8 @@ def test_a_slower_feed_takes_longer(setup):
 @pytest.mark.parametrize("feed", [0.0, -0.01, float("nan")])
 def test_feed_rate_must_be_positive(setup, feed):
     sc, nominal, path, ik, traj = setup
-    with pytest.raises(TwinError, match="feed rate must be a positive number"):
-        time_law(path, ik.q, feed, 0.05, 0.25)
+    with pytest.raises(AlgorithmError, match="feed rate must be a positive number"):
+        time_law(path, ik.q, feed, 0.05, 0.25, VELOCITY_LIMIT_RAD_S, ACCELERATION_LIMIT_RAD_S2)
     with pytest.raises(TwinError, match="feed rate must be a positive number"):
         plan_joint_trajectory(nominal, path, sc.path.T_flange_tool, feed, 0.05, 0.25)
 
@@ -110,7 +115,7 @@ def test_unreachable_poses_are_reported_with_index_and_position(setup):
 
 def test_singular_poses_are_reported():
     sc = scenario("s_surface")
-    nominal = build_cell(sc, "nominal")
+    nominal = build_cell(realize(sc), "nominal")
     q = np.tile(HOME_Q, (41, 1))
     q[:, 4] = np.linspace(0.2, -0.2, 41)  # the wrist passes its singularity (q5 = 0)
     T = dh_forward(q, UR5E_DH)
@@ -123,7 +128,7 @@ def test_singular_poses_are_reported():
 
 
 def test_bad_pose_arrays():
-    nominal = build_cell(scenario("s_surface"), "nominal")
+    nominal = build_cell(realize(scenario("s_surface")), "nominal")
     with pytest.raises(TwinError, match=r"\(K, 4, 4\)"):
         solve_path(nominal, np.eye(4))
     T = np.repeat(np.eye(4)[None], 3, axis=0)

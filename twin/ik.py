@@ -1,9 +1,10 @@
-"""Differential inverse kinematics with mink: the sensor (or tool) frame follows a pose sequence.
+"""Differential inverse kinematics with mink: the one wrapper the scan and the process paths use.
 
 The solver runs on the NOMINAL cell (what the robot controller believes). One pose is solved
 by repeated QP steps (``mink.solve_ik`` with a FrameTask on the target site, a small posture
-task and configuration and velocity limits); a sequence warm-starts each pose from the last,
-which keeps the joint path continuous (no branch flips).
+task and configuration and velocity limits) from the current configuration; a sequence
+warm-starts each pose from the last, which keeps the joint path continuous (no branch flips:
+with the velocity limit no step moves a joint more than ``v_max * dt``).
 """
 
 from __future__ import annotations
@@ -16,8 +17,6 @@ import numpy as np
 
 from twin.robot import JOINT_NAMES, VELOCITY_LIMIT_RAD_S
 
-POSITION_TOL_M = 1e-7
-ORIENTATION_TOL_RAD = 1e-6
 # A pose still this far off after the iteration cap is unreachable (or singular).
 UNREACHABLE_POSITION_M = 1e-4
 UNREACHABLE_ORIENTATION_RAD = 1e-3
@@ -42,56 +41,94 @@ class IKTrack:
     reachable: np.ndarray
 
 
-class IKSolver:
-    """mink differential IK on one site of a (nominal) model."""
+def reachable(position_error_m, orientation_error_rad):
+    """Whether the remaining errors are within the unreachable thresholds (element-wise)."""
+    return (np.asarray(position_error_m) < UNREACHABLE_POSITION_M) & \
+        (np.asarray(orientation_error_rad) < UNREACHABLE_ORIENTATION_RAD)
 
-    def __init__(self, model: mujoco.MjModel, site: str = "laser", posture_cost: float = POSTURE_COST,
-                 velocity_limit_rad_s: np.ndarray = VELOCITY_LIMIT_RAD_S):
+
+class IKSolver:
+    """mink differential IK on one site of a (nominal) model, kept warm between poses.
+
+    Args:
+        model: the nominal cell's model.
+        site: the frame that follows the targets ("laser" for scans, "flange" for tool paths).
+        position_tol_m, orientation_tol_rad: a pose is solved once both errors are below these.
+    """
+
+    def __init__(self, model: mujoco.MjModel, site: str, position_tol_m: float, orientation_tol_rad: float,
+                 posture_cost: float = POSTURE_COST, velocity_limit_rad_s: np.ndarray = VELOCITY_LIMIT_RAD_S):
         self.model = model
-        self.site = site
+        self.position_tol_m = position_tol_m
+        self.orientation_tol_rad = orientation_tol_rad
         self.configuration = mink.Configuration(model)
-        self.frame_task = mink.FrameTask(site, "site", position_cost=1.0, orientation_cost=1.0,
-                                         lm_damping=1e-9)
+        self.frame_task = mink.FrameTask(site, "site", position_cost=1.0, orientation_cost=1.0, lm_damping=1e-9)
         self.posture_task = mink.PostureTask(model, cost=posture_cost)
         self.config_limit = mink.ConfigurationLimit(model)
         self.velocity_limit = mink.VelocityLimit(
-            model, {name: float(v) for name, v in zip(JOINT_NAMES, velocity_limit_rad_s)})
+            model, {name: float(v) for name, v in zip(JOINT_NAMES, velocity_limit_rad_s, strict=True)})
         self.tasks = [self.frame_task, self.posture_task]
+        self.site_id = model.site(site).id
+        self._jacp = np.zeros((3, model.nv))
+        self._jacr = np.zeros((3, model.nv))
 
-    def _errors(self) -> tuple[float, float]:
-        err = self.frame_task.compute_error(self.configuration)
-        return float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
+    @property
+    def q(self) -> np.ndarray:
+        return self.configuration.q[:6].copy()
 
-    def solve(self, T_world_target: np.ndarray, q0: np.ndarray, dt: float, max_iterations: int,
-              velocity_limited: bool = True) -> tuple[np.ndarray, float, float]:
-        """Iterate towards one target pose from ``q0``; returns (q, position_error, orientation_error).
+    def set_q(self, q: np.ndarray) -> None:
+        self.configuration.update(np.asarray(q, dtype=np.float64))
+
+    def predict(self, q: np.ndarray) -> None:
+        """Warm start at ``q``, kept inside the joint ranges (the limits' QP needs a feasible start)."""
+        lo = self.model.jnt_range[:6, 0] + 1e-6
+        hi = self.model.jnt_range[:6, 1] - 1e-6
+        self.configuration.update(np.clip(q, lo, hi))
+
+    def errors(self) -> tuple[float, float]:
+        """(position [m], orientation [rad]) error of the site from its target."""
+        e = self.frame_task.compute_error(self.configuration)
+        return float(np.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)), float(np.sqrt(e[3] ** 2 + e[4] ** 2 + e[5] ** 2))
+
+    def solve(self, T_world_target: np.ndarray, dt: float, max_iterations: int,
+              velocity_limited: bool = True) -> tuple[float, float, int]:
+        """Iterate from the current configuration towards one target pose.
 
         With ``velocity_limited``, each iteration moves at most ``v_max * dt`` per joint.
+        Returns (position error [m], orientation error [rad], iterations).
         """
-        self.configuration.update(q0)
         self.frame_task.set_target(mink.SE3.from_matrix(T_world_target))
-        self.posture_task.set_target(np.asarray(q0, dtype=np.float64))
+        self.posture_task.set_target(self.configuration.q)
         limits = [self.config_limit, self.velocity_limit] if velocity_limited else [self.config_limit]
-        pos_err, rot_err = self._errors()
-        for _ in range(max_iterations):
-            if pos_err < POSITION_TOL_M and rot_err < ORIENTATION_TOL_RAD:
+        pe, oe = self.errors()
+        it = 0
+        while it < max_iterations and (pe >= self.position_tol_m or oe >= self.orientation_tol_rad):
+            try:
+                v = mink.solve_ik(self.configuration, self.tasks, dt, solver="daqp", damping=1e-12, limits=limits)
+            except mink.exceptions.NoSolutionFound:
+                # No step satisfies the limits from here (a joint pressed against its range):
+                # the pose stays where it is and is reported if it is off.
                 break
-            v = mink.solve_ik(self.configuration, self.tasks, dt, solver="daqp", damping=1e-12,
-                              limits=limits)
             self.configuration.integrate_inplace(v, dt)
-            pos_err, rot_err = self._errors()
-        return self.configuration.q.copy(), pos_err, rot_err
+            pe, oe = self.errors()
+            it += 1
+        return pe, oe, it
+
+    def sigma_min(self, length_m: float) -> float:
+        """Smallest singular value of the site Jacobian, rotation rows scaled by ``length_m`` [m/rad]."""
+        mujoco.mj_jacSite(self.model, self.configuration.data, self._jacp, self._jacr, self.site_id)
+        J = np.vstack([self._jacp, length_m * self._jacr])
+        return float(np.linalg.svd(J, compute_uv=False)[-1])
 
     def track(self, T_world_targets: np.ndarray, q_start: np.ndarray, dt: float,
               iterations_per_pose: int = 4) -> IKTrack:
         """Follow a pose sequence spaced ``dt`` apart, warm-starting each pose from the last."""
         k = len(T_world_targets)
-        q = np.empty((k, len(q_start)))
+        q = np.empty((k, 6))
         pe = np.empty(k)
         oe = np.empty(k)
-        qc = np.asarray(q_start, dtype=np.float64)
+        self.set_q(q_start)
         for i in range(k):
-            qc, pe[i], oe[i] = self.solve(T_world_targets[i], qc, dt, iterations_per_pose)
-            q[i] = qc
-        reachable = (pe < UNREACHABLE_POSITION_M) & (oe < UNREACHABLE_ORIENTATION_RAD)
-        return IKTrack(q, pe, oe, reachable)
+            pe[i], oe[i], _ = self.solve(T_world_targets[i], dt, iterations_per_pose)
+            q[i] = self.q
+        return IKTrack(q, pe, oe, reachable(pe, oe))

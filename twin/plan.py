@@ -18,9 +18,11 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation, Slerp
 
+from algorithms.geometry.raycast import GRID_SHIFT_M
 from algorithms.geometry.se3 import transform_points
 from twin.cell import Cell
 from twin.errors import TwinError
+from twin.robot import WORKPIECE_GROUPS
 
 PLAN_STEP_M = 0.001          # ray spacing along a line on the CAD model
 NORMAL_SMOOTHING_M = 0.003   # Gaussian smoothing of the normals along a line (sigma)
@@ -28,10 +30,6 @@ ACCELERATION_M_S2 = 0.5      # trapezoidal profile acceleration of every segment
 # Where the beam follows a curved normal the sensor also turns; the path slows down so that it
 # turns at most this fast (the wrist joints of the UR5e reach pi rad/s; IK needs headroom).
 ANGULAR_SPEED_RAD_S = 0.5
-WORKPIECE_GROUPS = np.array([0, 0, 0, 1, 0, 0], dtype=np.uint8)
-# MuJoCo's ray-triangle test can let a ray slip through a shared edge or vertex; generated
-# meshes sit on regular grids, so the planning grid is shifted off round numbers.
-GRID_SHIFT_M = 1.2345e-4
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ contact) record them, and any such contact is unintended. The robot base, fixed 
 by design, is not checked.
 
 The servos are the cell's position/velocity actuators with gravity compensation; the replay
-uses :func:`twin.scan.simulate` (``mujoco.rollout`` in chunks).
+uses :func:`twin.sim.simulate` (``mujoco.rollout`` in chunks).
 """
 
 from __future__ import annotations
@@ -42,12 +42,24 @@ from scipy.spatial import cKDTree
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.kinematics import dh_forward
 from algorithms.geometry.se3 import inv_pose, transform_points
-from algorithms.paths.toolpath import ProcessPath, raycast_parallel
-from twin.cell import GROUP_ARM, GROUP_WORKPIECE, Cell, build_spec, compile_cell, load_workpiece_mesh, quat_wxyz
+from algorithms.geometry.raycast import raycast_parallel
+from algorithms.paths.timing import Trajectory
+from algorithms.paths.toolpath import ProcessPath
+from twin.cell import Cell, build_spec, compile_cell, quat_wxyz
 from twin.errors import TwinError
-from twin.robot import FLANGE_BODY, JOINT_NAMES, UR5E_DH, VELOCITY_LIMIT_RAD_S
+from twin.realize import Realized
+from twin.robot import (
+    FLANGE_BODY,
+    GROUP_ARM,
+    GROUP_WORKPIECE,
+    JOINT_NAMES,
+    T_WRIST3_FLANGE,
+    UR5E_DH,
+    VELOCITY_LIMIT_RAD_S,
+)
 from twin.scenario import Scenario
-from twin.trajectory import Trajectory
+from twin.sensors.base import sensor_slice
+from twin.sim import simulate
 
 HFIELD_RES_M = 0.001
 JOINT_LIMIT_MARGIN_RAD = 1e-3
@@ -57,17 +69,10 @@ _CONTACT_DATA = 1 | 8 | 16
 _REDUCE_MINDIST = 1
 
 
-def true_cell_rng(scenario: Scenario) -> np.random.Generator:
-    """The generator :func:`twin.scan.run_scan` draws the true kinematic errors from."""
-    return np.random.default_rng(np.random.SeedSequence(scenario.seed).spawn(3)[0])
-
-
 def _add_tool(spec: mujoco.MjSpec, scenario: Scenario) -> None:
     p = scenario.path
-    T_wrist3_flange = np.eye(4)
-    T_wrist3_flange[2, 3] = UR5E_DH.d[5]
     T_ft = p.T_flange_tool
-    tool = spec.body(FLANGE_BODY).add_body(name="tool", pos=T_wrist3_flange[:3, 3], gravcomp=1)
+    tool = spec.body(FLANGE_BODY).add_body(name="tool", pos=T_WRIST3_FLANGE[:3, 3], gravcomp=1)
     tip = T_ft[:3, 3]
     centre = tip + p.tip_radius_m * T_ft[:3, 2]
     axis = centre / max(np.linalg.norm(centre), 1e-12)
@@ -112,13 +117,13 @@ def _add_height_field(spec: mujoco.MjSpec, mesh: trimesh.Trimesh) -> None:
     g.conaffinity = 0
 
 
-def build_replay_cell(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> Cell:
-    """The true cell with the tool, the height-field collision shape and the replay sensors."""
-    if mesh is None:
-        mesh = load_workpiece_mesh(scenario)
-    spec, poses = build_spec(scenario, "true", mesh, rng=true_cell_rng(scenario))
+def build_replay_cell(realized: Realized) -> Cell:
+    """The true cell (the same truth as the scan's) with the tool, the height-field collision
+    shape and the replay sensors: the process configuration of the true cell."""
+    scenario = realized.scenario
+    spec, poses = build_spec(realized, "true")
     _add_tool(spec, scenario)
-    _add_height_field(spec, mesh)
+    _add_height_field(spec, realized.workpiece.mesh)
     spec.add_sensor(name="tcp_pos", type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE,
                     objname="tcp")
     spec.add_sensor(name="tcp_zaxis", type=mujoco.mjtSensor.mjSENS_FRAMEZAXIS, objtype=mujoco.mjtObj.mjOBJ_SITE,
@@ -132,7 +137,7 @@ def build_replay_cell(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -
                             objtype=mujoco.mjtObj.mjOBJ_GEOM, objname=g,
                             reftype=mujoco.mjtObj.mjOBJ_GEOM, refname=target,
                             intprm=[_CONTACT_DATA, _REDUCE_MINDIST, 1])
-    return compile_cell(spec, scenario, "true", mesh, poses)
+    return compile_cell(spec, realized, "true", poses)
 
 
 def _checked_geoms(spec: mujoco.MjSpec) -> list[str]:
@@ -278,7 +283,7 @@ def _polyline_distance(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
 
 
 
-def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshIndex | None = None,
+def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshIndex,
            tip_tolerance_m: float = 1e-4) -> ReplayLog:
     """Run ``trajectory`` in the replay cell (:func:`build_replay_cell`) and verify it.
 
@@ -286,11 +291,9 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
         cell: the replay cell (true cell with the tool).
         trajectory: joint references every 1 ms.
         path: the process path the trajectory was planned from (robot base frame).
-        index: a MeshIndex of the workpiece mesh (built when None).
+        index: the MeshIndex of the workpiece mesh (``Realized.workpiece.index``).
         tip_tolerance_m: on a process line the ball counts as touching within this distance.
     """
-    from twin.scan import simulate
-
     model = cell.model
     if "tcp" not in [model.site(i).name for i in range(model.nsite)]:
         raise TwinError("replay needs the replay cell (build_replay_cell): the model has no tool")
@@ -347,7 +350,6 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
     centre_b = tcp_b + r * zax_b
     T_base_wp = T_bw @ cell.T_world_workpiece
     c_wp = transform_points(inv_pose(T_base_wp), centre_b)
-    index = index if index is not None else MeshIndex(cell.mesh)
     cp = index.query(c_wp)
     sign = np.sign(np.einsum("ij,ij->i", c_wp - cp.foot, cp.normal))
     sign[sign == 0] = 1.0

@@ -15,22 +15,25 @@ from dataclasses import dataclass, field
 
 import mujoco
 import mujoco.batch
-import mujoco.rollout
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from algorithms.geometry.kinematics import reconstruct_line_points, reconstruct_points
-from algorithms.geometry.se3 import inv_pose
-from twin.cell import STATIC_GROUPS, Cell, build_cell, load_workpiece_mesh
+from twin.cell import Cell
 from twin.errors import TwinError
 from twin.ik import IKSolver
 from twin.plan import ScanPlan, plan_scan
+from twin.realize import Realized
 from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH
 from twin.scenario import Scenario
-from twin.sensor import RAY_THREADS, Measurement, RawRays, measure
+from twin.sensors import Sensor
+from twin.sensors.base import RawRays, sensor_slice
+from twin.sensors.laser import RAY_THREADS
+from twin.sim import simulate
 
 IK_KNOT_STEPS = 10   # IK every 10 ms; joint references in between by a cubic spline
-ROLLOUT_CHUNK_STEPS = 2000
+# The scan's IK solves each knot pose to these (nanometre-level sensor poses).
+IK_POSITION_TOL_M = 1e-7
+IK_ORIENTATION_TOL_RAD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -40,18 +43,20 @@ class Scan:
     Attributes:
         t: (N,) sample times [s], 1 ms apart.
         q: (N, 6) joint encoder readings as logged [rad] (encoder noise and time skew applied).
-        d: (N,) or (N, B) distances [m], NaN where invalid.
-        valid: same shape as ``d``.
-        status: same shape as ``d``, sensor status codes (see ``twin.sensor``).
+        d: (N, B) distances [m] of the B beams (B = 1: point sensor), NaN where invalid.
+        valid: (N, B) bool.
+        status: (N, B) sensor status codes (see ``twin.sensors.base``).
         line: (N,) scan-line index, -1 between lines.
-        points_base: (N, 3) or (N, B, 3) reconstructed points in the robot base frame [m], NaN where invalid.
+        points_base: (N, B, 3) reconstructed points in the robot base frame [m], NaN where invalid.
         q_ref: (N, 6) joint references sent to the servos [rad].
         q_true: (N, 6) true joint positions [rad].
         plan: the planned sensor poses.
         T_base_workpiece_true: truth for evaluation only.
         T_base_workpiece_nominal: the planner's belief.
         T_flange_sensor_nominal: the believed hand-eye used for reconstruction.
-        beam_dirs_sensor: (B, 3) beam directions in the sensor frame (line profiler), or (1, 3).
+        beam_dirs_sensor: (B, 3) beam directions in the sensor frame.
+        d_true: (N, B) ideal distances [m] (-1 on a miss).
+        sensor: the sensor that measured.
         timings_s: wall-clock seconds per stage.
     """
 
@@ -71,12 +76,23 @@ class Scan:
     T_flange_sensor_nominal: np.ndarray
     beam_dirs_sensor: np.ndarray
     d_true: np.ndarray = field(repr=False)
+    sensor: Sensor = field(repr=False)
     timings_s: dict = field(default_factory=dict)
 
     @property
+    def beams(self) -> int:
+        return int(self.d.shape[1])
+
+    @property
     def valid_points_base(self) -> np.ndarray:
-        """(M, 3) the valid points only [m], robot base frame."""
+        """(M, 3) the valid points only [m], robot base frame (sample-major order)."""
         return self.points_base[self.valid]
+
+    @property
+    def line_points_base(self) -> np.ndarray:
+        """(M, 3) the valid points measured on scan lines [m] (approach, retract and line
+        changes left out), robot base frame: the points localization uses."""
+        return self.points_base[self.valid & (self.line >= 0)[:, None]]
 
 
 def solve_joint_references(nominal: Cell, plan: ScanPlan) -> tuple[np.ndarray, np.ndarray]:
@@ -84,9 +100,10 @@ def solve_joint_references(nominal: Cell, plan: ScanPlan) -> tuple[np.ndarray, n
 
     Returns (q_ref, qd_ref), each (K, 6). Raises TwinError naming the first unreachable scan line.
     """
-    solver = IKSolver(nominal.model)
-    q0, pe, oe = solver.solve(plan.T_world_sensor[0], HOME_Q, dt=0.05, max_iterations=1000,
-                              velocity_limited=False)
+    solver = IKSolver(nominal.model, nominal.sensor.site, IK_POSITION_TOL_M, IK_ORIENTATION_TOL_RAD)
+    solver.set_q(HOME_Q)
+    pe, oe, _ = solver.solve(plan.T_world_sensor[0], dt=0.05, max_iterations=1000, velocity_limited=False)
+    q0 = solver.q
     _check_reachable(plan, 0, pe, oe)
     knots = np.arange(0, len(plan.t), IK_KNOT_STEPS)
     if knots[-1] != len(plan.t) - 1:
@@ -102,9 +119,9 @@ def solve_joint_references(nominal: Cell, plan: ScanPlan) -> tuple[np.ndarray, n
 
 
 def _check_reachable(plan: ScanPlan, i: int, pos_err: float, rot_err: float) -> None:
-    from twin.ik import UNREACHABLE_ORIENTATION_RAD, UNREACHABLE_POSITION_M
+    from twin.ik import reachable
 
-    if pos_err < UNREACHABLE_POSITION_M and rot_err < UNREACHABLE_ORIENTATION_RAD:
+    if reachable(pos_err, rot_err):
         return
     line = int(plan.line[i])
     if line >= 0:
@@ -120,50 +137,15 @@ def _check_reachable(plan: ScanPlan, i: int, pos_err: float, rot_err: float) -> 
     )
 
 
-def _sensor_slices(model: mujoco.MjModel) -> dict:
-    out = {}
-    for name in ("laser_ray", "laser_xaxis", "laser_yaxis", *[f"enc_{j}" for j in JOINT_NAMES]):
-        s = model.sensor(name)
-        out[name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
-    return out
+def run_scan(realized: Realized, nominal: Cell, true_cell: Cell) -> Scan:
+    """Simulate the scenario's scan and reconstruct its points (see the module docstring).
 
-
-def simulate(true_cell: Cell, q_ref: np.ndarray, qd_ref: np.ndarray, on_chunk) -> None:
-    """Roll the true cell out at 1 ms with the servo references; ``on_chunk(i0, sensordata, qpos)``."""
-    model, data = true_cell.model, true_cell.data
-    mujoco.mj_resetData(model, data)
-    data.qpos[true_cell.qpos_adr] = q_ref[0]
-    mujoco.mj_forward(model, data)
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    state = np.empty(mujoco.mj_stateSize(model, spec))
-    mujoco.mj_getState(model, data, state, spec)
-    ctrl = np.concatenate([q_ref, qd_ref], axis=1)
-    n = len(q_ref)
-    qadr = true_cell.qpos_adr + 1  # FULLPHYSICS state starts with time
-    for i0 in range(0, n, ROLLOUT_CHUNK_STEPS):
-        i1 = min(n, i0 + ROLLOUT_CHUNK_STEPS)
-        states, sens = mujoco.rollout.rollout(model, data, state, ctrl[None, i0:i1])
-        # sensordata of step i is computed before step i integrates: it pairs with the state
-        # at the start of the step, which is the previous output state (or the initial one).
-        q_before = np.vstack([state[None, qadr], states[0, :-1][:, qadr]])
-        on_chunk(i0, sens[0], q_before)
-        state = states[0, -1].copy()
-
-
-def run_scan(scenario: Scenario, rng: np.random.Generator | None = None, mesh=None) -> Scan:
-    """Simulate the scenario's scan and reconstruct its points (see the module docstring)."""
+    Args:
+        realized: the realized scenario (its ``sensor`` and ``encoder`` streams are used).
+        nominal: the nominal cell (plan and IK); true_cell: the true cell (simulation).
+    """
+    scenario = realized.scenario
     timings = {}
-    t0 = time.perf_counter()
-    root = np.random.SeedSequence(scenario.seed)
-    rng_kin, rng_sensor, rng_enc = (np.random.default_rng(s) for s in root.spawn(3))
-    if rng is not None:
-        rng_sensor = rng
-    if mesh is None:
-        mesh = load_workpiece_mesh(scenario)
-    nominal = build_cell(scenario, "nominal", mesh)
-    true_cell = build_cell(scenario, "true", mesh, rng=rng_kin)
-    timings["build_s"] = time.perf_counter() - t0
-
     t0 = time.perf_counter()
     plan = plan_scan(nominal)
     timings["plan_s"] = time.perf_counter() - t0
@@ -171,57 +153,31 @@ def run_scan(scenario: Scenario, rng: np.random.Generator | None = None, mesh=No
     q_ref, qd_ref = solve_joint_references(nominal, plan)
     timings["ik_s"] = time.perf_counter() - t0
 
-    sensor = scenario.sensor
+    sensor = true_cell.sensor
     model = true_cell.model
-    sl = _sensor_slices(model)
-    n = len(q_ref)
-    beams = sensor.beams
-    shape = (n,) if sensor.kind == "point" else (n, beams)
-    dist = np.empty(shape)
-    origin = np.empty(shape + (3,))
-    direction = np.empty(shape + (3,))
-    normal = np.empty(shape + (3,))
-    receiver = np.empty(shape + (3,))
+    n, b = len(q_ref), sensor.beams
+    dist = np.empty((n, b))
+    origin, direction, normal, receiver = (np.empty((n, b, 3)) for _ in range(4))
     q_enc = np.empty((n, 6))
     q_true = np.empty((n, 6))
-    enc_cols = [sl[f"enc_{j}"].start for j in JOINT_NAMES]
+    enc_cols = [sensor_slice(model, f"enc_{j}").start for j in JOINT_NAMES]
 
     def on_chunk(i0, sens, q_before):
         i1 = i0 + len(sens)
         q_enc[i0:i1] = sens[:, enc_cols]
         q_true[i0:i1] = q_before
-        ray = sens[:, sl["laser_ray"]]
-        xaxis = sens[:, sl["laser_xaxis"]]
-        yaxis = sens[:, sl["laser_yaxis"]]
-        if sensor.kind == "point":
-            dist[i0:i1] = ray[:, 0]
-            direction[i0:i1] = ray[:, 1:4]
-            origin[i0:i1] = ray[:, 4:7]
-            normal[i0:i1] = ray[:, 10:13]
-            receiver[i0:i1] = ray[:, 4:7] + sensor.baseline_m * xaxis
-        else:
-            r = ray.reshape(len(sens), beams, 7)
-            dist[i0:i1] = r[:, :, 0]
-            direction[i0:i1] = r[:, :, 1:4]
-            normal[i0:i1] = r[:, :, 4:7]
-            # All beams of the fan leave the emitter (the site origin), which the dir data
-            # does not carry: rebuild it from the encoder-consistent site pose below.
-            origin[i0:i1] = np.nan
-            receiver[i0:i1] = sensor.baseline_m * yaxis[:, None, :]
+        r = sensor.decode(model, sens)
+        dist[i0:i1], origin[i0:i1], direction[i0:i1] = r.dist, r.origin, r.direction
+        normal[i0:i1], receiver[i0:i1] = r.normal, r.receiver
 
     t0 = time.perf_counter()
     simulate(true_cell, q_ref, qd_ref, on_chunk)
     timings["simulate_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    if sensor.kind == "line":
-        # Site origin per step from the true kinematics (same step as the ray).
-        site_pos = _site_positions(true_cell, q_true)
-        origin[:] = site_pos[:, None, :]
-        receiver += site_pos[:, None, :]
     rays = RawRays(dist, origin, direction, normal, receiver)
     batch = mujoco.batch.Batch(model, RAY_THREADS, nthread=RAY_THREADS)
-    meas: Measurement = measure(rays, sensor, scenario.noise, rng_sensor, model, STATIC_GROUPS, batch)
+    meas = sensor.measure(rays, realized.streams.generator("sensor"), model, batch)
     timings["sensor_model_s"] = time.perf_counter() - t0
 
     # Robot-side error sources on what the controller logs.
@@ -232,48 +188,28 @@ def run_scan(scenario: Scenario, rng: np.random.Generator | None = None, mesh=No
         ts = np.clip(t - scenario.noise.time_skew_s, t[0], t[-1])
         q_log = np.column_stack([np.interp(ts, t, q_log[:, j]) for j in range(6)])
     if scenario.noise.encoder_sigma_rad > 0:
+        rng_enc = realized.streams.generator("encoder")
         q_log = q_log + rng_enc.normal(0.0, scenario.noise.encoder_sigma_rad, q_log.shape)
 
     t0 = time.perf_counter()
     T_fs_nominal = scenario.sensor.T_flange_sensor
-    beam_dirs = np.array([[0.0, 0.0, 1.0]])
-    if sensor.kind == "point":
-        points = reconstruct_points(q_log, meas.d, UR5E_DH, T_fs_nominal)
-    else:
-        beam_dirs = fan_directions_sensor(sensor)
-        points = reconstruct_line_points(q_log, meas.d, beam_dirs, UR5E_DH, T_fs_nominal)
+    points = sensor.reconstruct(q_log, meas.d, UR5E_DH, T_fs_nominal)
     timings["reconstruct_s"] = time.perf_counter() - t0
 
-    T_base_world = inv_pose(scenario.T_world_base)
     return Scan(
         scenario=scenario, t=t, q=q_log, d=meas.d, valid=meas.valid, status=meas.status,
         line=plan.line.copy(), points_base=points, q_ref=q_ref, q_true=q_true, plan=plan,
-        T_base_workpiece_true=T_base_world @ scenario.workpiece.T_world_workpiece_true,
-        T_base_workpiece_nominal=T_base_world @ scenario.workpiece.T_world_workpiece_nominal,
-        T_flange_sensor_nominal=T_fs_nominal, beam_dirs_sensor=beam_dirs, d_true=meas.d_true,
-        timings_s=timings,
+        T_base_workpiece_true=realized.T_base_workpiece_true,
+        T_base_workpiece_nominal=realized.T_base_workpiece_nominal,
+        T_flange_sensor_nominal=T_fs_nominal, beam_dirs_sensor=sensor.beam_dirs_sensor(), d_true=meas.d_true,
+        sensor=sensor, timings_s=timings,
     )
 
 
-def _site_positions(cell: Cell, q: np.ndarray) -> np.ndarray:
-    model, data = cell.model, cell.data
-    out = np.empty((len(q), 3))
-    site = cell.sensor_site
-    for i, qi in enumerate(q):
-        data.qpos[cell.qpos_adr] = qi
-        mujoco.mj_kinematics(model, data)
-        out[i] = data.site_xpos[site]
-    return out
+def scan_scenario(scenario: Scenario, mesh=None) -> Scan:
+    """Realize a scenario and simulate its scan in one call (tests, notebooks, quick studies)."""
+    from twin.cell import build_cell
+    from twin.realize import realize
 
-
-def fan_directions_sensor(sensor) -> np.ndarray:
-    """(B, 3) unit beam directions of the line profiler in the sensor frame.
-
-    The fan is the 1-pixel-high perspective camera of ``twin.cell``: pixel centres spread
-    evenly over ``fan_deg`` in the sensor's x-z plane.
-    """
-    half_width = np.tan(np.radians(sensor.fan_deg) / 2)
-    b = sensor.beams
-    x = ((np.arange(b) + 0.5) / b * 2.0 - 1.0) * half_width
-    dirs = np.column_stack([x, np.zeros(b), np.ones(b)])
-    return dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    realized = realize(scenario, mesh)
+    return run_scan(realized, build_cell(realized, "nominal"), build_cell(realized, "true"))

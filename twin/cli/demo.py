@@ -6,8 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
-from twin.cli.run import _headline, run_loop
+from twin.cli.run import run_and_report
 from twin.io import write_scan
+from twin.io.report import headline
 from twin.robot import MODELS_DIR
 from twin.scenario import load_scenario
 
@@ -30,11 +31,9 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    scenario = load_scenario(args.scenario)
     out = Path(args.out)
     rrd = None if args.no_rrd else (Path(args.rrd) if args.rrd else out / "demo.rrd")
-    artifacts: dict = {}
-    report = run_loop(scenario, out, rrd, artifacts=artifacts)
-    write_scan(artifacts["scan"], out)
-    print(json.dumps(_headline(report), indent=2))
+    result, report = run_and_report(load_scenario(args.scenario), out, rrd)
+    write_scan(result.scan, out)
+    print(json.dumps(headline(report), indent=2))
     return 0

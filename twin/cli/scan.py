@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
 from twin.cell import build_cell
 from twin.errors import TwinError
 from twin.io import write_scan
+from twin.realize import realize
 from twin.scan import run_scan
 from twin.scenario import load_scenario
 
@@ -30,16 +32,18 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     if args.noise_off:
-        import dataclasses
         scenario = dataclasses.replace(scenario, noise=scenario.noise.all_off())
     if args.rrd and not args.rrd.endswith(".rrd"):
         raise TwinError(f"--rrd must name a .rrd file, got {args.rrd!r}")
     t0 = time.perf_counter()
-    scan = run_scan(scenario)
+    realized = realize(scenario)
+    true_cell = build_cell(realized, "true")
+    scan = run_scan(realized, build_cell(realized, "nominal"), true_cell)
     out = write_scan(scan, args.out)
     if args.rrd:
         from twin.viz import save_scan_recording
-        save_scan_recording(args.rrd, build_cell(scenario, "true"), scan)
+
+        save_scan_recording(args.rrd, true_cell, scan)
     summary = {
         "out": str(out),
         "samples": int(len(scan.t)),

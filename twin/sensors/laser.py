@@ -22,52 +22,18 @@ Status codes per sample (``status`` column): 0 valid, 1 no hit, 2 outside the wi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import mujoco
 import mujoco.batch
 import numpy as np
 
+from twin.robot import GROUP_ARM, STATIC_GROUPS
 from twin.scenario import NoiseSpec, SensorSpec
+from twin.sensors.base import INCIDENCE, NO_HIT, OCCLUDED, OUT_OF_WINDOW, VALID, Measurement, RawRays, Sensor
 
-VALID, NO_HIT, OUT_OF_WINDOW, INCIDENCE, OCCLUDED = 0, 1, 2, 3, 4
-STATUS_NAMES = {VALID: "valid", NO_HIT: "no_hit", OUT_OF_WINDOW: "out_of_window",
-                INCIDENCE: "incidence", OCCLUDED: "occluded"}
 # Start the receiver ray this far off the surface so it does not hit its own start point.
 OCCLUSION_RAY_OFFSET_M = 1e-7
 # The receiver rays of a long scan are cast on this many threads.
 RAY_THREADS = 2
-
-
-@dataclass(frozen=True)
-class RawRays:
-    """Ideal ray-cast results for a batch of beams (any leading shape).
-
-    Attributes:
-        dist: distance from the emitter to the hit [m], -1 for no hit.
-        origin: (..., 3) emitter position, world [m].
-        direction: (..., 3) unit beam direction, world.
-        normal: (..., 3) outward surface normal at the hit, world (0 on a miss).
-        receiver: (..., 3) receiver position, world [m].
-    """
-
-    dist: np.ndarray
-    origin: np.ndarray
-    direction: np.ndarray
-    normal: np.ndarray
-    receiver: np.ndarray
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """What the sensor reports: ``d`` [m] (NaN when invalid), ``valid``, ``status`` codes,
-    ``incidence_rad`` (NaN on a miss) and the ideal distance ``d_true`` [m] (-1 on a miss)."""
-
-    d: np.ndarray
-    valid: np.ndarray
-    status: np.ndarray
-    incidence_rad: np.ndarray
-    d_true: np.ndarray
 
 
 def linearity_error_m(d: np.ndarray, sensor: SensorSpec) -> np.ndarray:
@@ -96,7 +62,7 @@ def cast_static_rays(batch, start: np.ndarray, unit: np.ndarray, groups: np.ndar
 
 
 def occluded(model: mujoco.MjModel, rays: RawRays, hit: np.ndarray, static_groups: np.ndarray,
-             batch: "mujoco.batch.Batch | None" = None) -> np.ndarray:
+             batch: mujoco.batch.Batch | None = None) -> np.ndarray:
     """True where the receiver cannot see the laser spot (blocked, or the surface faces away)."""
     out = np.zeros(hit.shape, dtype=bool)
     if not np.any(hit):
@@ -117,8 +83,8 @@ def occluded(model: mujoco.MjModel, rays: RawRays, hit: np.ndarray, static_group
 
 
 def measure(rays: RawRays, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.Generator,
-            model: mujoco.MjModel, static_groups: np.ndarray,
-            batch: "mujoco.batch.Batch | None" = None) -> Measurement:
+            model: mujoco.MjModel, static_groups: np.ndarray = STATIC_GROUPS,
+            batch: mujoco.batch.Batch | None = None) -> Measurement:
     """Apply the sensor model to ideal rays (vectorised over all samples and beams)."""
     dist = np.asarray(rays.dist, dtype=np.float64)
     hit = dist >= 0.0
@@ -150,3 +116,25 @@ def measure(rays: RawRays, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
     valid = status == VALID
     d = np.where(valid, d, np.nan)
     return Measurement(d, valid, status, incidence, np.where(hit, dist, -1.0))
+
+
+class LaserSensor(Sensor):
+    """A laser triangulation sensor on the flange (the IL-065 model above); point or line."""
+
+    def measure(self, rays: RawRays, rng: np.random.Generator, model: mujoco.MjModel,
+                batch: mujoco.batch.Batch | None = None) -> Measurement:
+        return measure(rays, self.spec, self.noise, rng, model, STATIC_GROUPS, batch)
+
+    def _attach_body(self, spec: mujoco.MjSpec, body: mujoco.MjsBody) -> None:
+        """Housing, emitter site ``laser`` (the sensor frame), ``receiver`` site, and the frame-axis
+        sensors that carry the receiver's direction."""
+        body.add_geom(name="laser_housing", type=mujoco.mjtGeom.mjGEOM_BOX,
+                      size=[0.015, 0.010, 0.025], pos=[self.spec.baseline_m / 2, 0, -0.026],
+                      rgba=[0.15, 0.3, 0.8, 1], group=GROUP_ARM, contype=1, conaffinity=0)
+        body.add_site(name="laser", pos=[0, 0, 0], size=[0.002, 0, 0], rgba=[1, 0, 0, 1])
+        body.add_site(name="receiver", pos=[self.spec.baseline_m, 0, 0], size=[0.002, 0, 0])
+
+    @staticmethod
+    def _add_axis_sensors(spec: mujoco.MjSpec) -> None:
+        for axis, kind in (("x", mujoco.mjtSensor.mjSENS_FRAMEXAXIS), ("y", mujoco.mjtSensor.mjSENS_FRAMEYAXIS)):
+            spec.add_sensor(name=f"laser_{axis}axis", type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="laser")

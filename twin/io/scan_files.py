@@ -39,10 +39,10 @@ def samples_table(scan) -> pa.Table:
     cols = {"t": pa.array(scan.t, pa.float64())}
     for j in range(6):
         cols[f"q{j + 1}"] = pa.array(scan.q[:, j], pa.float64())
-    if scan.d.ndim == 1:
-        cols["d"] = pa.array(scan.d, pa.float64(), from_pandas=False)
-        cols["valid"] = pa.array(scan.valid, pa.bool_())
-        cols["status"] = pa.array(scan.status, pa.uint8())
+    if scan.beams == 1:  # the file format: one beam is a plain column
+        cols["d"] = pa.array(scan.d[:, 0], pa.float64(), from_pandas=False)
+        cols["valid"] = pa.array(scan.valid[:, 0], pa.bool_())
+        cols["status"] = pa.array(scan.status[:, 0], pa.uint8())
     else:
         b = scan.d.shape[1]
         cols["d"] = pa.FixedSizeListArray.from_arrays(pa.array(scan.d.ravel(), pa.float64()), b)

@@ -1,0 +1,103 @@
+"""Evaluation against the truth: the only module that reads what only the simulator knows.
+
+Every function returns SI values (metres, radians); :mod:`twin.io.report` turns them into the
+report's unit-named fields.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from algorithms.geometry.kinematics import dh_forward
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import inv_pose, rotation_error_rad, transform_points, translation_error_m
+from algorithms.paths.normals import angle_deg, pca_normals
+from twin.realize import Realized
+from twin.robot import UR5E_DH
+
+
+def surface_error_m(points_base: np.ndarray, T_base_workpiece_true: np.ndarray, index: MeshIndex) -> np.ndarray:
+    """Signed distance [m] of base-frame points to the TRUE part surface (positive outside)."""
+    p = transform_points(inv_pose(T_base_workpiece_true), points_base)
+    cp = index.query(p)
+    s = np.sign(np.einsum("ij,ij->i", p - cp.foot, cp.normal))
+    s[s == 0] = 1.0
+    return s * cp.distance
+
+
+def true_normals_base(points_base: np.ndarray, T_base_workpiece_true: np.ndarray, index: MeshIndex) -> np.ndarray:
+    """Smooth normals of the TRUE surface at the feet of base-frame points, base frame."""
+    p = transform_points(inv_pose(T_base_workpiece_true), points_base)
+    cp = index.query(p)
+    return index.smooth_normals(cp.face, cp.foot) @ T_base_workpiece_true[:3, :3].T
+
+
+@dataclass(frozen=True)
+class PoseErrors:
+    """Rotation [rad] and translation [m] errors of an estimate and of the nominal pose."""
+
+    rotation_rad: float
+    translation_m: float
+    nominal_rotation_rad: float
+    nominal_translation_m: float
+
+
+def pose_errors(T_base_workpiece_estimate: np.ndarray, realized: Realized) -> PoseErrors:
+    T_true, T_nom = realized.T_base_workpiece_true, realized.T_base_workpiece_nominal
+    return PoseErrors(rotation_error_rad(T_base_workpiece_estimate, T_true),
+                      translation_error_m(T_base_workpiece_estimate, T_true),
+                      rotation_error_rad(T_nom, T_true), translation_error_m(T_nom, T_true))
+
+
+@dataclass(frozen=True)
+class ScanErrors:
+    """Points against the true surface and servo tracking of a scan (SI units).
+
+    Attributes:
+        points_on_part, points_on_table: valid points nearer the part / the table plane.
+        residual_m: (M,) distance of each on-part point to the true surface [m].
+        tracking_m: (N,) sensor-origin distance between commanded and true joints [m].
+    """
+
+    points_on_part: int
+    points_on_table: int
+    residual_m: np.ndarray
+    tracking_m: np.ndarray
+
+
+def scan_errors(scan, realized: Realized) -> ScanErrors:
+    pts = scan.valid_points_base
+    p_wp = transform_points(inv_pose(realized.T_base_workpiece_true), pts)
+    to_part = realized.workpiece.index.query(p_wp).distance if len(pts) else np.empty(0)
+    to_table = np.abs(transform_points(realized.scenario.T_world_base, pts)[:, 2])
+    on_part = to_part <= to_table
+    T_ref = dh_forward(scan.q_ref, UR5E_DH) @ scan.T_flange_sensor_nominal
+    T_act = dh_forward(scan.q_true, UR5E_DH) @ scan.T_flange_sensor_nominal
+    dev = np.linalg.norm(T_ref[:, :3, 3] - T_act[:, :3, 3], axis=1)
+    return ScanErrors(int(on_part.sum()), int((~on_part).sum()), to_part[on_part], dev)
+
+
+@dataclass(frozen=True)
+class ScanPathErrors:
+    """The scan-derived contact points and normals against the true surface.
+
+    Attributes:
+        surface_m: (M,) signed distance of the fitted contact points to the true surface [m].
+        normals_triangulation_deg, normals_pca_deg, tool_normals_deg: (M,) angles to the true
+            normals [deg] (PCA with k = 16, unsigned).
+    """
+
+    surface_m: np.ndarray
+    normals_triangulation_deg: np.ndarray
+    normals_pca_deg: np.ndarray
+    tool_normals_deg: np.ndarray
+
+
+def scan_path_errors(points: np.ndarray, normals: np.ndarray, tool_normals: np.ndarray,
+                     realized: Realized) -> ScanPathErrors:
+    T_true, index = realized.T_base_workpiece_true, realized.workpiece.index
+    n_true = true_normals_base(points, T_true, index)
+    return ScanPathErrors(surface_error_m(points, T_true, index), angle_deg(normals, n_true),
+                          angle_deg(pca_normals(points, 16), n_true, unsigned=True), angle_deg(tool_normals, n_true))
