@@ -7,6 +7,7 @@ import sys
 import pytest
 
 from tests.helpers import SCENARIOS
+from tests.tolerances import RECORDING_FLOAT32_M
 from twin.cli import COMMANDS, main
 
 
@@ -86,3 +87,37 @@ def test_user_mesh_scan_and_recording(tmp_path):
     for expected in ("/world/robot/laser_sensor", "/world/scan/beam", "/plots/d_mm", "/world/workpiece/true/mesh"):
         assert expected in paths
     assert any(p.startswith("/world/scan/points/") for p in paths)
+
+
+def test_scan_recording_shows_the_true_cell_that_scanned(tmp_path):
+    """With kinematic errors on, ``twin scan --rrd`` records the arm of the cell that scanned:
+    the recorded wrist pose equals the true cell's forward kinematics at the encoder readings
+    (and not the nominal cell's)."""
+    import mujoco
+    import numpy as np
+    import pyarrow.parquet as pq
+    from rerun.chunk import RrdReader
+
+    from twin.cell import build_cell
+    from twin.realize import realize
+    from twin.scenario import load_scenario
+
+    text = (SCENARIOS / "s_surface.toml").read_text().replace('line_axis = "x"', 'line_axis = "x"\nmax_lines = 1')
+    text = text.replace("[noise]", "[noise]\nkinematic_sigma_m = 0.0005\nkinematic_sigma_rad = 0.001")
+    sc_file = tmp_path / "kin.toml"
+    sc_file.write_text(text)
+    assert main(["scan", str(sc_file), "--out", str(tmp_path / "scan"), "--rrd", str(tmp_path / "scan.rrd")]) == 0
+    chunk = next(c for c in RrdReader(str(tmp_path / "scan.rrd")).stream().to_chunks()
+                 if c.entity_path == "/world/robot/wrist_3_link")
+    recorded = np.asarray(chunk.to_record_batch().column("Transform3D:translation")[0].as_py()[0])
+    q0 = pq.read_table(tmp_path / "scan" / "samples.parquet").slice(0, 1).to_pylist()[0]
+    q0 = np.array([q0[f"q{j}"] for j in range(1, 7)])  # encoder readings (no encoder noise here)
+    realized = realize(load_scenario(sc_file))
+
+    def wrist(which):
+        cell = build_cell(realized, which)
+        cell.set_q(q0)
+        return cell.data.xpos[mujoco.mj_name2id(cell.model, mujoco.mjtObj.mjOBJ_BODY, "wrist_3_link")].copy()
+
+    assert np.linalg.norm(recorded - wrist("true")) < RECORDING_FLOAT32_M
+    assert np.linalg.norm(recorded - wrist("nominal")) > 100 * RECORDING_FLOAT32_M

@@ -5,8 +5,10 @@ frame, find for each the nearest point on the surface (the *foot*), the face it 
 the distance and the outward face normal there.
 
 Why not ``trimesh.proximity.closest_point``: trimesh 5.2 decides the Voronoi region of the
-triangle with absolute tolerances, which puts points in the wrong region on metre-scale
-meshes with millimetre triangles (see STACK_NOTES.md). Here the point-triangle test is
+triangle with absolute tolerances (an absolute 1e-13 on products of squared edge lengths),
+which puts points in the wrong region on metre-scale meshes with millimetre triangles: of
+2,000 points sampled on a 19k-face, 150 mm part, 21 % got a "closest point" up to 0.17 mm
+away (``tests/test_closest_point.py`` checks exactness on points sampled on the mesh). Here the point-triangle test is
 Ericson's (Real-Time Collision Detection, 5.1.5): only sign tests on dot products, no
 tolerance, so it is invariant to the scale of the mesh.
 
