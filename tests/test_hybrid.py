@@ -142,10 +142,10 @@ def test_bad_input_is_refused(parts, synthetic):
 
 
 def test_cast_blank_scan_through_the_cell_keeps_the_allowance_on_the_true_part(parts):
-    from twin.scan import run_scan
+    from twin.scan import scan_scenario
 
     sc = scenario("cast_blank", scan={"line_spacing_m": 0.005})
-    scan = run_scan(sc)
+    scan = scan_scenario(sc)
     P = scan.valid_points_base
     T_nom, T_true = scan.T_base_workpiece_nominal, scan.T_base_workpiece_true
     labels = classify_cast_blank_points(transform_points(inv_pose(T_nom), P))

@@ -234,7 +234,7 @@ def test_a_named_feature_is_fitted_to_the_measured_faces():
 # ---------------------------------------------------------------- through the scan cell
 @pytest.fixture(scope="module")
 def scans():
-    from twin.scan import run_scan
+    from twin.scan import scan_scenario
 
     out = {}
     over = {
@@ -244,7 +244,7 @@ def scans():
     }
     for name, o in over.items():
         sc = scenario(name, **o)
-        out[name] = (sc, run_scan(sc))
+        out[name] = (sc, scan_scenario(sc))
     return out
 
 
