@@ -5,16 +5,14 @@ import dataclasses
 import numpy as np
 import pytest
 
+from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.normals import NormalsError, angle_deg, pca_normals, smooth_line_normals, triangulation_normals
 from algorithms.paths.pointcloud import prepare_scan_lines
-from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.spline import fit_lines
 from tests.helpers import scenario
-from twin.scan import scan_scenario
+from tests.tolerances import EXACT_DEG, TRIANGULATION_BAR_DEG
 from twin.parts import s_surface_normal
-
-EXACT_DEG = 1e-5           # planar data: the floor of arccos near 1 in float64
-TRIANGULATION_BAR_DEG = 2.0  # issue bar: RMS against the true normals, S-surface, noise off
+from twin.scan import scan_scenario
 
 
 def lines_on(z, dz, n_lines=6, n=80, along=0.001, across=0.004):
@@ -33,7 +31,7 @@ def lines_on(z, dz, n_lines=6, n=80, along=0.001, across=0.004):
 def test_plane_normals_are_exact_everywhere_including_boundaries():
     L, N = lines_on(lambda x, y: 0.2 * x - 0.1 * y + 0.03, lambda x, y: (np.full_like(x, 0.2), np.full_like(x, -0.1)))
     est = triangulation_normals(L)
-    for e, n in zip(est, N):
+    for e, n in zip(est, N, strict=True):
         assert angle_deg(e, n).max() < EXACT_DEG
     flipped = triangulation_normals(L, orient=[0, 0, -1])
     assert np.allclose(np.concatenate(flipped), -np.concatenate(est))
@@ -45,14 +43,18 @@ def test_fan_is_exact_on_quadrics_and_second_order_elsewhere():
     k = 30.0  # curvature [1/m], like the S-surface's tightest
     L, N = lines_on(lambda x, y: 0.5 * k * (x - 0.04) ** 2 + 2.0 * y**2, lambda x, y: (k * (x - 0.04), 4.0 * y))
     est = triangulation_normals(L)
-    assert max(angle_deg(e, n)[1:-1].max() for e, n in zip(est[1:-1], N[1:-1])) < EXACT_DEG
-    z = lambda x, y: 0.01 * np.sin(50 * x) + 0.002 * np.sin(100 * y)
-    dz = lambda x, y: (0.5 * np.cos(50 * x), 0.2 * np.cos(100 * y))
+    assert max(angle_deg(e, n)[1:-1].max() for e, n in zip(est[1:-1], N[1:-1], strict=True)) < EXACT_DEG
+    def z(x, y):
+        return 0.01 * np.sin(50 * x) + 0.002 * np.sin(100 * y)
+
+    def dz(x, y):
+        return 0.5 * np.cos(50 * x), 0.2 * np.cos(100 * y)
+
     errs = []
     for h in (0.002, 0.001):
         L, N = lines_on(z, dz, along=h, across=4 * h, n=int(0.08 / h), n_lines=int(0.024 / (4 * h)))
         est = triangulation_normals(L)
-        inner = [angle_deg(e, n)[2:-2] for e, n in zip(est[1:-1], N[1:-1])]
+        inner = [angle_deg(e, n)[2:-2] for e, n in zip(est[1:-1], N[1:-1], strict=True)]
         errs.append(np.sqrt(np.mean(np.concatenate(inner) ** 2)))
     # halving the spacing divides the interior error by about four
     assert 3.0 < errs[0] / errs[1] < 5.0
@@ -61,8 +63,12 @@ def test_fan_is_exact_on_quadrics_and_second_order_elsewhere():
 def test_pca_fails_on_scan_lines_where_triangulation_does_not():
     # Dense along the lines (0.05 mm), sparse across (4 mm): the k nearest neighbours all lie
     # on the point's own line, so the PCA plane is the line's osculating plane.
-    z = lambda x, y: 0.01 * np.sin(50 * x) + 0.05 * y
-    dz = lambda x, y: (0.5 * np.cos(50 * x), np.full_like(x, 0.05))
+    def z(x, y):
+        return 0.01 * np.sin(50 * x) + 0.05 * y
+
+    def dz(x, y):
+        return 0.5 * np.cos(50 * x), np.full_like(x, 0.05)
+
     L, N = lines_on(z, dz, along=5e-5, n=2000)
     n_true = np.concatenate(N)
     tri = np.concatenate(triangulation_normals(L, orient=[0, 0, 1]))
@@ -72,8 +78,12 @@ def test_pca_fails_on_scan_lines_where_triangulation_does_not():
 
 
 def test_smoothing_keeps_the_surface_variation():
-    z = lambda x, y: 0.01 * np.sin(50 * x) + 0.05 * y
-    dz = lambda x, y: (0.5 * np.cos(50 * x), np.full_like(x, 0.05))
+    def z(x, y):
+        return 0.01 * np.sin(50 * x) + 0.05 * y
+
+    def dz(x, y):
+        return 0.5 * np.cos(50 * x), np.full_like(x, 0.05)
+
     L, N = lines_on(z, dz, along=0.001, n=100)
     sm = smooth_line_normals(L, triangulation_normals(L), 0.004)
     a = angle_deg(np.concatenate(sm), np.concatenate(N))
@@ -84,7 +94,7 @@ def test_bad_input():
     L, _ = lines_on(lambda x, y: x * 0, lambda x, y: (x * 0, x * 0))
     with pytest.raises(NormalsError, match="at least 2 lines"):
         triangulation_normals(L[:1])
-    bad = [l.copy() for l in L]
+    bad = [line.copy() for line in L]
     bad[2][5] = np.nan
     with pytest.raises(NormalsError, match="line 2 contains NaN"):
         triangulation_normals(bad)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.pointcloud import (
     PointCloudError,
     boundary_polygon,
@@ -15,17 +16,12 @@ from algorithms.paths.pointcloud import (
     remove_outliers,
     simplify_lines,
 )
-from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.spline import SplineError, centripetal_parameters, fit_line, fit_lines
 from tests.helpers import scenario
-from twin.realize import load_workpiece_mesh
+from tests.tolerances import ANALYTIC_CURVE_M, EVEN_SPACING_REL, ON_TRUE_SURFACE_M
 from twin.pipeline import sensor_sigma_m
+from twin.realize import load_workpiece_mesh
 from twin.scan import scan_scenario
-
-# Named tolerances of this module.
-ON_TRUE_SURFACE_M = 1e-4       # bar: noise-off contact points on the true surface
-ANALYTIC_CURVE_M = 1e-6        # B-spline fit of an exact smooth curve
-EVEN_SPACING_REL = 1e-3        # resampled spacing vs the requested one
 
 
 def raster(n_lines=4, n=400, spacing=0.004, length=0.1, z=lambda x, y: 0.01 * np.sin(40 * x) + 0.1 * y):
@@ -46,8 +42,8 @@ def raster(n_lines=4, n=400, spacing=0.004, length=0.1, z=lambda x, y: 0.01 * np
 def test_scan_order_is_kept_and_reversed_lines_turned():
     P, lab = raster()
     c = organize_scan_lines(P, lab)
-    for lid, l, ix in zip(c.line_ids, c.lines, c.index):
-        assert np.all(np.diff(l @ c.direction) > 0)
+    for lid, line, ix in zip(c.line_ids, c.lines, c.index, strict=True):
+        assert np.all(np.diff(line @ c.direction) > 0)
         # line 1 and 3 were scanned backwards: their samples come reversed, in one piece
         rows = np.flatnonzero(lab == lid)
         np.testing.assert_array_equal(ix, rows[::-1] if lid % 2 else rows)
@@ -59,14 +55,14 @@ def test_unordered_points_are_ordered_along_and_across():
     perm = rng.permutation(len(P))
     c = organize_scan_lines(P[perm], lab[perm], order="projection")
     assert len(c.lines) == 4 and c.removed["between_lines"] == 28
-    for l in c.lines:
-        assert np.all(np.diff(l @ c.direction) >= 0)
-        assert np.all(np.diff(l[:, 0]) * np.sign(c.direction[0]) >= 0)
-    across = [l.mean(axis=0) @ c.across for l in c.lines]
+    for line in c.lines:
+        assert np.all(np.diff(line @ c.direction) >= 0)
+        assert np.all(np.diff(line[:, 0]) * np.sign(c.direction[0]) >= 0)
+    across = [line.mean(axis=0) @ c.across for line in c.lines]
     assert np.all(np.diff(across) > 0)
     # indices point back into the input
-    for l, ix in zip(c.lines, c.index):
-        np.testing.assert_array_equal(P[perm][ix], l)
+    for line, ix in zip(c.lines, c.index, strict=True):
+        np.testing.assert_array_equal(P[perm][ix], line)
 
 
 def test_invalid_samples_are_dropped_and_counted():
@@ -119,8 +115,8 @@ def test_boundary_keeps_the_part_and_simplify_spaces_evenly():
     ring = boundary_polygon(c)
     assert ring.shape == (2 * 4 + 1, 3) and np.allclose(ring[0], ring[-1])
     s = simplify_lines(c, 0.001)
-    for l in s.lines:
-        d = np.linalg.norm(np.diff(l, axis=0), axis=1)
+    for line in s.lines:
+        d = np.linalg.norm(np.diff(line, axis=0), axis=1)
         assert np.median(d) == pytest.approx(0.001, rel=0.1)
 
 

@@ -10,15 +10,12 @@ import pytest
 from algorithms.geometry.se3 import make_pose
 from algorithms.paths.toolpath import transform_path
 from tests.helpers import SCENARIOS, scenario
+from tests.tolerances import MAX_DEVIATION_MM, MAX_SURFACE_ERROR_MM, TRIANGULATION_RMS_DEG
 from twin.cell import build_cell
 from twin.cli.run import run_and_report
 from twin.replay import replay
 from twin.trajectory import plan_joint_trajectory
 
-# Bars of the issue (default S-surface scenario, IL-065 noise on).
-MAX_DEVIATION_MM = 0.5
-MAX_SURFACE_ERROR_MM = 0.05
-TRIANGULATION_RMS_DEG = 2.0
 SHORT = {"scan": {"max_lines": 3}, "path": {"line_spacing_m": 0.02}}
 
 
@@ -123,7 +120,8 @@ def write(tmp_path, edit):
     (lambda t: t + "\n[path]\ntool = { matrix = [[1, 0.1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.1], [0, 0, 0, 1]] }\n",
      "path.tool.matrix rotation is not orthonormal"),
     (lambda t: t + "\n[path]\nfeed = 0.03\n", "unknown key(s) path.feed"),
-    (lambda t: t.replace("max_lines = 2", "max_lines = 1"), "needs at least 2 lines with valid points, got 1 (scan line 0)"),
+    (lambda t: t.replace("max_lines = 2", "max_lines = 1"),
+     "needs at least 2 lines with valid points, got 1 (scan line 0)"),
     (lambda t: t + "\n[path]\ntool = { xyz = [0.0, 0.0, 0.7], rpy_deg = [180.0, 0.0, 0.0] }\n",
      "unreachable pose(s)"),
 ])

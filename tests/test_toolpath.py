@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.raycast import raycast_parallel
 from algorithms.geometry.se3 import make_pose
 from algorithms.paths.toolpath import (
@@ -18,12 +18,8 @@ from algorithms.paths.toolpath import (
     tool_frames,
     transform_path,
 )
+from tests.tolerances import NORMAL_DEG, ON_MESH_M, ORTHONORMAL
 from twin.parts import make_workpiece, s_surface_height, s_surface_normal
-
-ORTHONORMAL = 1e-12
-ANGLE_RAD = 1e-9
-ON_MESH_M = 2e-6     # S-surface chord error against the analytic top (mesh default: < 2 um)
-NORMAL_DEG = 0.05    # CAD raster smooth normals against the analytic normals
 
 
 def wave_line(n=50, y=0.0):
@@ -91,7 +87,7 @@ def test_flange_poses_eq13_and_a_non_rigid_tool():
 def test_zigzag_path_segments():
     lines = [wave_line(40, y) for y in (0.0, 0.004, 0.008)]
     st = ToolSettings(heading="travel", retract_m=0.02, transit_step_m=0.002)
-    path = build_path([l[0] for l in lines], [l[1] for l in lines], st)
+    path = build_path([ln[0] for ln in lines], [ln[1] for ln in lines], st)
     kinds = [s[2] for s in path.segments]
     assert kinds == ["approach", "process", "retract", "transit"] * 2 + ["approach", "process", "retract"]
     for a, b, kind, line in path.segments:
@@ -107,13 +103,13 @@ def test_zigzag_path_segments():
     assert path.n_lines == 3
     assert np.isnan(path.contact[~path.process_mask()]).all()
     # consecutive segments share their junction pose
-    for (a0, b0, *_), (a1, *_rest) in zip(path.segments[:-1], path.segments[1:]):
+    for (_a0, b0, *_), (a1, *_rest) in zip(path.segments[:-1], path.segments[1:], strict=True):
         assert b0 == a1
 
 
 def test_transform_path_moves_everything():
     lines = [wave_line(20, y) for y in (0.0, 0.004)]
-    path = build_path([l[0] for l in lines], [l[1] for l in lines])
+    path = build_path([ln[0] for ln in lines], [ln[1] for ln in lines])
     T = make_pose(trimesh.transformations.rotation_matrix(0.3, [0, 0, 1])[:3, :3], [0.4, 0.1, 0.02])
     moved = transform_path(T, path)
     np.testing.assert_allclose(moved.T_tool, T @ path.T_tool)
@@ -132,9 +128,9 @@ def test_rays_do_not_slip_through_shared_edges_and_vertices():
         for j in range(4):
             a = i * 5 + j
             F += [[a, a + 1, a + 6], [a, a + 6, a + 5]]
-    O = np.column_stack([V[:, 0], V[:, 1], np.ones(len(V))])
-    O = np.vstack([O, [[0.125, 0.125, 1.0], [0.5, 0.375, 1.0]]])  # on a diagonal, on an edge
-    hit, P, face = raycast_parallel(V, np.array(F), O, [0, 0, -1])
+    origins = np.column_stack([V[:, 0], V[:, 1], np.ones(len(V))])
+    origins = np.vstack([origins, [[0.125, 0.125, 1.0], [0.5, 0.375, 1.0]]])  # on a diagonal, on an edge
+    hit, P, face = raycast_parallel(V, np.array(F), origins, [0, 0, -1])
     assert hit.all() and np.allclose(P[:, 2], 0.0) and (face >= 0).all()
     hit, _, _ = raycast_parallel(V, np.array(F), [[2.0, 2.0, 1.0]], [0, 0, -1])
     assert not hit.any()

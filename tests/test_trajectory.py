@@ -3,21 +3,19 @@
 import numpy as np
 import pytest
 
-from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.errors import AlgorithmError
 from algorithms.geometry.kinematics import dh_forward
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.paths.timing import time_law
 from algorithms.paths.toolpath import build_path, cad_raster, flange_poses, transform_path
 from tests.helpers import scenario
+from tests.tolerances import FEED_REL, LIMIT_RATIO
 from twin.cell import build_cell
+from twin.errors import TwinError
 from twin.pipeline import tool_settings
 from twin.realize import realize
-from twin.errors import TwinError
 from twin.robot import ACCELERATION_LIMIT_RAD_S2, HOME_Q, UR5E_DH, VELOCITY_LIMIT_RAD_S
-from algorithms.errors import AlgorithmError
-from algorithms.paths.timing import time_law
 from twin.trajectory import POSITION_TOL_M, PathError, plan_joint_trajectory, solve_path
-
-LIMIT_RATIO = 1.0 + 1e-9
-FEED_REL = 1e-3
 
 
 @pytest.fixture(scope="module")

@@ -197,7 +197,7 @@ def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
 
     poses, labels = [], []
     prev = None
-    for k, (i, v, T_line, s_path) in enumerate(lines):
+    for i, _v, T_line, s_path in lines:
         start, end = T_line[0], T_line[-1]
         above_start = start.copy()
         above_start[:3, 3] -= spec.retract_m * start[:3, 2]
@@ -221,4 +221,4 @@ def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
     T_all = np.concatenate(poses)
     line = np.concatenate(labels).astype(np.int32)
     t = np.arange(len(T_all)) * dt
-    return ScanPlan(t, T_all, line, np.array([l[1] for l in lines]), dt)
+    return ScanPlan(t, T_all, line, np.array([ln[1] for ln in lines]), dt)

@@ -39,10 +39,10 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.kinematics import dh_forward
-from algorithms.geometry.se3 import inv_pose, transform_points
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.raycast import raycast_parallel
+from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.timing import Trajectory
 from algorithms.paths.toolpath import ProcessPath
 from twin.cell import Cell, build_spec, compile_cell, quat_wxyz
@@ -58,7 +58,6 @@ from twin.robot import (
     VELOCITY_LIMIT_RAD_S,
 )
 from twin.scenario import Scenario
-from twin.sensors.base import sensor_slice
 from twin.sim import simulate
 
 HFIELD_RES_M = 0.001
@@ -101,8 +100,8 @@ def _add_height_field(spec: mujoco.MjSpec, mesh: trimesh.Trimesh) -> None:
     xs = lo[0] - res + np.arange(nx) * res
     ys = lo[1] - res + np.arange(ny) * res
     X, Y = np.meshgrid(xs, ys)  # row = y, column = x (MuJoCo's hfield layout)
-    O = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, hi[2] + 0.01)])
-    hit, P, _ = raycast_parallel(mesh.vertices, mesh.faces, O, [0.0, 0.0, -1.0])
+    origins = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, hi[2] + 0.01)])
+    hit, P, _ = raycast_parallel(mesh.vertices, mesh.faces, origins, [0.0, 0.0, -1.0])
     z0 = lo[2]
     Z = np.where(hit, P[:, 2], z0).reshape(X.shape) - z0
     top = float(max(Z.max(), 1e-6))
@@ -338,7 +337,7 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
     line = np.array([segs[s][3] for s in trajectory.segment])
     process = kind == "process"
     deviation = np.full(n, np.nan)
-    for si, (a, b, k, ln) in enumerate(segs):
+    for si, (a, b, k, _ln) in enumerate(segs):
         if k != "process":
             continue
         sel = np.flatnonzero(trajectory.segment == si)
@@ -390,7 +389,8 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
     rng = model.jnt_range[[model.joint(j).id for j in JOINT_NAMES]]
     jl, vl = [], []
     for j, name in enumerate(JOINT_NAMES):
-        hit = (q_true[:, j] <= rng[j, 0] + JOINT_LIMIT_MARGIN_RAD) | (q_true[:, j] >= rng[j, 1] - JOINT_LIMIT_MARGIN_RAD)
+        lo_j, hi_j = rng[j, 0] + JOINT_LIMIT_MARGIN_RAD, rng[j, 1] - JOINT_LIMIT_MARGIN_RAD
+        hit = (q_true[:, j] <= lo_j) | (q_true[:, j] >= hi_j)
         if hit.any():
             jl.append({"joint": name, "first_t_s": float(t[np.argmax(hit)]), "steps": int(hit.sum())})
         ratio = np.abs(qd[:, j]) / VELOCITY_LIMIT_RAD_S[j]

@@ -203,7 +203,7 @@ class NoiseSpec:
     kinematic_sigma_rad: float
     T_hand_eye_error: np.ndarray
 
-    def all_off(self) -> "NoiseSpec":
+    def all_off(self) -> NoiseSpec:
         return NoiseSpec(False, False, False, False, False, 0.0, 0.0, 0.0, 0.0, np.eye(4))
 
 

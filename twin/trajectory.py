@@ -163,8 +163,8 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
         problems.append(PathProblem(int(i), "unreachable", tuple(T[i, :3, 3]),
                                     f"flange stays {pe[i] * 1e3:.3f} mm / {np.degrees(oe[i]):.3f} deg off"))
     for i in np.flatnonzero(sig < SINGULAR_SIGMA):
-        problems.append(PathProblem(int(i), "singular", tuple(T[i, :3, 3]),
-                                    f"smallest Jacobian singular value {sig[i] * 1e3:.3f} mm/rad < {SINGULAR_SIGMA * 1e3:g}"))
+        msg = f"smallest Jacobian singular value {sig[i] * 1e3:.3f} mm/rad < {SINGULAR_SIGMA * 1e3:g}"
+        problems.append(PathProblem(int(i), "singular", tuple(T[i, :3, 3]), msg))
     if k > 1:
         jump = np.max(np.abs(np.diff(q, axis=0)), axis=1)
         for i in np.flatnonzero(jump > JUMP_RAD):

@@ -40,17 +40,19 @@ Units follow the mesh (metres in this project).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from algorithms.errors import AlgorithmError
 
+_nb: ModuleType | None
 try:  # optional: compiled kernels (about 10-50x faster); results are identical
     import numba as _nb
 except ImportError:  # pragma: no cover - depends on the environment
     _nb = None
-else:
+if _nb is not None:
     import os as _os
 
     if "NUMBA_THREADING_LAYER" not in _os.environ:
@@ -197,7 +199,9 @@ class MeshIndex:
             raise AlgorithmError(f"backend must be 'auto', 'numba' or 'numpy', got {backend!r}")
         if backend == "numba" and _nb is None:
             raise AlgorithmError("backend 'numba' requested but numba is not installed (pip install numba)")
-        self.backend = "numba" if (backend == "auto" and _nb is not None) else ("numpy" if backend == "auto" else backend)
+        if backend == "auto":
+            backend = "numba" if _nb is not None else "numpy"
+        self.backend = backend
         try:
             vertices = np.asarray(mesh.vertices, dtype=np.float64)
             faces = np.asarray(mesh.faces, dtype=np.int64)
@@ -255,7 +259,7 @@ class MeshIndex:
             self._bvh = _nb_build(tri.min(axis=1), tri.max(axis=1), centroid, _BVH_LEAF)
         scale = np.ptp(vertices, axis=0)
         self.extent = float(np.linalg.norm(scale))  # bounding-box diagonal [m]
-        self._smooth = None
+        self._smooth: np.ndarray | None = None
 
     # ------------------------------------------------------------------ queries
     def query(self, points, hint=None) -> ClosestPoints:
@@ -435,15 +439,15 @@ def _subdivision_centroids(tri: np.ndarray, m: np.ndarray):
     for level in np.unique(m):
         sel = np.nonzero(m == level)[0]
         # barycentric coordinates (u, v) of the sub-triangle centroids
-        bary = []
+        uv = []
         for i in range(level):
             for j in range(level - i):
                 # upright sub-triangle (i, j), (i+1, j), (i, j+1)
-                bary.append(((3 * i + 1) / (3 * level), (3 * j + 1) / (3 * level)))
+                uv.append(((3 * i + 1) / (3 * level), (3 * j + 1) / (3 * level)))
                 if i + j < level - 1:
                     # inverted sub-triangle (i+1, j), (i, j+1), (i+1, j+1)
-                    bary.append(((3 * i + 2) / (3 * level), (3 * j + 2) / (3 * level)))
-        bary = np.asarray(bary)
+                    uv.append(((3 * i + 2) / (3 * level), (3 * j + 2) / (3 * level)))
+        bary = np.asarray(uv)
         t = tri[sel]
         a = t[:, 0]
         pts = (

@@ -24,7 +24,9 @@ def _unit_vector(v, name: str) -> np.ndarray:
     return a / np.linalg.norm(a)
 
 
-def raycast_parallel(vertices, faces, origins, direction, chunk: int = 20000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def raycast_parallel(
+    vertices, faces, origins, direction, chunk: int = 20000
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First hits of parallel rays on a triangle mesh (exact, vectorised).
 
     The triangles are projected onto the plane orthogonal to ``direction`` and grouped by
@@ -44,9 +46,9 @@ def raycast_parallel(vertices, faces, origins, direction, chunk: int = 20000) ->
     """
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
-    O = np.asarray(origins, dtype=np.float64)
-    if O.ndim != 2 or O.shape[1] != 3:
-        raise AlgorithmError(f"origins must be (N, 3), got {O.shape}")
+    Orig = np.asarray(origins, dtype=np.float64)
+    if Orig.ndim != 2 or Orig.shape[1] != 3:
+        raise AlgorithmError(f"origins must be (N, 3), got {Orig.shape}")
     d = _unit_vector(direction, "direction")
     e1 = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
@@ -54,7 +56,7 @@ def raycast_parallel(vertices, faces, origins, direction, chunk: int = 20000) ->
     B = np.column_stack([e1, e2])
     tri = V[F]
     t2 = tri @ B
-    o2 = O @ B
+    o2 = Orig @ B
     cen = t2.mean(axis=1)
     rad = np.max(np.linalg.norm(t2 - cen[:, None, :], axis=2), axis=1)
     level = np.floor(np.log2(np.maximum(rad, 1e-12))).astype(np.int64)
@@ -62,12 +64,12 @@ def raycast_parallel(vertices, faces, origins, direction, chunk: int = 20000) ->
     for lv in np.unique(level):
         ids = np.flatnonzero(level == lv)
         groups.append((ids, cKDTree(cen[ids]), float(rad[ids].max()) * (1 + 1e-9) + 1e-12))
-    hit = np.zeros(len(O), dtype=bool)
-    pts = np.full((len(O), 3), np.nan)
-    face = np.full(len(O), -1, dtype=np.int64)
-    best_t = np.full(len(O), np.inf)
-    for c0 in range(0, len(O), chunk):
-        sl = slice(c0, min(len(O), c0 + chunk))
+    hit = np.zeros(len(Orig), dtype=bool)
+    pts = np.full((len(Orig), 3), np.nan)
+    face = np.full(len(Orig), -1, dtype=np.int64)
+    best_t = np.full(len(Orig), np.inf)
+    for c0 in range(0, len(Orig), chunk):
+        sl = slice(c0, min(len(Orig), c0 + chunk))
         for ids, tree, r in groups:
             cand = tree.query_ball_point(o2[sl], r=r)
             counts = np.fromiter((len(c) for c in cand), dtype=np.int64, count=len(cand))
@@ -87,7 +89,7 @@ def raycast_parallel(vertices, faces, origins, direction, chunk: int = 20000) ->
             qi, fi, u, v = qi[inside], fi[inside], u[inside], v[inside]
             T3 = tri[fi]
             X = T3[:, 0] + u[:, None] * (T3[:, 1] - T3[:, 0]) + v[:, None] * (T3[:, 2] - T3[:, 0])
-            t = (X - O[qi]) @ d
+            t = (X - Orig[qi]) @ d
             front = t >= 0
             qi, fi, X, t = qi[front], fi[front], X[front], t[front]
             order = np.lexsort((t, qi))

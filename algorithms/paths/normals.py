@@ -41,8 +41,8 @@ class NormalsError(AlgorithmError):
 
 def _check_lines(lines) -> list[np.ndarray]:
     out = []
-    for i, l in enumerate(lines):
-        a = np.asarray(l, dtype=np.float64)
+    for i, line in enumerate(lines):
+        a = np.asarray(line, dtype=np.float64)
         if a.ndim != 2 or a.shape[1] != 3:
             raise NormalsError(f"line {i} must be (n, 3), got shape {a.shape}")
         if len(a) == 0:
@@ -70,7 +70,7 @@ def triangulation_normals(lines, orient=None) -> tuple:
             triangles are all degenerate (coincident or collinear neighbours).
     """
     L = _check_lines(lines)
-    trees = [cKDTree(l) for l in L]
+    trees = [cKDTree(line) for line in L]
     out = []
     total = np.zeros(3)
     for i, p in enumerate(L):
@@ -177,7 +177,7 @@ def smooth_line_normals(lines, normals, knot_spacing_m: float = 0.004) -> tuple:
     if not (np.isfinite(knot_spacing_m) and knot_spacing_m > 0):
         raise NormalsError(f"knot_spacing_m must be > 0, got {knot_spacing_m!r}")
     out = []
-    for i, (p, n) in enumerate(zip(lines, normals)):
+    for i, (p, n) in enumerate(zip(lines, normals, strict=True)):
         p = np.asarray(p, dtype=np.float64)
         n = np.asarray(n, dtype=np.float64)
         if p.shape != n.shape:

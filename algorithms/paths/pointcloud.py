@@ -88,7 +88,7 @@ class LineCloud:
 
     @property
     def n_points(self) -> int:
-        return int(sum(len(l) for l in self.lines))
+        return int(sum(len(ln) for ln in self.lines))
 
     def stacked(self) -> np.ndarray:
         """(N, 3) all points, line after line."""
@@ -96,7 +96,7 @@ class LineCloud:
 
     def line_of_point(self) -> np.ndarray:
         """(N,) position of each stacked point's line in ``lines`` (0..L-1)."""
-        return np.concatenate([np.full(len(l), i) for i, l in enumerate(self.lines)])
+        return np.concatenate([np.full(len(ln), i) for i, ln in enumerate(self.lines)])
 
 
 def _count(removed: dict, key: str, n: int) -> dict:
@@ -134,7 +134,9 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
     if P.ndim != 2 or P.shape[1] != 3:
         raise PointCloudError(f"points must be (N, 3), got shape {P.shape}")
     if lab.shape != (len(P),) or not np.issubdtype(lab.dtype, np.integer):
-        raise PointCloudError(f"line must be (N,) integers pairing with points (N = {len(P)}), got {lab.shape} {lab.dtype}")
+        raise PointCloudError(
+            f"line must be (N,) integers pairing with points (N = {len(P)}), got {lab.shape} {lab.dtype}"
+        )
     if order not in ("input", "projection"):
         raise PointCloudError(f"order must be 'input' or 'projection', got {order!r}")
     if empty not in ("error", "drop"):
@@ -263,7 +265,7 @@ def remove_outliers(cloud: LineCloud, window_m: float = OUTLIER_WINDOW_M, k: flo
     cross = np.stack([a, np.cross(cloud.direction, a)])
     lines, idx = [], []
     n_out = 0
-    for p, ix in zip(cloud.lines, cloud.index):
+    for p, ix in zip(cloud.lines, cloud.index, strict=True):
         if len(p) >= 5:
             spacing = np.median(np.diff(p @ cloud.direction))
             half = int(max(2, round(0.5 * window_m / max(spacing, 1e-12))))
@@ -285,7 +287,7 @@ def extract_boundary(cloud: LineCloud, max_gap_m: float = MAX_GAP_M, min_points:
         raise PointCloudError(f"max_gap_m must be > 0, got {max_gap_m}")
     lines, idx = [], []
     off = 0
-    for lid, p, ix in zip(cloud.line_ids, cloud.lines, cloud.index):
+    for lid, p, ix in zip(cloud.line_ids, cloud.lines, cloud.index, strict=True):
         gaps = np.linalg.norm(np.diff(p, axis=0), axis=1) > max_gap_m
         cuts = np.flatnonzero(gaps) + 1
         starts = np.concatenate([[0], cuts])
@@ -304,8 +306,8 @@ def extract_boundary(cloud: LineCloud, max_gap_m: float = MAX_GAP_M, min_points:
 
 def boundary_polygon(cloud: LineCloud) -> np.ndarray:
     """(2L + 1, 3) closed boundary: the first points of the lines, then the last points backwards."""
-    first = np.array([l[0] for l in cloud.lines])
-    last = np.array([l[-1] for l in cloud.lines])
+    first = np.array([ln[0] for ln in cloud.lines])
+    last = np.array([ln[-1] for ln in cloud.lines])
     ring = np.concatenate([first, last[::-1]])
     return np.vstack([ring, ring[:1]])
 

@@ -185,9 +185,9 @@ def fit_lines(lines, spacing_m: float, knot_spacing_m: float = KNOT_SPACING_M) -
     """Fit every line (see :func:`fit_line`) and resample each at ``spacing_m``."""
     fits, pts, tans = [], [], []
     sq, n = 0.0, 0
-    for i, l in enumerate(lines):
+    for i, line in enumerate(lines):
         try:
-            f = fit_line(l, knot_spacing_m)
+            f = fit_line(line, knot_spacing_m)
         except SplineError as exc:
             raise SplineError(f"line {i}: {exc}") from None
         p, t = f.resample(spacing_m)

@@ -158,7 +158,7 @@ def time_law(path: ProcessPath, q_path: np.ndarray, feed_m_s: float, transit_spe
     profiles = []
     t_path = np.zeros(len(q_path))
     t_start = 0.0
-    for si, (a, b, kind, line) in enumerate(path.segments):
+    for a, b, kind, _line in path.segments:
         speed = feed_m_s if kind == "process" else transit_speed_m_s
         acc = touchdown_acceleration_m_s2 if kind in ("approach", "retract") else acceleration_m_s2
         share = LIMIT_SHARE
@@ -192,7 +192,7 @@ def time_law(path: ProcessPath, q_path: np.ndarray, feed_m_s: float, transit_spe
     starts = np.array([p[0] for p in profiles])
     which = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(profiles) - 1)
     # Samples after a zero-length segment's start belong to the next one with time.
-    for si, (t0, dur, prof, a, b) in enumerate(profiles):
+    for si, (t0, _dur, prof, _a, b) in enumerate(profiles):
         sel = np.flatnonzero(which == si)
         if len(sel) == 0:
             continue

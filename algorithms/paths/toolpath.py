@@ -45,7 +45,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from algorithms.errors import AlgorithmError
@@ -98,7 +97,10 @@ def contact_frames(points, normals, heading: str = "travel", heading_direction=N
         raise ToolPathError("points or normals contain NaN or infinite values")
     if heading not in ("travel", "fixed", "smooth") or axis not in ("normal", "fixed"):
         raise ToolPathError(f"heading must be travel|fixed|smooth and axis normal|fixed, got {heading!r}, {axis!r}")
-    z = _unit(n, "normal") if axis == "normal" else np.broadcast_to(_fixed_vector(axis_direction, "axis_direction"), p.shape)
+    if axis == "normal":
+        z = _unit(n, "normal")
+    else:
+        z = np.broadcast_to(_fixed_vector(axis_direction, "axis_direction"), p.shape)
     if heading == "travel":
         d = np.diff(p, axis=0)
         d = np.vstack([d, d[-1:]])
@@ -279,7 +281,8 @@ def assemble_path(lines_T_tool, lines_contact, lines_normal, retract_m: float = 
         pieces.append(("process", T, i))
         pieces.append(("retract", _straight(T[-1], up_end, transit_step_m), -1))
         prev_up = up_end
-    T_parts, s_parts, seg_ids, segs = [], [], [], []
+    T_parts, s_parts, seg_ids = [], [], []
+    segs: list[tuple[int, int, str, int]] = []
     k = 0
     for kind, P, line in pieces:
         # Consecutive pieces share their junction pose; it is stored once, with the earlier piece.
@@ -331,7 +334,7 @@ def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSetting
     hd = R_ref @ _fixed_vector(settings.heading_direction, "heading_direction")
     ad = R_ref @ _fixed_vector(settings.axis_direction, "axis_direction")
     Ts, cs, ns = [], [], []
-    for i, (c, n) in enumerate(zip(lines_contact, lines_normal)):
+    for i, (c, n) in enumerate(zip(lines_contact, lines_normal, strict=True)):
         c = np.asarray(c, dtype=np.float64)
         n = np.asarray(n, dtype=np.float64)
         rev = settings.zigzag and i % 2 == 1
@@ -385,8 +388,8 @@ def cad_raster(mesh, line_spacing_m: float = 0.004, point_spacing_m: float = 0.0
     us = np.arange(u0, u1 - GRID_SHIFT_M, point_spacing_m) + GRID_SHIFT_M
     U, W = np.meshgrid(us, vs)
     xy = np.column_stack([U.ravel(), W.ravel()]) if line_axis == "x" else np.column_stack([W.ravel(), U.ravel()])
-    O = np.column_stack([xy, np.full(len(xy), hi[2] + 0.01)])
-    hit, P, face = raycast_parallel(V, F, O, [0.0, 0.0, -1.0])
+    origins = np.column_stack([xy, np.full(len(xy), hi[2] + 0.01)])
+    hit, P, face = raycast_parallel(V, F, origins, [0.0, 0.0, -1.0])
     hit, P, face = hit.reshape(U.shape), P.reshape(U.shape + (3,)), face.reshape(U.shape)
     lines, norms = [], []
     for j in range(len(vs)):

@@ -19,7 +19,7 @@ def _world(T_world_base: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 def log_path_lines(entity: str, lines: list, T_world_base: np.ndarray, color, radius: float = 0.0002) -> None:
     """Static polylines (each (n, 3) [m], base frame), e.g. the planned contact lines."""
-    strips = [_world(T_world_base, np.asarray(l)) for l in lines if len(l) > 1]
+    strips = [_world(T_world_base, np.asarray(ln)) for ln in lines if len(ln) > 1]
     rr.log(entity, rr.LineStrips3D(strips, colors=[color], radii=radius), static=True)
 
 
