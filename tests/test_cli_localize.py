@@ -1,4 +1,5 @@
-"""``twin localize``: one JSON object out, chained runs, units, clear errors."""
+"""``twin localize``: one JSON object out, chained runs, units, the global search's verdicts,
+clear errors."""
 
 import json
 
@@ -6,14 +7,17 @@ import numpy as np
 import pytest
 
 from algorithms.geometry.se3 import rotation_error_rad, transform_points, translation_error_m
-from tests.test_localization import part, random_pose, sample_surface
+from tests.helpers import assert_pose_close, random_pose, sample_surface
+from tests.test_localization import part
+from tests.tolerances import EXACT_FIT_M, RECOVER_M, RECOVER_RAD, SCAN_FIXED_M, SCAN_FIXED_RAD
 from twin import cli
+from twin.cli.localize import EXIT_UNTRUSTED
 from twin.io import write_points_ply
 
-RECOVER_M = 1e-6
-RECOVER_RAD = 1e-6
-KEYS = {"T_world_workpiece", "rmse_m", "iterations", "converged", "method", "time_s",
-        "covariance", "observable", "status"}
+KEYS = {"T_world_workpiece", "rmse_m", "iterations", "converged", "method", "time_s", "status", "message",
+        "covariance", "determined_directions", "observable", "free_dofs", "free_directions", "solutions"}
+#: Noise of the cube's points [m] (the sensor's repeatability) and the sigma stated for them.
+CUBE_NOISE_M = 2e-6
 
 
 @pytest.fixture(autouse=True)
@@ -37,6 +41,7 @@ def scene(tmp_path_factory):
     mm.apply_scale(1000.0)
     mm.export(d / "part_mm.stl")
     write_points_ply(d / "points_mm.ply", Y * 1000.0)
+    part("s_surface")[0].export(d / "other_part.stl")
     return d, T
 
 
@@ -56,9 +61,11 @@ def test_json_output_recovers_the_pose(scene, capsys):
     assert KEYS <= set(res)
     Te = np.array(res["T_world_workpiece"])
     assert Te.shape == (4, 4)
-    assert rotation_error_rad(Te, T) < RECOVER_RAD and translation_error_m(Te, T) < RECOVER_M
+    assert_pose_close(Te, T, RECOVER_M, RECOVER_RAD)
     assert res["converged"] and res["observable"] and res["method"] == "hong_tan"
-    assert np.array(res["covariance"]).shape == (6, 6)
+    assert res["status"] == "ok" and res["trusted"] and res["free_dofs"] == 0 and res["free_directions"] == []
+    assert np.array(res["covariance"]).shape == (6, 6) and np.array(res["determined_directions"]).shape == (6, 6)
+    assert len(res["solutions"]) == 1 and np.array_equal(res["solutions"][0], res["T_world_workpiece"])
     (d / "out.json").write_text(out)
 
 
@@ -76,7 +83,7 @@ def test_output_seeds_the_next_run_and_bare_lists_work(scene, capsys):
     rc, out3, err = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply",
                             "--init", d / "bare.json", "--json")
     assert rc == 0, err
-    assert json.loads(out3)["rmse_m"] < 1e-9
+    assert json.loads(out3)["rmse_m"] < EXACT_FIT_M
 
 
 def test_millimetre_files(scene, capsys):
@@ -91,7 +98,74 @@ def test_millimetre_files(scene, capsys):
 def test_human_readable_output(scene, capsys):
     d, _ = scene
     rc, out, _ = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply")
-    assert rc == 0 and "T_world_workpiece" in out and "converged" in out
+    assert rc == 0 and "T_world_workpiece" in out and "converged" in out and "hong_tan: ok:" in out
+
+
+# ------------------------------------------------------------------ --init global
+def test_global_init_finds_the_pose_with_sigma(scene, capsys):
+    d, T = scene
+    rc, out, err = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply",
+                           "--init", "global", "--sigma", "1e-6", "--json")
+    assert rc == 0, err
+    res = json.loads(out)
+    assert res["method"] == "multistart" and res["status"] == "ok" and len(res["solutions"]) == 1
+    assert res["global"]["n_starts"] >= 60 and res["candidates"][0]["rmse_m"] < EXACT_FIT_M
+    assert_pose_close(np.array(res["T_world_workpiece"]), T, RECOVER_M, RECOVER_RAD)
+
+
+def test_global_init_on_points_of_another_part_fails(scene, capsys):
+    # the hemisphere punch's points against the S-surface part's model: no pose explains
+    # them within the stated noise, so no confident pose is printed
+    d, _ = scene
+    sigma = 1e-6
+    rc, out, err = run_cli(capsys, "--model", d / "other_part.stl", "--points", d / "points.ply",
+                           "--init", "global", "--sigma", sigma, "--json")
+    assert rc == EXIT_UNTRUSTED, err
+    res = json.loads(out)
+    assert res["status"] == "failed" and not res["trusted"]
+    assert res["message"].startswith("failed") and res["global"]["rms_verify_m"] > 100 * sigma
+
+
+@pytest.fixture(scope="module")
+def cube_scene(tmp_path_factory):
+    """twin.parts' cube, [-a/2, a/2]^2 x [0, a], with points on three faces that meet at a
+    corner: each of the cube's 24 rotations maps them onto three such faces."""
+    from twin.parts import make_workpiece
+
+    d = tmp_path_factory.mktemp("cube")
+    a = 0.04
+    mesh = make_workpiece("cube", side_m=a)
+    mesh.export(d / "cube.ply")
+    rng = np.random.default_rng(4)
+    faces = []
+    for axis in range(3):
+        p = rng.uniform(-0.45 * a, 0.45 * a, (100, 3))
+        p[:, axis] = a / 2
+        faces.append(p)
+    X = np.vstack(faces) + [0.0, 0.0, a / 2]
+    T = random_pose(rng, X.mean(axis=0), a, max_deg=180)
+    write_points_ply(d / "three_faces.ply", transform_points(T, X) + rng.normal(0, CUBE_NOISE_M, X.shape))
+    return d, T
+
+
+def test_global_init_prints_every_equally_good_pose_of_a_symmetric_part(cube_scene, capsys):
+    d, T = cube_scene
+    argv = ["--model", d / "cube.ply", "--points", d / "three_faces.ply", "--init", "global",
+            "--sigma", CUBE_NOISE_M]
+    rc, out, err = run_cli(capsys, *argv, "--json")
+    assert rc == EXIT_UNTRUSTED, err
+    res = json.loads(out)
+    assert res["status"] == "ambiguous" and "24 distinct poses" in res["message"]
+    sols = np.array(res["solutions"])
+    assert sols.shape == (24, 4, 4) and np.array_equal(sols[0], res["T_world_workpiece"])
+    # one of them is the truth; the others are the cube's rotations, at least 90 degrees away
+    err_rad = sorted(rotation_error_rad(S, T) for S in sols)
+    assert err_rad[0] < SCAN_FIXED_RAD and err_rad[1] > np.radians(89.0)
+    best = min(sols, key=lambda S: rotation_error_rad(S, T))
+    assert translation_error_m(best, T) < SCAN_FIXED_M
+    rc, out, err = run_cli(capsys, *argv)
+    assert rc == EXIT_UNTRUSTED, err
+    assert "multistart: ambiguous:" in out and "equally good pose 24 of 24 [m]:" in out
 
 
 @pytest.mark.parametrize(
@@ -104,6 +178,7 @@ def test_human_readable_output(scene, capsys):
         (["--model", "{d}/part.stl", "--points", "{d}/points.ply", "--init", "{d}/garbage.json"], "not valid JSON"),
         (["--model", "{d}/part.stl", "--points", "{d}/points.ply", "--init", "{d}/scaled.json"], "orthonormal"),
         (["--model", "{d}/part.stl", "--points", "{d}/points.ply", "--sigma", "-1"], "sigma"),
+        (["--model", "{d}/part.stl", "--points", "{d}/points_mm.ply", "--init", "global"], "units look wrong"),
     ],
 )
 def test_errors_are_one_line_and_exit_2(scene, capsys, argv, message):

@@ -5,13 +5,18 @@ import numpy as np
 import pytest
 import trimesh
 
-from algorithms.geometry.mesh_index import HAVE_NUMBA, MeshIndex, closest_points_on_triangles
 from algorithms.errors import AlgorithmError
-
-# Named tolerances (relative to the mesh's bounding-box diagonal).
-ON_MESH_REL = 1e-12        # distance of a point sampled on the mesh to its reported foot
-BRUTE_FORCE_REL = 1e-12    # reported distance vs brute force over all triangles
-SCALE_REL = 1e-12          # answers of a mesh and its scaled copy, relative
+from algorithms.geometry.mesh_index import HAVE_NUMBA, MeshIndex, closest_points_on_triangles
+from tests.tolerances import (
+    BACKEND_DISTANCE_M,
+    BACKEND_FOOT_M,
+    BRUTE_FORCE_REL,
+    FACET_NORMAL_TOL,
+    FOOT_DISTANCE_REL,
+    ON_MESH_REL,
+    SCALE_REL,
+    SMOOTH_NORMAL_TOL,
+)
 
 BACKENDS = ["numpy"] + (["numba"] if HAVE_NUMBA else [])
 
@@ -76,11 +81,11 @@ def test_off_mesh_points_match_brute_force(backend):
         ref = np.sqrt(brute_force_d2(pts, mesh))
         assert np.abs(res.distance - ref).max() <= BRUTE_FORCE_REL * size
         # the foot is on the reported face and at the reported distance
-        assert np.allclose(np.linalg.norm(pts - res.foot, axis=1), res.distance, rtol=0, atol=1e-15 * size)
+        assert np.allclose(np.linalg.norm(pts - res.foot, axis=1), res.distance, rtol=0, atol=FOOT_DISTANCE_REL * size)
         _, d2_face = closest_points_on_triangles(res.foot, mesh.triangles[res.face])
         assert np.sqrt(d2_face).max() <= BRUTE_FORCE_REL * size
         assert np.allclose(np.linalg.norm(res.normal, axis=1), 1.0)
-        assert np.allclose(res.normal, mesh.face_normals[res.face], atol=1e-12)
+        assert np.allclose(res.normal, mesh.face_normals[res.face], atol=FACET_NORMAL_TOL)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -112,8 +117,8 @@ def test_backends_agree_and_hints_do_not_change_answers():
     a = MeshIndex(mesh, backend="numpy").query(pts)
     idx = MeshIndex(mesh, backend="numba")
     b = idx.query(pts)
-    assert np.abs(a.distance - b.distance).max() <= 1e-15
-    assert np.abs(a.foot - b.foot).max() <= 1e-12
+    assert np.abs(a.distance - b.distance).max() <= BACKEND_DISTANCE_M
+    assert np.abs(a.foot - b.foot).max() <= BACKEND_FOOT_M
     hint = rng.integers(0, len(mesh.faces), len(pts))
     c = idx.query(pts, hint=hint)
     assert np.array_equal(c.distance, b.distance)
@@ -131,8 +136,8 @@ def test_smooth_normals_are_radial_on_a_tessellated_cylinder():
     foot = t[:, 0] + u[:, :1] * (t[:, 1] - t[:, 0]) + u[:, 1:] * (t[:, 2] - t[:, 0])
     n = idx.smooth_normals(f, foot)
     radial = foot[:, :2] / np.linalg.norm(foot[:, :2], axis=1, keepdims=True)
-    assert np.abs(n[:, 2]).max() < 1e-12
-    assert np.abs(radial[:, 0] * n[:, 1] - radial[:, 1] * n[:, 0]).max() < 1e-12  # parallel
+    assert np.abs(n[:, 2]).max() < SMOOTH_NORMAL_TOL
+    assert np.abs(radial[:, 0] * n[:, 1] - radial[:, 1] * n[:, 0]).max() < SMOOTH_NORMAL_TOL  # parallel
     # sharp edges stay sharp: the cap keeps its flat normal
     cap = np.nonzero(mesh.face_normals[:, 2] > 0.99)[0][:5]
     nc = idx.smooth_normals(cap, mesh.triangles[cap].mean(axis=1))

@@ -1,4 +1,4 @@
-"""The feature library of document 000's Table 1 (algorithms/features.py)."""
+"""The feature library of document 000's Table 1 (algorithms/registration/symmetric/)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import pytest
 import trimesh
 
 from algorithms.errors import AlgorithmError
-from algorithms.registration.symmetric.features import (
+from algorithms.geometry.se3 import exp_se3, transform_points
+from algorithms.registration.symmetric import (
     FEATURE_TABLE,
     FEATURE_TYPES,
     Feature,
@@ -15,13 +16,8 @@ from algorithms.registration.symmetric.features import (
     make_feature,
     symmetry_group,
 )
-from algorithms.geometry.se3 import exp_se3, transform_points
-
-# Named tolerances of this file.
-ON_FEATURE_M = 1e-12  # points moved along g_0 stay on the feature
-OFF_FEATURE_M = 1e-4  # a unit m_0 motion of 0.05 moves some point at least this far
-FIT_M = 1e-9  # fitted primitive parameters vs the generating ones (exact vertices)
-FIT_AXIS_RAD = 1e-9
+from algorithms.registration.symmetric.groups import perp_basis
+from tests.tolerances import CLOSED_FORM_M, FIT_AXIS_RAD, FIT_M, OFF_FEATURE_M, ON_FEATURE_M, ORTHOGONAL_TOL
 
 TABLE_DIMS = {"circle2d": 2, "line2d": 2, "sphere": 3, "plane": 3, "line3d": 4, "cylinder": 4,
               "cone": 5, "extruded": 5, "freeform": 6}
@@ -60,10 +56,8 @@ def example_features() -> dict:
 
 def sample_feature(f: Feature, n: int, rng: np.random.Generator) -> np.ndarray:
     """(n, 3) points exactly on the feature (z = 0 for the 2D ones), workpiece frame [m]."""
-    from algorithms.registration.symmetric.features import _perp_basis
-
     c, a = f.origin, f.axis
-    e1, e2 = _perp_basis(a)
+    e1, e2 = perp_basis(a)
     k = f.kind
     if k == "circle2d":
         phi = rng.uniform(0, 2 * np.pi, n)
@@ -137,7 +131,7 @@ def test_g0_leaves_the_feature_unchanged_and_m0_moves_it(kind):
     # unit bases: |omega| = 1 for rotations, |v| = 1 for translations
     for eta in np.vstack([g.g0, g.m0]):
         nw = np.linalg.norm(eta[:3])
-        assert nw == pytest.approx(1.0) or (nw < 1e-12 and np.linalg.norm(eta[3:]) == pytest.approx(1.0))
+        assert nw == pytest.approx(1.0) or (nw < ORTHOGONAL_TOL and np.linalg.norm(eta[3:]) == pytest.approx(1.0))
 
 
 def test_complement_is_orthogonal_about_the_reference_point():
@@ -148,7 +142,7 @@ def test_complement_is_orthogonal_about_the_reference_point():
 
     G = np.array([about_c(x) for x in g.g0])
     M = np.array([about_c(x) for x in g.m0])
-    assert np.max(np.abs(G @ M.T)) < 1e-12
+    assert np.max(np.abs(G @ M.T)) < ORTHOGONAL_TOL
 
 
 def test_unknown_feature_type_lists_the_valid_ones():
@@ -181,8 +175,8 @@ def test_cone_closest_points_are_exact():
     pr = f.closest(p)
     n = np.array([np.cos(np.radians(30.0)), 0.0, -np.sin(np.radians(30.0))])
     gen = np.array([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))])
-    assert pr.distance[0] == pytest.approx(p[0] @ n, abs=1e-15)
-    assert np.allclose(pr.foot[0], (p[0] @ gen) * gen, atol=1e-15)
+    assert pr.distance[0] == pytest.approx(p[0] @ n, abs=CLOSED_FORM_M)
+    assert np.allclose(pr.foot[0], (p[0] @ gen) * gen, atol=CLOSED_FORM_M)
 
 
 # ---------------------------------------------------------------------------- mesh faces
@@ -216,7 +210,7 @@ def test_classification_of_mesh_faces():
     lateral = np.nonzero(cone.face_normals[:, 2] > 0.01)[0]
     fc = Feature.from_mesh(cone, lateral)
     assert fc.kind == "cone"
-    assert fc.half_angle == pytest.approx(np.arctan2(0.03, 0.05), abs=1e-9)
+    assert fc.half_angle == pytest.approx(np.arctan2(0.03, 0.05), abs=FIT_AXIS_RAD)
     # the walls of a prism over a sine profile: only translation along z leaves them unchanged
     s = np.linspace(-0.04, 0.04, 81)
     xy = np.column_stack([s, 0.01 * np.sin(60 * s)])
@@ -225,7 +219,7 @@ def test_classification_of_mesh_faces():
     F = np.vstack([np.column_stack([i, i + 1, i + 82]), np.column_stack([i, i + 82, i + 81])])
     walls = trimesh.Trimesh(V, F, process=False)
     fe = Feature.from_mesh(walls)
-    assert fe.kind == "extruded" and abs(abs(fe.axis[2]) - 1.0) < 1e-9
+    assert fe.kind == "extruded" and abs(abs(fe.axis[2]) - 1.0) < FIT_AXIS_RAD
     assert Feature.from_mesh(bumpy_mesh()).kind == "freeform"
 
 

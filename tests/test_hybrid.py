@@ -1,15 +1,18 @@
-"""Hybrid (envelopment) localization, Algorithm 3 (algorithms/hybrid.py), on the cast blank."""
+"""Hybrid (envelopment) localization, Algorithm 3 (algorithms/registration/hybrid.py), on the cast blank."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
-from algorithms.registration.hybrid import envelope_distances, localize_hybrid
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import exp_se3, inv_pose, make_pose, transform_points
+from algorithms.registration import HybridResult, Status
+from algorithms.registration.hybrid import envelope_distances, localize_hybrid
 from tests.helpers import scenario
+from tests.tolerances import DATUM_COS_TOL, DATUM_M, EXACT_M, FEASIBLE_M, LIMIT_MARGIN_M, TRUE_ALLOWANCE_M
+from twin.cli.localize import EXIT_UNTRUSTED
 from twin.parts.symmetric import (
     cast_blank,
     cast_blank_finished,
@@ -18,13 +21,7 @@ from twin.parts.symmetric import (
     classify_cast_blank_points,
 )
 
-# Named tolerances of this file.
 NOISE_M = 2e-6  # default sensor sigma
-FEASIBLE_M = 1e-9  # every measured rough point keeps its allowance at the result
-# Checked against the true part, the stock may fall short of the allowance by the
-# measurement error of the points that bound it: noise (2 um at normal incidence, more when
-# slanted) plus the sensor's +-10 um linearity band.
-TRUE_ALLOWANCE_M = 2e-5
 TIGHT_ALLOWANCE_M = 0.0025  # close to the best achievable (about 2.8 mm): constraints bind
 TOO_MUCH_M = 0.0035  # more than the 3 mm nominal stock: infeasible
 
@@ -67,9 +64,13 @@ def test_every_rough_point_keeps_its_allowance(parts, synthetic):
     s = synthetic
     res = localize_hybrid(s["Y"], s["Z"], parts["finished"], TIGHT_ALLOWANCE_M, groups=s["labels"],
                           init=s["T_nom"])
-    assert res.feasible and res.converged, res.status
+    assert isinstance(res, HybridResult) and res.method == "algorithm3"
+    assert res.feasible and res.converged and res.status is Status.OK, res.message
     assert res.symmetric.feature == "plane" and res.group_dofs == 3
     assert res.free_dofs == 0  # the two domes fix the in-plane position and the rotation
+    # the plate top fixes three directions, the domes the three of G_0; no covariance for those
+    assert res.determined_directions.shape == (6, 6) and res.covariance is None
+    assert res.symmetric.covariance.shape == (3, 3) and len(res.solutions) == 1
     assert res.margin_m.min() >= -FEASIBLE_M
     # Algorithm 3 lowered the envelope objective from the max-min start, and no feasible
     # small motion along G_0 lowers it further
@@ -90,22 +91,22 @@ def test_every_rough_point_keeps_its_allowance(parts, synthetic):
     assert _true_stock(parts, s["T_true"], res.T_world_workpiece) >= TIGHT_ALLOWANCE_M - TRUE_ALLOWANCE_M
     # the finished datum (plate top) is matched: its plane coincides with the truth's
     D = inv_pose(s["T_true"]) @ res.T_world_workpiece
-    assert abs(D[2, 3]) < 1e-5 and abs(D[2, 2] - 1.0) < 1e-9
+    assert abs(D[2, 3]) < DATUM_M and abs(D[2, 2] - 1.0) < DATUM_COS_TOL
 
 
 def test_too_little_stock_is_reported_with_the_limiting_points(parts, synthetic):
     s = synthetic
     res = localize_hybrid(s["Y"], s["Z"], parts["finished"], TOO_MUCH_M, groups=s["labels"], init=s["T_nom"])
-    assert not res.feasible
-    assert res.status.startswith("infeasible")
+    assert not res.feasible and not res.trusted
+    assert res.status is Status.INFEASIBLE and res.message.startswith("infeasible")
     assert res.best_min_margin_m < 0.0
-    assert res.best_min_margin_m == pytest.approx(res.margin_m.min(), abs=1e-9)
+    assert res.best_min_margin_m == pytest.approx(res.margin_m.min(), abs=EXACT_M)
     # a max-min optimum over 3 parameters rests on at least 2 points, all at the minimum
     lim = res.limiting_points
     assert len(lim) >= 2
-    assert np.allclose(res.margin_m[lim], res.best_min_margin_m, atol=1e-6)
+    assert np.allclose(res.margin_m[lim], res.best_min_margin_m, atol=LIMIT_MARGIN_M)
     for i in lim[:3]:
-        assert f"{i} (" in res.status
+        assert f"{i} (" in res.message
     # no placement does better: the max-min is a true optimum (perturbations along G_0 lose)
     H = res.symmetric.free_directions
     index = MeshIndex(parts["finished"])
@@ -157,7 +158,7 @@ def test_cast_blank_scan_through_the_cell_keeps_the_allowance_on_the_true_part(p
     groups = np.where(np.linalg.norm(Rn[:, :2] - a["dome_center"][:2], axis=1) < a["dome_base_radius"],
                       "boss_a", "boss_b")
     res = localize_hybrid(F, R, parts["finished"], TIGHT_ALLOWANCE_M, groups=groups, init=T_nom)
-    assert res.feasible, res.status
+    assert res.feasible, res.message
     assert res.margin_m.min() >= -FEASIBLE_M
     # verified against the true part in the cell: the true surface under every measured
     # rough point, and the whole visible domes, keep the allowance
@@ -168,7 +169,7 @@ def test_cast_blank_scan_through_the_cell_keeps_the_allowance_on_the_true_part(p
     # too much allowance for this casting: infeasible, and the report names the points
     bad = localize_hybrid(F, R, parts["finished"], TOO_MUCH_M, groups=groups, init=T_nom)
     assert not bad.feasible and len(bad.limiting_points) >= 2
-    assert "limited by point(s)" in bad.status
+    assert bad.status is Status.INFEASIBLE and "limited by point(s)" in bad.message
 
 
 # ------------------------------------------------------------------------------- the CLI
@@ -190,7 +191,8 @@ def hybrid_files(tmp_path_factory, parts, synthetic):
     parts["finished"].export(d / "finished.ply")
     write_points_ply(d / "finished_pts.ply", synthetic["Y"])
     rows = ["x,y,z,allowance,group"] + [
-        f"{p[0]:.9f},{p[1]:.9f},{p[2]:.9f},{TIGHT_ALLOWANCE_M},{g}" for p, g in zip(synthetic["Z"], synthetic["labels"])]
+        f"{p[0]:.9f},{p[1]:.9f},{p[2]:.9f},{TIGHT_ALLOWANCE_M},{g}"
+        for p, g in zip(synthetic["Z"], synthetic["labels"], strict=True)]
     (d / "rough.csv").write_text("\n".join(rows) + "\n")
     bad = rows[:4] + [rows[4].replace(f",{TIGHT_ALLOWANCE_M},", ",-0.001,")] + rows[5:]
     (d / "negative.csv").write_text("\n".join(bad) + "\n")
@@ -210,14 +212,15 @@ def test_cli_hybrid_reports_min_allowance_per_group(hybrid_files, capsys):
     assert res["feasible"] and res["method"] == "algorithm3" and res["feature"] == "plane"
     assert set(res["min_allowance_m"]) == {"boss_a", "boss_b"}
     assert min(res["min_allowance_m"].values()) >= TIGHT_ALLOWANCE_M - FEASIBLE_M
-    assert res["free_dofs"] == 0 and len(res["solutions"]) == 1
-    # too much allowance: a report (exit 0), not an error, naming the limiting points
+    assert res["free_dofs"] == 0 and len(res["solutions"]) == 1 and res["status"] == "ok"
+    # too much allowance: a report (exit 3: finished, not to be trusted), not an error,
+    # naming the limiting points
     rc, out, err = _cli(capsys, "--model", d / "finished.ply", "--points", d / "finished_pts.ply",
                         "--allowance", d / "noallow.csv", "--allowance-value", str(TOO_MUCH_M),
                         "--init", d / "init.json", "--json")
-    assert rc == 0, err
+    assert rc == EXIT_UNTRUSTED, err
     res = json.loads(out)
-    assert not res["feasible"] and res["status"].startswith("infeasible")
+    assert not res["feasible"] and res["status"] == "infeasible" and res["message"].startswith("infeasible")
     assert res["best_min_margin_m"] < 0 and len(res["limiting_points"]) >= 2
 
 

@@ -1,5 +1,5 @@
 """Symmetric localization: Algorithm 2, symmetry detection, discrete symmetries
-(algorithms/symmetric.py), and the symmetric scenarios through the scan cell."""
+(algorithms/registration/symmetric/), and the symmetric scenarios through the scan cell."""
 
 from __future__ import annotations
 
@@ -8,24 +8,37 @@ import pytest
 import trimesh
 
 from algorithms.errors import AlgorithmError
-from algorithms.registration.symmetric.features import FEATURE_TABLE, FEATURE_TYPES
-from algorithms.registration.local import localize
 from algorithms.geometry.se3 import exp_se3, inv_pose, rotation_error_rad, transform_points
+from algorithms.registration import Status
+from algorithms.registration.local import localize
 from algorithms.registration.symmetric import (
     DETECTION_TOL,
+    FEATURE_TABLE,
+    FEATURE_TYPES,
+    SymmetricResult,
     algorithm2,
     detect_symmetry,
     localize_symmetric,
     model_symmetries,
 )
+from algorithms.registration.symmetric.quotient import _move_group
 from tests.helpers import scenario
 from tests.test_features import bumpy_mesh, example_features, sample_feature
+from tests.tolerances import (
+    AXIS_TOL,
+    DETECTED_M,
+    DETECTED_RAD,
+    EXACT_AXIS_TOL,
+    EXACT_M,
+    FIXED_TOL,
+    RECOVER_RAD,
+    SAME_RMS_REL,
+    SCAN_FIXED_M,
+    SCAN_FIXED_RAD,
+)
+from twin.cli.localize import EXIT_UNTRUSTED
 
-# Named tolerances of this file.
-FIXED_TOL = 1e-6  # the bar: fixed directions recovered to 1e-6 (rad and m), exact data
 DEFAULT_NOISE_M = 2e-6  # the scenarios' default sensor sigma (Keyence IL-065 repeatability)
-SCAN_FIXED_RAD = 1e-4  # scanned parts: fixed directions vs the truth (noise, linearity)
-SCAN_FIXED_M = 2e-5
 DETECTION_TRIALS = 8  # seeded trials per feature for the automatic detection
 
 
@@ -56,13 +69,16 @@ def test_algorithm2_recovers_the_fixed_directions_on_every_feature(kind):
         xi0 = np.concatenate([rng.normal(0, 0.04, 3), rng.normal(0, 0.004, 3)])
     init = T_true @ exp_se3(xi0)
     res = algorithm2(Y, f, init=init)
-    assert res.converged, res.status
+    assert isinstance(res, SymmetricResult) and res.method == "algorithm2"
+    assert res.converged, res.message
+    assert res.status is (Status.UNOBSERVABLE if f.group.dim else Status.OK), res.message
     ang, dist = f.group.distance(inv_pose(T_true) @ res.T_world_workpiece)
     assert ang < FIXED_TOL and dist < FIXED_TOL
     info = FEATURE_TABLE[kind]
     assert res.feature == kind
     assert res.free_dofs == info.group_dim
-    assert len(res.fixed_directions) == info.quotient_dim
+    assert len(res.determined_directions) == info.quotient_dim
+    assert res.covariance.shape == (info.quotient_dim, info.quotient_dim)
     # exactly the table's free directions (the feature's g_0, workpiece frame)
     if res.free_dofs:
         assert _span_equal(res.free_directions, f.group.g0)
@@ -108,8 +124,10 @@ def test_tangent_and_hong_tan_report_singularity_without_crashing(kind):
         res = localize(transform_points(T, X), mesh, method=method, init=T @ exp_se3([0.01, 0, 0, 0, 0.001, 0]))
         assert res.observable == (r == 0)
         if r:
-            assert res.status.startswith("unobservable")
-            assert res.covariance is None
+            assert res.status is Status.UNOBSERVABLE and res.message.startswith("unobservable")
+            # the directions the points fix keep their covariance; the free ones have none
+            q = 6 - res.free_dofs
+            assert 1 <= res.free_dofs <= r and res.covariance.shape == (q, q)
 
 
 @pytest.mark.parametrize("kind", list(SYMMETRIC_MESHES))
@@ -127,7 +145,7 @@ def test_detection_picks_the_right_subgroup_in_every_seeded_trial(kind):
         picked.append((res.feature, res.free_dofs))
         ang, dist = res.group.distance(inv_pose(T) @ res.T_world_workpiece)
         if len(res.solutions) == 1:
-            assert ang < 1e-3 and dist < 1e-4
+            assert ang < DETECTED_RAD and dist < DETECTED_M
     assert picked == [(kind, r)] * DETECTION_TRIALS
 
 
@@ -142,7 +160,7 @@ def test_detection_on_exact_features_names_the_group_and_its_geometry():
         assert _span_equal(det.group.g0, f.group.g0, tol=1e-6)
     assert detect_symmetry(*(lambda p: (p.foot, p.normals[:, 0, :]))(
         feats["sphere"].closest(sample_feature(feats["sphere"], 100, rng)))).group.origin == pytest.approx(
-        feats["sphere"].origin, abs=1e-9)
+        feats["sphere"].origin, abs=EXACT_M)
 
 
 # -------------------------------------------------------------------- discrete symmetries
@@ -166,7 +184,7 @@ def test_square_plate_with_four_identical_blind_holes_has_four_symmetries():
     plate = wp._assemble(patches, "plate")
     S = model_symmetries(plate)
     assert len(S) == 4  # the turns by 90 degrees about the plate's axis (the holes are blind)
-    assert all(np.allclose(s[:3, 2], [0, 0, 1], atol=1e-9) for s in S)
+    assert all(np.allclose(s[:3, 2], [0, 0, 1], atol=EXACT_AXIS_TOL) for s in S)
 
 
 def _cube_faces(rng, which, n=100, a=0.04):
@@ -194,16 +212,16 @@ def test_cube_reports_every_equally_good_pose(which, solutions, free, feature):
     init = T @ exp_se3([0.03, -0.02, 0.02, 0.002, 0.001, -0.002])
     res = localize_symmetric(Y, cube, init=init)
     assert (res.feature, res.free_dofs, len(res.solutions)) == (feature, free, solutions)
+    assert res.status is Status.AMBIGUOUS and not res.trusted
     # all equally good, pairwise distinct, one of them the truth (modulo the free motions)
-    assert np.ptp(res.solution_rmse_m) < 1e-3 * res.solution_rmse_m.max() + 1e-12
-    from algorithms.registration.symmetric.algorithm2 import _move_group
+    assert np.ptp(res.solution_rmse_m) < SAME_RMS_REL * res.solution_rmse_m.max() + 1e-12
 
     for j in range(len(res.solutions)):
         g_j = _move_group(res.group, res.solutions[0], res.solutions[j])  # G_0 seen from pose j
         for i in range(j):
             assert not g_j.contains(inv_pose(res.solutions[j]) @ res.solutions[i], 1e-2, 1e-3)
     err = [res.group.distance(inv_pose(T) @ S) for S in res.solutions]
-    assert min(a for a, _ in err) < 1e-4
+    assert min(a for a, _ in err) < SCAN_FIXED_RAD
     assert np.array_equal(res.T_world_workpiece, res.solutions[0])
     assert rotation_error_rad(res.T_world_workpiece, init) < 0.1  # the one nearest the start first
 
@@ -229,6 +247,8 @@ def test_a_named_feature_is_fitted_to_the_measured_faces():
         localize_symmetric(Y, mesh, symmetric="cylinder")
     none = localize_symmetric(Y, mesh, symmetric="none")
     assert none.algorithm == "1" and none.free_dofs == 3 and len(none.solutions) == 1
+    assert none.method == "hong_tan" and none.status is Status.UNOBSERVABLE
+    assert none.determined_directions.shape == (3, 6) and none.covariance.shape == (3, 3)
 
 
 # ---------------------------------------------------------------- through the scan cell
@@ -261,7 +281,7 @@ def test_bore_and_face_scan_leaves_the_rotation_about_the_bore_free(scans):
     res, T_true = _scan_result(scans, "bore_and_face")
     assert (res.feature, res.free_dofs, len(res.solutions)) == ("cone", 1, 1)
     axis, point = res.group.axis, res.group.origin
-    assert abs(abs(axis[2]) - 1.0) < 1e-6  # the bore axis (z), through the bore's centre
+    assert abs(abs(axis[2]) - 1.0) < AXIS_TOL  # the bore axis (z), through the bore's centre
     assert np.hypot(point[0] - 0.012, point[1] - 0.006) < SCAN_FIXED_M
     ang, dist = res.group.distance(inv_pose(T_true) @ res.T_world_workpiece)
     assert ang < SCAN_FIXED_RAD and dist < SCAN_FIXED_M
@@ -317,21 +337,24 @@ def test_cli_symmetric_auto_reports_free_directions_and_all_poses(cube_files, ca
     d, T = cube_files
     rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "three.ply", "--init", d / "init.json",
                         "--symmetric", "auto", "--json")
-    assert rc == 0, err
+    assert rc == EXIT_UNTRUSTED, err  # 24 equally good poses: not one pose to trust
     res = json.loads(out)
+    assert res["status"] == "ambiguous" and res["method"] == "algorithm2"
     assert res["free_dofs"] == 0 and res["free_directions"] == [] and len(res["solutions"]) == 24
+    assert np.asarray(res["covariance"]).shape == (6, 6)
     assert all(np.asarray(S).shape == (4, 4) for S in res["solutions"])
-    assert rotation_error_rad(np.asarray(res["T_world_workpiece"]), T) < 1e-6
+    assert rotation_error_rad(np.asarray(res["T_world_workpiece"]), T) < RECOVER_RAD
     rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "top.ply", "--init", d / "init.json",
                         "--symmetric", "plane", "--json")
-    assert rc == 0, err
+    assert rc == EXIT_UNTRUSTED, err
     res = json.loads(out)
     assert res["feature"] == "plane" and res["free_dofs"] == 3 and len(res["solutions"]) == 6
+    assert np.asarray(res["determined_directions"]).shape == (3, 6) and np.asarray(res["covariance"]).shape == (3, 3)
     W = np.asarray(res["free_directions"])
     assert W.shape == (3, 6)
     # angular part first, workpiece frame: one rotation about the top face's normal, two slides
     assert np.linalg.matrix_rank(W[:, :3], tol=1e-9) == 1
-    assert abs(abs(W[np.argmax(np.linalg.norm(W[:, :3], axis=1)), 2]) - 1.0) < 1e-6
+    assert abs(abs(W[np.argmax(np.linalg.norm(W[:, :3], axis=1)), 2]) - 1.0) < AXIS_TOL
 
 
 def test_cli_default_json_has_the_new_fields(cube_files, capsys):
@@ -340,9 +363,10 @@ def test_cli_default_json_has_the_new_fields(cube_files, capsys):
     d, _ = cube_files
     rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "top.ply", "--init", d / "init.json",
                         "--json")
-    assert rc == 0, err
+    assert rc == EXIT_UNTRUSTED, err
     res = json.loads(out)
     assert res["method"] == "hong_tan" and res["free_dofs"] == 3 and len(res["solutions"]) == 1
+    assert res["status"] == "unobservable" and "weak_directions" not in res
     assert np.asarray(res["free_directions"]).shape == (3, 6)
 
 

@@ -54,10 +54,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linprog
 
-from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, transform_points
+from algorithms.registration.result import RegistrationResult, Status
 from algorithms.registration.symmetric import DETECTION_TOL, SymmetricResult, localize_symmetric, pseudo_normals
+from algorithms.registration.uncertainty import unit_twists
 
 __all__ = ["HybridResult", "localize_hybrid", "envelope_distances", "LIMIT_TOL_REL", "TOLERANCE"]
 
@@ -76,15 +78,13 @@ TRUST0_REL = 0.05
 TRUST_MIN_REL = 1e-12
 
 
-@dataclass(frozen=True)
-class HybridResult:
-    """Result of :func:`localize_hybrid`.
+@dataclass(frozen=True, kw_only=True, eq=False)
+class HybridResult(RegistrationResult):
+    """Result of :func:`localize_hybrid`: a
+    :class:`algorithms.registration.result.RegistrationResult` plus
 
     Attributes:
-        T_world_workpiece: (4, 4) pose of the finished part: Algorithm 3's optimum when
-            feasible, else the max-min placement (the best achievable).
         feasible: whether every rough point keeps at least its allowance at the result.
-        status: what happened, in words (names the limiting points when infeasible).
         symmetric: the Algorithm 2 result on the finished points (``g_0``, ``G_0``).
         T_max_min: (4, 4) the placement that maximises the smallest margin.
         best_min_margin_m: ``max over G_0 of min_i (d_i - delta_i)`` [m] (negative:
@@ -98,20 +98,24 @@ class HybridResult:
         min_allowance_m: {group: smallest stock in the group at the result} [m].
         groups: (M,) group label of each rough point.
         envelope_rmse_m: ``sqrt(e_e / M)`` at the result [m].
-        free_dofs: directions still free after both stages (G_0 directions the rough points
-            do not constrain either).
-        free_directions: (free_dofs, 6) unit twists ``[omega, v]``, workpiece frame.
         group_dofs: dim G_0: the directions Algorithm 3 worked on.
-        iterations: accepted LP steps (max-min stage + Algorithm 3).
         lp_solves: linear programmes solved.
-        converged: whether the stages met their stopping rules.
-        history: envelope objective RMS [m] after each accepted Algorithm 3 step.
-        time_s: wall time [s].
+
+    The base fields: ``T_world_workpiece`` is Algorithm 3's optimum when feasible, else the
+    max-min placement (the best achievable); ``method`` is ``"algorithm3"``; ``status`` is
+    INFEASIBLE when no pose gives every rough point its allowance (``message`` names the
+    limiting points), else NOT_CONVERGED, UNOBSERVABLE (directions of ``G_0`` the rough points
+    do not constrain either: ``free_directions``), POOR_FIT (the finished points' fit) or OK;
+    ``rmse_m``, the inliers and ``sigma_m`` are those of the finished points at the result;
+    ``iterations`` counts the accepted LP steps (max-min stage + Algorithm 3) and ``history``
+    the envelope objective's RMS [m] at the start of Algorithm 3 and after each of its steps.
+    ``determined_directions`` spans ``m_0`` (fixed by the finished points) and the directions
+    of ``G_0`` the rough points fix; the rough points fix theirs through inequalities and an
+    envelope objective, not a least-squares fit, so ``covariance`` is None (the finished
+    points' covariance along ``m_0`` is ``symmetric.covariance``).
     """
 
-    T_world_workpiece: np.ndarray
     feasible: bool
-    status: str
     symmetric: SymmetricResult = field(repr=False)
     T_max_min: np.ndarray
     best_min_margin_m: float
@@ -122,14 +126,8 @@ class HybridResult:
     min_allowance_m: dict
     groups: np.ndarray
     envelope_rmse_m: float
-    free_dofs: int
-    free_directions: np.ndarray
     group_dofs: int
-    iterations: int
     lp_solves: int
-    converged: bool
-    history: tuple
-    time_s: float = 0.0
 
 
 def envelope_distances(points_world, T_world_workpiece, index: MeshIndex):
@@ -205,7 +203,9 @@ def localize_hybrid(
         symmetric: ``G_0`` of the finished points: "auto" (detected), a feature type, a
             :class:`~algorithms.registration.symmetric.features.Feature` or a
             :class:`~algorithms.registration.symmetric.features.SymmetryGroup`.
-        init: initial pose (4x4) or None (identity); also fixes the ``G_0`` start.
+        init: initial pose (4x4) or None (identity); also fixes the ``G_0`` start. An
+            unknown pose is found first by
+            :func:`algorithms.registration.global_search.global_localize`.
         stock_m: nominal stock [m] for the inside-the-model check (default: the 10th
             percentile of the rough points' stock at the max-min placement).
         sigma, outlier: for the finished points (see :func:`localize_symmetric`).
@@ -241,7 +241,7 @@ def localize_hybrid(
         raise AlgorithmError(f"stock_m must be a positive length [m] or None, got {stock_m}")
     if int(max_iterations) < 1:
         raise AlgorithmError(f"max_iterations must be >= 1, got {max_iterations}")
-    if init is not None and not isinstance(init, str):
+    if init is not None:
         init = as_pose(init, name="init")
     index = index if index is not None else MeshIndex(mesh)
 
@@ -319,8 +319,9 @@ def localize_hybrid(
         status = (f"feasible: every rough point keeps its allowance (smallest margin "
                   f"{(d - delta).min() * 1e3:.4g} mm; best achievable {best * 1e3:.4g} mm); "
                   + ("converged" if conv2 else "not converged: reached max_iterations"))
-    # directions of G_0 the rough points do not constrain either
+    # directions of G_0 the rough points do not constrain either, and those they fix
     free_dirs = np.zeros((0, 6))
+    rough_fixed = np.zeros((0, 6))
     if r:
         As = A * (1.0 / scale)[None, :]
         w, V = np.linalg.eigh(As.T @ As / M)
@@ -328,13 +329,46 @@ def localize_hybrid(
         weak = w / wmax < DETECTION_TOL if w[-1] > 0 else np.ones(r, dtype=bool)
         if weak.any():
             coef = V[:, weak] / scale[:, None]
-            free_dirs = _unit_rows((coef.T @ H))
+            free_dirs = unit_twists(coef.T @ H)
+        if not weak.all():
+            rough_fixed = unit_twists((V[:, ~weak] / scale[:, None]).T @ H)
     stock = d
     per_group = {g: float(stock[labels == g].min()) for g in dict.fromkeys(labels.tolist())}
+    converged = bool(conv1 and conv2 and sym.converged)
+    if not feasible:
+        verdict = Status.INFEASIBLE
+    elif not converged:
+        verdict = Status.NOT_CONVERGED
+    elif len(free_dirs):
+        verdict = Status.UNOBSERVABLE
+    elif sym.status is Status.POOR_FIT:
+        verdict = Status.POOR_FIT
+    else:
+        verdict = Status.OK
+    # the finished points at the result (Algorithm 3 moves the pose along G_0 only)
+    Yf = np.asarray(finished_points, dtype=np.float64)[sym.inliers]
+    rmse = float(np.sqrt(np.mean(index.query(transform_points(inv_pose(T_out), Yf)).distance ** 2)))
     return HybridResult(
         T_world_workpiece=T_out,
+        method="algorithm3",
+        converged=converged,
+        status=verdict,
+        message=status + f"; finished features: {sym.group.describe()}",
+        rmse_m=rmse,
+        iterations=it1 + it2,
+        history=tuple(history),
+        inliers=sym.inliers,
+        n_points_used=sym.n_points_used,
+        n_outliers=sym.n_outliers,
+        n_dropped_nonfinite=sym.n_dropped_nonfinite,
+        sigma_m=sym.sigma_m,
+        determined_directions=np.vstack([sym.determined_directions, rough_fixed]),
+        covariance=None,
+        free_directions=free_dirs,
+        solutions=(T_out,),
+        relative_eigenvalues=sym.relative_eigenvalues,
+        time_s=time.perf_counter() - t0,
         feasible=feasible,
-        status=status + f"; finished features: {sym.group.describe()}",
         symmetric=sym,
         T_max_min=T_mm,
         best_min_margin_m=best,
@@ -345,23 +379,9 @@ def localize_hybrid(
         min_allowance_m=per_group,
         groups=labels,
         envelope_rmse_m=float(np.sqrt(np.mean(stock**2))),
-        free_dofs=int(len(free_dirs)),
-        free_directions=free_dirs,
         group_dofs=r,
-        iterations=it1 + it2,
         lp_solves=lp_count[0],
-        converged=bool(conv1 and conv2),
-        history=tuple(history),
-        time_s=time.perf_counter() - t0,
     )
-
-
-def _unit_rows(W):
-    out = W.copy()
-    for i, x in enumerate(W):
-        nw = np.linalg.norm(x[:3])
-        out[i] = x / (nw if nw > 1e-9 * max(np.linalg.norm(x[3:]), 1e-300) else np.linalg.norm(x[3:]))
-    return out
 
 
 def _lp(c, A_ub, b_ub, bounds, lp_count):

@@ -1,5 +1,5 @@
-"""CAD-model-based workpiece localization: Algorithm 1 of document 000 with each pose update
-it names, and document 001's fine stage.
+"""CAD-model-based workpiece localization from a given start: Algorithm 1 of document 000
+with each pose update it names, and document 001's fine stage.
 
 Frames and units. ``points`` are measured in the world (robot base / machine) frame, in
 metres. The model ``mesh`` is in the workpiece (CAD) frame, in metres. The result
@@ -58,52 +58,66 @@ point-to-surface distances): at a stationary point of ICP, ``sum d_i n_i = 0`` a
 ``sum d_i (y_i x n_i) = 0``, the normal equations of the point-to-plane methods.
 
 The point-to-point methods (icp, va, fine_001) converge linearly (slowly when the points can
-slide along the surface, e.g. 0.87 to 0.999 per iteration on the documents' parts); they
-reach the same minimum, given enough iterations, and default to more iterations and a
-smaller ``delta``. Safeguards shared by the linearised updates: a step that raises the
-residual is halved (up to 8 times); if that fails, one closed-form point-to-point (ICP) step
-is taken instead (it never raises the residual); menq takes the ICP step when its damping has
-grown large. The number of such fallback steps is appended to ``status``.
+slide along the surface); they reach the same minimum, given enough iterations, and default
+to more iterations and a smaller ``delta``. Safeguards shared by the linearised updates: a
+step that raises the residual is halved (up to 8 times); if that fails, one closed-form
+point-to-point (ICP) step is taken instead (it never raises the residual); menq takes the
+ICP step when its damping has grown large. The number of such fallback steps is appended to
+``message``.
 
-Local minima: like every local method these converge to the nearest minimum. From random
-starts of up to 45 degrees about the part and 20 % of its size, measured with 150 exact
-points (benchmarks/bench_closest_point.py --section basin), every method recovered all 20
-starts on the S-surface part and workpiece A, and 19 of 20 on workpiece B (one start, 19
-degrees and 28 mm away, ends in a minimum 11.5 degrees off at 3.5 mm RMS for all six
-methods). With ``sigma`` given, a converged fit whose RMS exceeds 3 sigma says "poor fit" in
-``status``; ``init="global"`` (Algorithm 5's multistart) is the remedy.
+Local minima: like every local method these converge to the nearest minimum; how often each
+method recovers the pose from random starts is measured by
+``python -m benchmarks.bench_closest_point --section basin`` (figures in
+``benchmarks/results_closest_point.md``). With ``sigma`` given, a converged fit whose RMS
+exceeds 3 sigma is reported as ``Status.POOR_FIT``; an unknown pose goes through
+:func:`algorithms.registration.global_search.global_localize` (Algorithm 5's multistart) instead.
 
-Robustness: rows with NaN or infinite coordinates are dropped and counted; fewer than 6
-finite points is an error. Outliers (spurious returns, fixture points) are rejected at every
-iteration, by default (``outlier="mad"``) when their distance to the model exceeds
-``max(5 * 1.4826 * median(distance), 1e-6 * model size)`` (a robust 5-sigma cut for Gaussian
-noise along the normals, with a floor so exact data lose nothing). Until the iteration first
-converges the cut is looser, ``max(8 * 1.4826 * median(distance), 0.01 * model size)``:
-only gross outliers go. Far from the minimum the residuals are systematic misfit, not noise,
-and the far points are the ones that carry the correction; cutting them early was seen to
-trap the iteration in wrong minima and to slow the point-to-point methods a hundredfold. ``outlier=<float>`` is a
-fixed maximum distance [m]; ``outlier=None`` keeps every point. Point sets spanning more
-than 20 times the model's bounding-box diagonal, or less than 1/1000 of it, raise an error
-that the units look wrong.
+The verdict (``status``): ``Status.NOT_CONVERGED`` if the iteration did not meet its
+stopping rule; else ``Status.UNOBSERVABLE`` if the points leave directions free (a plane,
+a cylinder, a sphere: ``free_directions``; the covariance then covers the determined
+directions only); else ``Status.POOR_FIT`` if ``sigma`` is given and the RMS exceeds 3
+sigma; else ``Status.OK``.
+
+Input checks (non-finite rows, units) are those of :mod:`algorithms.registration.inputs`;
+outliers are rejected by the rules of :mod:`algorithms.registration.robust`.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.errors import AlgorithmError
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose
-from algorithms.registration.uncertainty import OBSERVABILITY_TOL, _sym_inverse, observability
+from algorithms.registration.inputs import (
+    MIN_POINTS,
+    UNITS_MAX_RATIO,
+    UNITS_MIN_RATIO,
+    check_sigma,
+    check_units,
+    finite_rows,
+    mesh_index,
+)
+from algorithms.registration.result import POOR_FIT_SIGMAS, RegistrationResult, fit_status
+from algorithms.registration.robust import (
+    OUTLIER_COARSE_FLOOR_REL,
+    OUTLIER_FLOOR_REL,
+    OUTLIER_K,
+    OutlierConfig,
+    OutlierStages,
+    count,
+    outlier_config,
+    same_mask,
+)
+from algorithms.registration.uncertainty import OBSERVABILITY_TOL, observability, sym_inverse, unit_twists
 
 __all__ = [
     "METHODS",
     "DEFAULT_METHOD",
-    "LocalizationResult",
     "localize",
+    "localize_checked",
     "OUTLIER_K",
     "UNITS_MAX_RATIO",
     "UNITS_MIN_RATIO",
@@ -117,71 +131,9 @@ MAX_ITERATIONS = {"hong_tan": 100, "tangent": 100, "menq": 100, "va": 3000, "icp
 TOLERANCE = {"hong_tan": 1e-9, "tangent": 1e-9, "menq": 1e-9, "va": 1e-12, "icp": 1e-12, "fine_001": 1e-22}
 #: RMS residual below ``FLOOR_REL * model size`` counts as an exact fit.
 FLOOR_REL = 1e-12
-#: Outlier cut: ``OUTLIER_K`` robust sigmas (sigma = 1.4826 median distance), floored.
-OUTLIER_K = 5.0
-OUTLIER_K_COARSE = 8.0
-#: Until the first convergence no point within this fraction of the model size is cut
-#: (systematic misfit is not noise: cutting it slows or traps the iteration).
-OUTLIER_COARSE_FLOOR_REL = 1e-2
-OUTLIER_FLOOR_REL = 1e-6
-#: Units check: point spread relative to the model's bounding-box diagonal.
-UNITS_MAX_RATIO = 20.0
-UNITS_MIN_RATIO = 1e-3
-MIN_POINTS = 6
-#: With a given sigma, an RMS residual above this many sigmas is reported as a poor fit.
-POOR_FIT_SIGMAS = 3.0
 OBSERVABILITY_MAX_POINTS = 4096
 #: Initial (and smallest) Levenberg-Marquardt damping of "menq", relative to diag(J^T J).
 LM_LAMBDA0 = 1e-8
-
-
-@dataclass(frozen=True)
-class LocalizationResult:
-    """Result of :func:`localize`.
-
-    Attributes:
-        T_world_workpiece: (4, 4) pose of the workpiece (CAD) frame in the world frame.
-        method: the pose update used.
-        iterations: number of pose updates made.
-        converged: whether the iteration met its stopping rule (not whether the pose is
-            determined: see ``observable``).
-        status: why it stopped, in words; starts with ``"unobservable"`` when the points do
-            not fix all six DOF (then the pose must not be trusted along ``weak_directions``).
-        rmse_m: RMS point-to-model distance of the inliers at the result [m].
-        history: RMS distance [m] at the start and after every iteration.
-        covariance: (6, 6) estimated covariance of the pose twist ``[omega, v]`` in the
-            workpiece frame (the error twist of ``T_est = T_true exp(xi)``; rad^2, rad m,
-            m^2), the Cramer-Rao
-            expression at the estimate with ``sigma_m``; None when unobservable.
-        weak_directions: (k, 6) weakly constrained twists ``[omega, v]`` (workpiece frame),
-            empty (0, 6) when observable.
-        observable: False when the points cannot fix all six DOF (plane, cylinder, sphere).
-        relative_eigenvalues: (6,) scaled information eigenvalues / the largest, ascending.
-        sigma_m: noise sigma used for the covariance [m] (given, or estimated from residuals).
-        n_points_used: inliers at the result.
-        n_dropped_nonfinite: rows dropped for NaN or infinite coordinates.
-        n_outliers: finite points rejected as outliers at the result.
-        inliers: (N,) bool over the input rows: finite and not an outlier.
-        time_s: wall time of the call [s].
-    """
-
-    T_world_workpiece: np.ndarray
-    method: str
-    iterations: int
-    converged: bool
-    status: str
-    rmse_m: float
-    history: tuple
-    covariance: np.ndarray | None
-    weak_directions: np.ndarray
-    observable: bool
-    relative_eigenvalues: np.ndarray
-    sigma_m: float
-    n_points_used: int
-    n_dropped_nonfinite: int
-    n_outliers: int
-    inliers: np.ndarray = field(repr=False)
-    time_s: float = 0.0
 
 
 def localize(
@@ -189,56 +141,42 @@ def localize(
     mesh=None,
     method: str = DEFAULT_METHOD,
     init=None,
-    rng: np.random.Generator | None = None,
     sigma: float | None = None,
     max_iterations: int | None = None,
     tolerance: float | None = None,
     outlier="mad",
     index: MeshIndex | None = None,
-) -> LocalizationResult:
-    """Find ``T_world_workpiece`` from measured points and the workpiece's CAD mesh.
+) -> RegistrationResult:
+    """Find ``T_world_workpiece`` from measured points, the workpiece's CAD mesh and a start.
 
     Args:
         points: (N, 3) [m] measured points, world (robot base) frame; NaN/inf rows dropped.
         mesh: the model, a ``trimesh.Trimesh`` in the workpiece frame [m]. May be None when
             ``index`` is given.
         method: one of ``METHODS`` (see the module docstring); default ``"hong_tan"``.
-        init: initial ``T_world_workpiece``: None (identity), a rigid (4, 4) matrix, or
-            ``"global"`` (the multistart global search of document 000, Algorithm 5).
-        rng: random generator for the global search (ignored otherwise).
-        sigma: noise sigma along the normals [m] for the covariance; estimated from the
-            residuals when None.
+        init: initial ``T_world_workpiece``: None (identity) or a rigid (4, 4) matrix. An
+            unknown pose is found by
+            :func:`algorithms.registration.global_search.global_localize`, not here.
+        sigma: noise sigma along the normals [m] for the covariance and the poor-fit
+            verdict; estimated from the residuals when None (then no poor-fit verdict).
         max_iterations: cap on pose updates (default per method, ``MAX_ITERATIONS``).
         tolerance: ``delta`` of the stopping rule (``d`` for fine_001), default ``TOLERANCE``.
-        outlier: ``"mad"`` (default), a maximum distance [m], or None (keep all).
+        outlier: ``"mad"`` (default), a maximum distance [m], or None (keep all); see
+            :mod:`algorithms.registration.robust`.
         index: a prebuilt :class:`MeshIndex` of ``mesh`` to reuse across calls.
 
     Returns:
-        LocalizationResult.
+        RegistrationResult (``method`` the update used; ``solutions`` the one pose).
 
     Raises:
         AlgorithmError: bad points (shape, fewer than 6 finite), an empty mesh, units that
-            look wrong, a non-rigid ``init``, an unknown method or option.
+            look wrong, a non-rigid ``init`` or ``init="global"``, an unknown method or option.
     """
     t_start = time.perf_counter()
     if method not in METHODS:
         raise AlgorithmError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
-    P = np.asarray(points, dtype=np.float64)
-    if P.ndim != 2 or P.shape[1] != 3:
-        raise AlgorithmError(f"points must be (N, 3) with N >= {MIN_POINTS}, got {P.shape}")
-    finite = np.all(np.isfinite(P), axis=1)
-    n_drop = int(len(P) - finite.sum())
-    if finite.sum() < MIN_POINTS:
-        raise AlgorithmError(
-            f"points must be (N, 3) with at least {MIN_POINTS} finite rows, got {int(finite.sum())} "
-            f"finite of {len(P)}"
-        )
-    if index is None:
-        if mesh is None:
-            raise AlgorithmError("give a mesh (or a prebuilt index)")
-        index = MeshIndex(mesh)
-    elif not isinstance(index, MeshIndex):
-        raise AlgorithmError(f"index must be a MeshIndex, got {type(index).__name__}")
+    P, rows = finite_rows(points)
+    index = mesh_index(mesh, index)
     if max_iterations is None:
         max_iterations = MAX_ITERATIONS[method]
     if int(max_iterations) < 1:
@@ -247,34 +185,69 @@ def localize(
         tolerance = TOLERANCE[method]
     if not (np.isfinite(tolerance) and tolerance >= 0):
         raise AlgorithmError(f"tolerance must be a finite number >= 0, got {tolerance}")
-    if sigma is not None and not (np.isfinite(sigma) and sigma > 0):
-        raise AlgorithmError(f"sigma must be a positive length [m] or None, got {sigma}")
-    outlier_cfg = _outlier_config(outlier)
-
-    rows = np.nonzero(finite)[0]
+    sigma = check_sigma(sigma)
+    cfg = outlier_config(outlier)
     Y = P[rows]
-    _check_units(Y, index)
+    check_units(Y, index)
+    if isinstance(init, str):
+        if init == "global":
+            raise AlgorithmError(
+                "init='global' is not a pose: for an unknown pose call "
+                "algorithms.registration.global_search.global_localize(points, mesh, noise_sigma_m=...) "
+                "and pass its T_world_workpiece as init"
+            )
+        raise AlgorithmError(f"init must be None or a 4x4 rigid transform, got {init!r}")
+    T0 = np.eye(4) if init is None else as_pose(init, name="init")
+    return localize_checked(Y, index, method, T0, sigma=sigma, outlier_cfg=cfg,
+                            max_iterations=int(max_iterations), tolerance=float(tolerance),
+                            rows=rows, n_input=len(P), t_start=t_start)
 
-    if init is None:
-        T0 = np.eye(4)
-    elif isinstance(init, str):
-        if init != "global":
-            raise AlgorithmError(f"init must be None, a 4x4 rigid transform or 'global', got {init!r}")
-        from algorithms.registration.global_search import global_localize  # lazy: optional heavy module
 
-        g = global_localize(Y, index.mesh, index=index, rng=rng)
-        T0 = as_pose(getattr(g, "T_world_workpiece", g), name="global search result")
-    else:
-        T0 = as_pose(init, name="init")
+def localize_checked(
+    Y: np.ndarray,
+    index: MeshIndex,
+    method: str,
+    T0: np.ndarray,
+    *,
+    sigma: float | None,
+    outlier_cfg: OutlierConfig,
+    max_iterations: int | None = None,
+    tolerance: float | None = None,
+    rows: np.ndarray | None = None,
+    n_input: int | None = None,
+    t_start: float | None = None,
+) -> RegistrationResult:
+    """:func:`localize` on inputs already checked (for callers that checked them once).
 
+    Args:
+        Y: (M, 3) [m] finite points, world frame.
+        index: the model's :class:`MeshIndex`.
+        method: one of ``METHODS``.
+        T0: (4, 4) rigid initial pose.
+        sigma: a positive noise sigma [m] or None.
+        outlier_cfg: the checked outlier option (:func:`algorithms.registration.robust.outlier_config`).
+        max_iterations, tolerance: as for :func:`localize` (None: the method's defaults).
+        rows: (M,) the input rows ``Y`` came from (``inliers`` is over the input rows);
+            default ``arange(M)``.
+        n_input: the number of input rows (default M); ``n_dropped_nonfinite = n_input - M``.
+        t_start: ``time.perf_counter()`` at the call, for ``time_s``.
+    """
+    if t_start is None:
+        t_start = time.perf_counter()
+    if rows is None:
+        rows = np.arange(len(Y))
+    if n_input is None:
+        n_input = len(Y)
+    max_it = MAX_ITERATIONS[method] if max_iterations is None else int(max_iterations)
+    tol = TOLERANCE[method] if tolerance is None else float(tolerance)
     # Spatially coherent order: neighbouring points query neighbouring triangles (faster).
     order = _morton_order(Y)
     Y = Y[order]
     rows = rows[order]
 
-    state = _iterate(method, Y, index, T0, int(max_iterations), float(tolerance), outlier_cfg)
+    state = _iterate(method, Y, index, T0, max_it, tol, outlier_cfg)
     T, cp, mask = state["T"], state["cp"], state["mask"]
-    n_used = _count(mask, len(Y))
+    n_used = count(mask, len(Y))
     if n_used < MIN_POINTS:
         raise AlgorithmError(
             f"only {n_used} points lie within the outlier distance of the model; "
@@ -297,87 +270,68 @@ def localize(
         sigma_used = float(np.sqrt(np.sum(s * s) / max(n_used - 6, 1)))
     else:
         sigma_used = float(sigma)
-    covariance = None
+    J = np.empty((n_used, 6))
+    _cross_into(feet, normals, J)
+    J[:, 3:] = normals
+    covariance: np.ndarray | None
     if obs.observable:
-        J = np.empty((n_used, 6))
-        _cross_into(feet, normals, J)
-        J[:, 3:] = normals
-        covariance = _sym_inverse(_gram(J)) * sigma_used**2
-    status = state["status"]
+        determined = np.eye(6)
+        covariance = sym_inverse(_gram(J)) * sigma_used**2
+    else:
+        # the covariance of the directions the points do fix (the others have none)
+        determined = unit_twists(obs.determined_directions)
+        covariance = _covariance_along(J @ determined.T, sigma_used)
+    free = unit_twists(obs.weak_directions)
     rmse = float(np.sqrt(np.mean(cp.distance[mask] ** 2)))
+    status = fit_status(state["converged"], len(free), rmse, sigma)
+    message = state["status"]
     if sigma is not None and rmse > POOR_FIT_SIGMAS * sigma:
         # converged, but to residuals the stated noise cannot explain: a local minimum
-        # (Algorithm 5's multistart is the remedy) or a model that does not match the part
-        status += (
+        # (global_localize is the remedy) or a model that does not match the part
+        message += (
             f"; poor fit: RMS {rmse:.3g} m is {rmse / sigma:.0f} times the given sigma "
             "(local minimum or wrong model?)"
         )
     if not obs.observable:
-        status = (
-            f"unobservable: {len(obs.weak_directions)} weakly constrained direction(s) "
+        message = (
+            f"unobservable: {len(free)} weakly constrained direction(s) "
             f"(relative information < {OBSERVABILITY_TOL:g}; points on a plane, cylinder or "
-            f"sphere?): the pose is not determined along weak_directions; iteration {status}"
+            f"sphere?): the pose is not determined along free_directions; iteration {message}"
         )
-    inliers = np.zeros(len(P), dtype=bool)
+    inliers = np.zeros(n_input, dtype=bool)
     inliers[rows[mask]] = True
-    return LocalizationResult(
+    return RegistrationResult(
         T_world_workpiece=T,
         method=method,
-        iterations=state["iterations"],
         converged=state["converged"],
         status=status,
+        message=message,
         rmse_m=rmse,
+        iterations=state["iterations"],
         history=tuple(state["history"]),
-        covariance=covariance,
-        weak_directions=obs.weak_directions,
-        observable=obs.observable,
-        relative_eigenvalues=obs.relative_eigenvalues,
-        sigma_m=sigma_used,
-        n_points_used=n_used,
-        n_dropped_nonfinite=n_drop,
-        n_outliers=int(len(Y) - n_used),
         inliers=inliers,
+        n_points_used=n_used,
+        n_outliers=int(len(Y) - n_used),
+        n_dropped_nonfinite=int(n_input - len(Y)),
+        sigma_m=sigma_used,
+        determined_directions=determined,
+        covariance=covariance,
+        free_directions=free,
+        solutions=(T,),
+        relative_eigenvalues=obs.relative_eigenvalues,
         time_s=time.perf_counter() - t_start,
     )
 
 
-# ----------------------------------------------------------------------------- checks
-def _outlier_config(outlier):
-    if outlier is None or (isinstance(outlier, str) and outlier == "none"):
-        return None
-    if isinstance(outlier, str):
-        if outlier != "mad":
-            raise AlgorithmError(f"outlier must be 'mad', a distance [m] or None, got {outlier!r}")
-        return "mad"
+def _covariance_along(A: np.ndarray, sigma: float) -> np.ndarray | None:
+    """sigma^2 (A^T A)^-1 for the rows A (N, q) of the directions fixed, or None if singular."""
+    if A.shape[1] == 0:
+        return np.zeros((0, 0))
     try:
-        value = float(outlier)
-    except (TypeError, ValueError):
-        raise AlgorithmError(f"outlier must be 'mad', a distance [m] or None, got {outlier!r}") from None
-    if not (np.isfinite(value) and value > 0):
-        raise AlgorithmError(f"outlier distance must be a positive length [m], got {outlier!r}")
-    return value
-
-
-def _check_units(Y: np.ndarray, index: MeshIndex) -> None:
-    """Refuse point sets whose size no rigid pose of the model can explain."""
-    size = index.extent
-    if not size > 0:
-        raise AlgorithmError("the model has zero size (all vertices coincide)")
-    center = np.median(Y, axis=0)
-    r = np.linalg.norm(Y - center, axis=1)
-    spread = 2.0 * float(np.percentile(r, 90))
-    if spread > UNITS_MAX_RATIO * size:
-        raise AlgorithmError(
-            f"the points span {spread:.4g} but the model is only {size:.4g} across "
-            f"({spread / size:.0f}x): units look wrong (points in mm and model in m?); "
-            "mesh and points must be in the same units (metres)"
-        )
-    if spread < UNITS_MIN_RATIO * size:
-        raise AlgorithmError(
-            f"the points span {spread:.4g} but the model is {size:.4g} across "
-            f"(1/{size / max(spread, 1e-300):.0f}): units look wrong (points in m and model in mm?) "
-            "or the points cover too little of the part"
-        )
+        C = sym_inverse(_gram(A)) * sigma**2
+    except np.linalg.LinAlgError:
+        return None
+    return C if np.all(np.isfinite(C)) else None
 
 
 def _morton_order(Y: np.ndarray) -> np.ndarray:
@@ -400,37 +354,9 @@ def _spread_bits(x: np.ndarray) -> np.ndarray:
     return x
 
 
+
+
 # ------------------------------------------------------------------------ iteration
-def _inlier_mask(d: np.ndarray, cfg, floor: float, k: float = None) -> np.ndarray:
-    if cfg is None:
-        return _ALL
-    if cfg == "mad":
-        # distances are |noise| for Gaussian noise along the normals: sigma = 1.4826 median
-        thr = max((OUTLIER_K if k is None else k) * 1.4826 * _median(d), floor)
-    else:
-        thr = cfg
-    mask = d <= thr
-    if mask.all():
-        return _ALL  # a view, not a copy, of every array it indexes
-    if mask.sum() < MIN_POINTS:
-        # e.g. a fixed distance and a poor start: keep the closest half to get going
-        mask = d <= _median(d)
-    return mask
-
-
-_ALL = slice(None)
-
-
-def _same(a, b) -> bool:
-    if isinstance(a, slice) or isinstance(b, slice):
-        return isinstance(a, slice) and isinstance(b, slice)
-    return np.array_equal(a, b)
-
-
-def _count(mask, n: int) -> int:
-    return n if isinstance(mask, slice) else int(mask.sum())
-
-
 def _apply(T: np.ndarray, P: np.ndarray) -> np.ndarray:
     """T applied to (N, 3) points, without BLAS (see _gram): same as se3.transform_points."""
     R = T[:3, :3]
@@ -443,22 +369,19 @@ def _apply(T: np.ndarray, P: np.ndarray) -> np.ndarray:
     return out
 
 
-def _median(d: np.ndarray) -> float:
-    k = len(d) // 2
-    return float(np.partition(d, k)[k])
 
 
 def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
     """Algorithm 1: alternate exact closest points and the method's pose update.
 
-    Outliers ("mad") are cut at OUTLIER_K_COARSE robust sigmas until the iteration first
-    converges, then at OUTLIER_K; if that changes the inlier set the iteration goes on. (A
-    tight cut from a poor start throws away the far points that carry the correction.)
+    Outliers follow the staged rule of :mod:`algorithms.registration.robust`: the coarse cut
+    until the iteration first converges, then the final one; if that changes the inlier set
+    the iteration goes on. (A tight cut from a poor start throws away the far points that
+    carry the correction.)
     """
     size = index.extent
     floor2 = (FLOOR_REL * size) ** 2
-    k_out = OUTLIER_K_COARSE
-    out_floor = OUTLIER_COARSE_FLOOR_REL * size
+    stages = OutlierStages(outlier_cfg, OUTLIER_COARSE_FLOOR_REL * size, OUTLIER_FLOOR_REL * size, MIN_POINTS)
 
     def mse(cp_, mask_):
         d = cp_.distance[mask_]
@@ -466,7 +389,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
 
     T = T0
     cp = index.query(_apply(inv_pose(T), Y))
-    mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
+    mask = stages.mask(cp.distance)
     e_prev = mse(cp, mask)
     history = [float(np.sqrt(e_prev))]
     lm_lambda = LM_LAMBDA0
@@ -540,8 +463,8 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                 T, cp = T_new, cp_new
                 history.append(float(np.sqrt(e_new)))
                 rel = 1.0 - e_new / e_prev if e_prev > 0 else 0.0
-                new_mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
-                mask_changed = not _same(new_mask, mask)
+                new_mask = stages.mask(cp.distance)
+                mask_changed = not same_mask(new_mask, mask)
                 mask = new_mask
                 e_prev = mse(cp, mask)
                 if e_prev <= floor2:
@@ -557,11 +480,9 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                     done, converged = True, True
                     status = f"converged: relative decrease 1 - e_k/e_(k-1) = {rel:.3g} < delta = {tol:g}"
         if done:
-            if converged and outlier_cfg == "mad" and k_out != OUTLIER_K:
-                k_out = OUTLIER_K
-                out_floor = OUTLIER_FLOOR_REL * size
-                new_mask = _inlier_mask(cp.distance, outlier_cfg, out_floor, k_out)
-                if not _same(new_mask, mask):
+            if converged and stages.tighten():
+                new_mask = stages.mask(cp.distance)
+                if not same_mask(new_mask, mask):
                     mask = new_mask
                     e_prev = mse(cp, mask)
                     converged = False

@@ -35,7 +35,7 @@ Readings (where the original leaves a choice):
   return the same indices.
 
 Document 000 claims (section 9): with the subsampled data the localization keeps >= 90 % of
-the full-data accuracy at 30-39 % of the time. ``benchmarks/bench_subsampling.py`` measures it.
+the full-data accuracy at 30-39 % of the time. ``python -m benchmarks.bench_subsampling`` measures it.
 
 All indices returned here are 0-based (row, column) into the ``M x N`` grid, row-major flat
 index ``row * N + col``.

@@ -49,6 +49,8 @@ __all__ = [
     "observability",
     "estimate_sigma",
     "pose_error_twist",
+    "sym_inverse",
+    "unit_twists",
     "whitened_error",
     "rotation_error_rad",
     "translation_error_m",
@@ -72,6 +74,8 @@ class Observability:
         weak_directions: (k, 6) twists ``[omega, v]`` about the workpiece origin (workpiece
             frame) spanning the weakly constrained motions; each has unit norm in the scaled
             units (``L^2 |omega|^2 + |v_c|^2 = 1`` with ``v_c`` the velocity of the centroid).
+        determined_directions: (6 - k, 6) twists spanning the other eigenvectors, the
+            directions the points fix (same frame and scaling).
         characteristic_length_m: L, the RMS distance of the points from their centroid [m].
         centroid: (3,) [m] centroid of the points (workpiece frame).
         tol: the tolerance used.
@@ -81,6 +85,7 @@ class Observability:
     relative_eigenvalues: np.ndarray
     eigenvalues: np.ndarray
     weak_directions: np.ndarray
+    determined_directions: np.ndarray
     characteristic_length_m: float
     centroid: np.ndarray
     tol: float
@@ -138,14 +143,19 @@ def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observabil
     wmax = w[-1] if w[-1] > 0 else 1.0
     rel = w / wmax
     weak = rel < tol
-    S = V[:, weak].T  # (k, 6) scaled twists about the centroid [L omega, v_c]
-    omega = S[:, :3] / L
-    v = S[:, 3:] - np.cross(omega, c)  # velocity of the workpiece origin: v_c = v + omega x c
+
+    def twists(S):
+        """(k, 6) scaled twists about the centroid [L omega, v_c] -> about the origin."""
+        omega = S[:, :3] / L
+        v = S[:, 3:] - np.cross(omega, c)  # velocity of the workpiece origin: v_c = v + omega x c
+        return np.hstack([omega, v])
+
     return Observability(
         observable=not bool(weak.any()),
         relative_eigenvalues=rel,
         eigenvalues=w,
-        weak_directions=np.hstack([omega, v]),
+        weak_directions=twists(V[:, weak].T),
+        determined_directions=twists(V[:, ~weak].T),
         characteristic_length_m=L,
         centroid=c,
         tol=float(tol),
@@ -170,10 +180,10 @@ def crlb(points, normals, sigma: float, tol: float = OBSERVABILITY_TOL) -> np.nd
             "direction(s)): the Cramer-Rao bound is infinite"
         )
     J = information_rows(points, normals)
-    return _sym_inverse(np.einsum("ij,ik->jk", J, J)) * sigma**2
+    return sym_inverse(np.einsum("ij,ik->jk", J, J)) * sigma**2
 
 
-def _sym_inverse(A: np.ndarray) -> np.ndarray:
+def sym_inverse(A: np.ndarray) -> np.ndarray:
     """Inverse of a symmetric positive-definite matrix, scaled for conditioning."""
     s = 1.0 / np.sqrt(np.diag(A))
     B = A * s[:, None] * s[None, :]
@@ -203,5 +213,17 @@ def whitened_error(xi, covariance) -> np.ndarray:
     ``sqrt(mean / 6)`` is the RMS pose error in units of the bound: 1.0 attains it.
     """
     X = np.atleast_2d(np.asarray(xi, dtype=np.float64))
-    Cinv = _sym_inverse(np.asarray(covariance, dtype=np.float64))
+    Cinv = sym_inverse(np.asarray(covariance, dtype=np.float64))
     return np.einsum("ij,jk,ik->i", X, Cinv, X)
+
+
+def unit_twists(W) -> np.ndarray:
+    """Twists (k, 6) scaled to ``|omega| = 1`` (rotations, screws) or ``|v| = 1`` (pure
+    translations): the unit rows the results report."""
+    W = np.asarray(W, dtype=np.float64).reshape(-1, 6)
+    out = W.copy()
+    for i, x in enumerate(W):
+        nw = np.linalg.norm(x[:3])
+        nv = float(np.linalg.norm(x[3:]))
+        out[i] = x / (nw if nw > 1e-9 * max(nv, 1e-300) else nv)
+    return out

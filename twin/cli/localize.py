@@ -4,6 +4,17 @@ Frames: the points are in the world (robot base) frame, the mesh in the workpiec
 frame; the printed ``T_world_workpiece`` maps workpiece coordinates to world coordinates
 (``points ~= T_world_workpiece @ model_points``). Mesh and points are read in the same units
 (``--units``, metres by default); everything printed is in metres and radians.
+
+From a start (``--init FILE``, default identity) the local method runs (document 000's
+Algorithm 1); ``--init global`` searches every orientation first
+(:func:`algorithms.registration.global_search.global_localize`, with ``--sigma`` and the
+outlier rule) and prints every equally good pose of a symmetric part. ``--symmetric`` and
+``--allowance`` run Algorithms 2 and 3 from that pose.
+
+Exit status: 0 when the result can be trusted (status ``ok``); 2 for bad input (nothing
+printed on stdout); ``EXIT_UNTRUSTED`` (3) when the command finished but the result cannot be
+trusted as one determined pose (``not_converged``, ``poor_fit``, ``unobservable``,
+``ambiguous``, ``failed``, ``infeasible``): the result is printed all the same.
 """
 
 from __future__ import annotations
@@ -15,11 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from algorithms.registration.symmetric.features import FEATURE_TYPES
-from algorithms.registration.local import DEFAULT_METHOD, METHODS, localize
 from algorithms.geometry.se3 import as_pose
+from algorithms.registration import GlobalLocalizationResult, HybridResult, SymmetricResult, global_localize
+from algorithms.registration.local import DEFAULT_METHOD, METHODS, localize
+from algorithms.registration.symmetric import FEATURE_TYPES
 from twin.errors import TwinError
 
+#: Exit status of a finished run whose result cannot be trusted (see the module docstring).
+EXIT_UNTRUSTED = 3
 UNIT_SCALE = {"m": 1.0, "mm": 1e-3}
 
 
@@ -34,17 +48,24 @@ def add_parser(sub) -> None:
             "iteration diagnostics and the estimated covariance of the pose twist "
             "[omega, v] (workpiece frame; rad^2, rad m, m^2). Output is in metres."
         ),
+        epilog=(
+            f"exit status: 0 a trusted result (status ok); 2 bad input; {EXIT_UNTRUSTED} finished, but "
+            "the result cannot be trusted as one determined pose (not_converged, poor_fit, unobservable, "
+            "ambiguous, failed, infeasible): it is printed all the same"
+        ),
     )
     p.add_argument("--model", required=True, help="workpiece mesh (STL, OBJ or PLY), workpiece frame")
     p.add_argument("--points", required=True, help="measured points (PLY), world frame")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS,
                    help=f"pose update of Algorithm 1 (default {DEFAULT_METHOD})")
     p.add_argument("--init", default=None,
-                   help="initial pose: 'global' (multistart search) or a JSON file holding a 4x4 "
+                   help="initial pose: 'global' (search every orientation: document 000's multistart, "
+                        "verified; with --sigma it can tell a wrong part) or a JSON file holding a 4x4 "
                         "list or a previous output of this command (its T_world_workpiece); "
                         "metres; default identity")
     p.add_argument("--sigma", type=float, default=None,
-                   help="noise sigma along the normals, in --units (default: estimated from residuals)")
+                   help="noise sigma along the normals, in --units (default: estimated from residuals); "
+                        "a residual far above it is reported (poor_fit; failed with --init global)")
     p.add_argument("--units", choices=sorted(UNIT_SCALE), default="m",
                    help="units of the mesh and point files (default m)")
     p.add_argument("--max-iterations", type=int, default=None, help="cap on pose updates (default per method)")
@@ -53,6 +74,8 @@ def add_parser(sub) -> None:
     p.add_argument("--outlier", default="mad",
                    help="'mad' (robust 5-sigma cut, default), 'none', or a maximum distance in --units")
     p.add_argument("--seed", type=int, default=0, help="seed of the global search (with --init global)")
+    p.add_argument("--global-method", default="multistart", choices=("multistart", "genetic", "pso"),
+                   help="global search with --init global (default multistart)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     # symmetric and hybrid localization (document 000, Algorithms 2 and 3)
     p.add_argument("--symmetric", default=None, metavar="auto|none|FEATURE",
@@ -60,8 +83,8 @@ def add_parser(sub) -> None:
                         "without --allowance), 'auto' (found from the points' Fisher information, then "
                         "Algorithm 2; the default with --allowance), or a feature type of document "
                         "000's table (" + ", ".join(FEATURE_TYPES) + ") fitted to the measured faces. "
-                        "The JSON gains free_dofs, free_directions and solutions (every equally good "
-                        "pose of a discretely symmetric part)")
+                        "The JSON gains the feature and its symmetry group; solutions lists every "
+                        "equally good pose of a discretely symmetric part")
     p.add_argument("--allowance", default=None, metavar="FILE",
                    help="rough-surface points for hybrid (envelopment) localization, world frame, in "
                         "--units: a CSV with a header naming x, y, z and optionally allowance (the "
@@ -135,35 +158,81 @@ def _finite_or_none(x):
 
 
 def result_to_json(res) -> dict:
-    """The JSON object printed by ``twin localize --json`` (metres, radians, seconds)."""
-    return {
+    """The JSON object printed by ``twin localize --json`` (metres, radians, seconds): the
+    fields every registration result has, then those of its kind (global search, symmetric,
+    hybrid)."""
+    out = {
         "T_world_workpiece": np.asarray(res.T_world_workpiece).tolist(),
+        "status": res.status.value,
+        "message": res.message,
+        "trusted": bool(res.trusted),
+        "method": res.method,
         "rmse_m": float(res.rmse_m),
         "iterations": int(res.iterations),
         "converged": bool(res.converged),
         "observable": bool(res.observable),
-        "status": res.status,
-        "method": res.method,
         "time_s": float(res.time_s),
+        "determined_directions": np.asarray(res.determined_directions).tolist(),
         "covariance": _finite_or_none(res.covariance),
-        "covariance_frame": "error twist [omega, v] of T_est = T_true exp(xi), workpiece frame; rad^2, rad m, m^2",
+        "covariance_frame": "coordinates m of the error twist xi = determined_directions^T m, "
+                            "T_est = T_true exp(xi), [omega, v] in the workpiece frame; rad^2, rad m, m^2",
         "sigma_m": float(res.sigma_m) if math.isfinite(res.sigma_m) else None,
-        "weak_directions": np.asarray(res.weak_directions).tolist(),
+        "free_dofs": int(res.free_dofs),
+        "free_directions": np.asarray(res.free_directions).tolist(),
+        "solutions": [np.asarray(S).tolist() for S in res.solutions],
+        "relative_eigenvalues": np.asarray(res.relative_eigenvalues).tolist(),
         "n_points_used": int(res.n_points_used),
         "n_dropped_nonfinite": int(res.n_dropped_nonfinite),
         "n_outliers": int(res.n_outliers),
         "history_rmse_m": [float(h) for h in res.history],
     }
+    if isinstance(res, GlobalLocalizationResult):
+        d = res.diagnostics
+        out["candidates"] = [{"T_world_workpiece": np.asarray(T).tolist(), "rmse_m": float(r)}
+                             for T, r in res.candidates]
+        out["global"] = {
+            "method": d.method,
+            "n_starts": int(d.n_starts),
+            "starts_accepted": int(d.starts_accepted),
+            "sigma_eff_m": float(d.sigma_eff_m),
+            "rms_verify_m": float(d.rms_verify_m),
+            "n_verify": int(d.n_verify),
+            "polish": d.polish,
+            "polish_status": d.polish_status.value,
+        }
+    sym = res.symmetric if isinstance(res, HybridResult) else res
+    if isinstance(sym, SymmetricResult):
+        out.update({
+            "feature": sym.feature,
+            "symmetry_group": sym.group.describe(),
+            "detection_tol": float(sym.detection_tol),
+            "solution_rmse_m": [float(v) for v in sym.solution_rmse_m] if sym is res else [float(res.rmse_m)],
+        })
+    if isinstance(res, HybridResult):
+        out.update({
+            "feasible": bool(res.feasible),
+            "min_allowance_m": {str(k): float(v) for k, v in res.min_allowance_m.items()},
+            "best_min_margin_m": float(res.best_min_margin_m),
+            "limiting_points": [int(i) for i in res.limiting_points],
+            "T_max_min": np.asarray(res.T_max_min).tolist(),
+            "envelope_rmse_m": float(res.envelope_rmse_m),
+            "lp_solves": int(res.lp_solves),
+            "symmetric_status": res.symmetric.status.value,
+            "symmetric_message": res.symmetric.message,
+        })
+    return out
+
+
+def _exit_code(res) -> int:
+    return 0 if res.trusted else EXIT_UNTRUSTED
 
 
 def run(args: argparse.Namespace) -> int:
     scale = UNIT_SCALE[args.units]
     mesh = _load_mesh(args.model, args.units)
     points = _load_points(args.points, args.units)
-    if args.init is None:
+    if args.init is None or args.init == "global":
         init = None
-    elif args.init == "global":
-        init = "global"
     else:
         init = read_init(args.init)
     sigma = None
@@ -177,43 +246,53 @@ def run(args: argparse.Namespace) -> int:
             outlier = float(outlier) * scale
         except ValueError:
             raise TwinError(f"--outlier must be 'mad', 'none' or a distance, got {args.outlier!r}") from None
-    rng = np.random.default_rng(args.seed)
     symmetric = _symmetric_choice(args)
+    found = None
+    if args.init == "global":
+        found = global_localize(points, mesh, args.global_method, rng=np.random.default_rng(args.seed),
+                                noise_sigma_m=sigma, outlier=outlier, polish=args.method)
+        init = found.T_world_workpiece
     if symmetric != "none" or args.allowance is not None:
-        return _run_symmetric(args, mesh, points, init, rng, sigma, outlier, symmetric, scale)
-    res = localize(
-        points,
-        mesh,
-        method=args.method,
-        init=init,
-        rng=rng,
-        sigma=sigma,
-        max_iterations=args.max_iterations,
-        tolerance=args.tolerance,
-        outlier=outlier,
-    )
-    out = result_to_json(res)
-    weak = _unit_twists(res.weak_directions)
-    out["free_dofs"] = int(len(weak))
-    out["free_directions"] = weak.tolist()
-    out["solutions"] = [np.asarray(res.T_world_workpiece).tolist()]
-    if args.json:
-        print(json.dumps(out))
+        return _run_symmetric(args, mesh, points, init, sigma, outlier, symmetric, scale)
+    if found is not None:
+        res = found
     else:
-        T = np.asarray(res.T_world_workpiece)
-        print(f"method {res.method}: {res.status}")
-        print(f"iterations {res.iterations}, rmse {res.rmse_m * 1e6:.3f} um, "
-              f"{res.n_points_used} points used, {res.n_outliers} outliers, "
-              f"{res.n_dropped_nonfinite} non-finite dropped, {res.time_s * 1e3:.1f} ms")
-        print("T_world_workpiece [m]:")
-        for row in T:
+        res = localize(points, mesh, method=args.method, init=init, sigma=sigma,
+                       max_iterations=args.max_iterations, tolerance=args.tolerance, outlier=outlier)
+    _print(res, result_to_json(res), args.json)
+    return _exit_code(res)
+
+
+def _print(res, out: dict, as_json: bool) -> None:
+    """One JSON object, or the result for a reader (every equally good pose included)."""
+    if as_json:
+        print(json.dumps(out))
+        return
+    print(f"{out['method']}: {out['status']}: {out['message']}")
+    if "symmetry_group" in out:
+        print(f"G_0: {out['symmetry_group']}")
+    if out["free_dofs"]:
+        print(f"free directions {out['free_dofs']} (twists [omega, v], workpiece frame):")
+        for w in out["free_directions"]:
+            print("  " + " ".join(f"{v: .6f}" for v in w))
+    print(f"iterations {res.iterations}, rmse {res.rmse_m * 1e6:.3f} um, "
+          f"{res.n_points_used} points used, {res.n_outliers} outliers, "
+          f"{res.n_dropped_nonfinite} non-finite dropped, {res.time_s * 1e3:.1f} ms")
+    if "min_allowance_m" in out:
+        print("smallest stock per group [mm]: "
+              + ", ".join(f"{k} {v * 1e3:.4f}" for k, v in out["min_allowance_m"].items()))
+    C = res.covariance_twist
+    if C is not None:
+        sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
+        print("1-sigma (workpiece frame): rotation [urad] "
+              + " ".join(f"{v * 1e6:.3f}" for v in sd[:3])
+              + ", translation [um] " + " ".join(f"{v * 1e6:.3f}" for v in sd[3:]))
+    n = len(out["solutions"])
+    for k, S in enumerate(out["solutions"]):
+        title = "T_world_workpiece [m]:" if k == 0 else f"equally good pose {k + 1} of {n} [m]:"
+        print(title)
+        for row in S:
             print("  " + " ".join(f"{v: .9f}" for v in row))
-        if res.covariance is not None:
-            sd = np.sqrt(np.diag(res.covariance))
-            print("1-sigma (workpiece frame): rotation [urad] "
-                  + " ".join(f"{v * 1e6:.3f}" for v in sd[:3])
-                  + ", translation [um] " + " ".join(f"{v * 1e6:.3f}" for v in sd[3:]))
-    return 0
 
 
 # ------------------------------------------------------------------ symmetric and hybrid
@@ -228,16 +307,6 @@ def _symmetric_choice(args) -> str:
     if choice == "none" and args.allowance is not None:
         raise TwinError("--allowance needs the finished features' symmetry: use --symmetric auto or a feature type")
     return choice
-
-
-def _unit_twists(W) -> np.ndarray:
-    """Rows scaled to |omega| = 1 (rotations) or |v| = 1 (translations)."""
-    W = np.asarray(W, dtype=np.float64).reshape(-1, 6)
-    out = W.copy()
-    for i, x in enumerate(W):
-        nw, nv = np.linalg.norm(x[:3]), np.linalg.norm(x[3:])
-        out[i] = x / (nw if nw > 1e-9 * max(nv, 1e-300) else nv)
-    return out
 
 
 def read_allowance(path: str, units: str, default_value: float | None):
@@ -297,69 +366,14 @@ def read_allowance(path: str, units: str, default_value: float | None):
     return pts, allowance, groups
 
 
-def _symmetric_json(sym, hybrid=None) -> dict:
-    """JSON fields of a symmetric (Algorithm 2) or hybrid (Algorithm 3) result, metres."""
-    res = hybrid if hybrid is not None else sym
-    T = np.asarray(res.T_world_workpiece)
-    cov6 = None
-    if sym.free_dofs == 0 and sym.covariance_fixed is not None and hybrid is None:
-        B = np.asarray(sym.fixed_directions)
-        cov6 = B.T @ sym.covariance_fixed @ B  # twists xi = B^T m
-    out = {
-        "T_world_workpiece": T.tolist(),
-        "rmse_m": float(sym.rmse_m),
-        "iterations": int(sym.iterations),
-        "converged": bool(sym.converged if hybrid is None else hybrid.converged),
-        "observable": bool((hybrid.free_dofs if hybrid is not None else sym.free_dofs) == 0),
-        "status": res.status,
-        "method": "algorithm3" if hybrid is not None else ("algorithm2" if sym.algorithm == "2" else "hong_tan"),
-        "time_s": float(res.time_s),
-        "covariance": _finite_or_none(cov6),
-        "covariance_frame": "error twist [omega, v] of T_est = T_true exp(xi), workpiece frame; rad^2, rad m, m^2",
-        "sigma_m": float(sym.sigma_m) if math.isfinite(sym.sigma_m) else None,
-        "weak_directions": np.asarray(sym.free_directions).tolist(),
-        "n_points_used": int(sym.n_points_used),
-        "n_dropped_nonfinite": int(len(sym.inliers) - sym.n_points_used - sym.n_outliers),
-        "n_outliers": int(sym.n_outliers),
-        "history_rmse_m": [float(h) for h in sym.history],
-        "feature": sym.feature,
-        "symmetry_group": sym.group.describe(),
-        "detection_tol": float(sym.detection_tol),
-        "relative_eigenvalues": np.asarray(sym.relative_eigenvalues).tolist(),
-        "fixed_directions": np.asarray(sym.fixed_directions).tolist(),
-        "covariance_fixed": _finite_or_none(sym.covariance_fixed),
-        "free_dofs": int(sym.free_dofs),
-        "free_directions": np.asarray(sym.free_directions).tolist(),
-        "solutions": [np.asarray(S).tolist() for S in sym.solutions],
-        "solution_rmse_m": [float(v) for v in sym.solution_rmse_m],
-    }
-    if hybrid is not None:
-        out.update({
-            "free_dofs": int(hybrid.free_dofs),
-            "free_directions": np.asarray(hybrid.free_directions).tolist(),
-            "solutions": [T.tolist()],
-            "feasible": bool(hybrid.feasible),
-            "min_allowance_m": {str(k): float(v) for k, v in hybrid.min_allowance_m.items()},
-            "best_min_margin_m": float(hybrid.best_min_margin_m),
-            "limiting_points": [int(i) for i in hybrid.limiting_points],
-            "T_max_min": np.asarray(hybrid.T_max_min).tolist(),
-            "envelope_rmse_m": float(hybrid.envelope_rmse_m),
-            "lp_solves": int(hybrid.lp_solves),
-            "symmetric_status": sym.status,
-        })
-    return out
-
-
-def _run_symmetric(args, mesh, points, init, rng, sigma, outlier, symmetric, scale) -> int:
+def _run_symmetric(args, mesh, points, init, sigma, outlier, symmetric, scale) -> int:
     from algorithms.registration.symmetric import localize_symmetric
 
     if args.allowance is None:
         if args.allowance_value is not None or args.stock is not None:
             raise TwinError("--allowance-value and --stock apply with --allowance only")
-        sym = localize_symmetric(points, mesh, symmetric=symmetric, init=init, rng=rng, sigma=sigma,
+        res = localize_symmetric(points, mesh, symmetric=symmetric, init=init, sigma=sigma,
                                  outlier=outlier, method=args.method)
-        out = _symmetric_json(sym)
-        hybrid = None
     else:
         from algorithms.registration.hybrid import localize_hybrid
 
@@ -369,30 +383,7 @@ def _run_symmetric(args, mesh, points, init, rng, sigma, outlier, symmetric, sca
             if not (math.isfinite(args.stock) and args.stock > 0):
                 raise TwinError(f"--stock must be a positive number, got {args.stock}")
             stock = args.stock * scale
-        if isinstance(init, str):
-            from algorithms.registration.local import localize as _loc
-
-            init = _loc(points, mesh, init="global", rng=rng).T_world_workpiece
-        hybrid = localize_hybrid(points, rough, mesh, allowance, groups=groups, symmetric=symmetric,
-                                 init=init, stock_m=stock, sigma=sigma, outlier=outlier)
-        sym = hybrid.symmetric
-        out = _symmetric_json(sym, hybrid)
-    if args.json:
-        print(json.dumps(out))
-        return 0
-    print(f"{out['method']}: {out['status']}")
-    print(f"G_0: {out['symmetry_group']}; free directions {out['free_dofs']} "
-          f"(twists [omega, v], workpiece frame):")
-    for w in out["free_directions"]:
-        print("  " + " ".join(f"{v: .6f}" for v in w))
-    print(f"rmse {sym.rmse_m * 1e6:.3f} um, {sym.n_points_used} points used, {sym.n_outliers} outliers, "
-          f"{out['time_s'] * 1e3:.1f} ms")
-    if hybrid is not None:
-        print("smallest stock per group [mm]: "
-              + ", ".join(f"{k} {v * 1e3:.4f}" for k, v in out["min_allowance_m"].items()))
-    for k, S in enumerate(out["solutions"]):
-        title = "T_world_workpiece [m]:" if k == 0 else f"equally good pose {k + 1} of {len(out['solutions'])} [m]:"
-        print(title)
-        for row in S:
-            print("  " + " ".join(f"{v: .9f}" for v in row))
-    return 0
+        res = localize_hybrid(points, rough, mesh, allowance, groups=groups, symmetric=symmetric,
+                              init=init, stock_m=stock, sigma=sigma, outlier=outlier)
+    _print(res, result_to_json(res), args.json)
+    return _exit_code(res)

@@ -1,0 +1,230 @@
+"""Hypothesis verification of a global search: distinct candidates, the residual test, ambiguity.
+
+The best pose is trusted only if its RMS residual is consistent with the noise
+(``rms <= 2 sigma_eff``) and the points constrain all six degrees of freedom
+(:func:`algorithms.registration.uncertainty.observability` with smooth normals). The best is
+compared with the other *distinct* solutions found (rotation differing by more than 2 degrees
+or translation by more than 1 % of the part's size, refined with exact closest points on the
+same points): a distinct pose whose residual is lower by more than the noise can explain
+means the search ended in a local minimum (``Status.FAILED``); one that is statistically
+indistinguishable (``|eps_2 - eps_1| <= 2 chi2_0.999(6) sigma_eff^2``, about 45
+sigma_eff^2) makes the result *ambiguous* (``Status.AMBIGUOUS``): ``solutions`` lists the
+equally good poses. A symmetric or near-symmetric part is therefore never reported as a
+confident unique success.
+
+The distinct solutions come from the multistart's coarse minima (for ``"genetic"`` and
+``"pso"`` too: the coarse multistart phase runs for them as pre-registration or as this
+check), at most ``max_candidates`` of them, refined on ``n_verify`` points. Besides, every
+rigid motion ``S`` that maps the model onto itself
+(:func:`algorithms.registration.symmetric.model_symmetries`: a cube's 24 rotations, a block's
+half turns) gives the pose ``T S``, which fits any points exactly as well as ``T``: those
+poses join ``solutions`` (when their residual on the verification points agrees), so a part
+with a discrete symmetry lists every equally good pose, not only those the search happened to
+visit.
+
+Outliers: the verification uses the points the polish kept as inliers (the robust rule of
+:mod:`algorithms.registration.robust`); when some verification points are outliers, the
+candidates are refined again on the inliers alone.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+
+from algorithms.geometry.se3 import rotation_error_rad, translation_error_m
+from algorithms.registration.global_search.multistart import NOISE_ACCEPT_FACTOR, LaneResult, descend
+from algorithms.registration.result import Status
+from algorithms.registration.symmetric.discrete import model_symmetries
+
+__all__ = [
+    "AMBIGUITY_CHI2",
+    "DISTINCT_ROTATION_RAD",
+    "DISTINCT_TRANSLATION_FRAC",
+    "Verdict",
+    "distinct",
+    "is_distinct",
+    "refine_candidates",
+    "symmetries_of",
+    "verify",
+]
+
+#: 2 * chi-square 0.999 quantile with 6 DOF: two fits of the same points whose eps differ by
+#: less than this many sigma^2 cannot be told apart.
+AMBIGUITY_CHI2 = 2.0 * 22.4577
+DISTINCT_ROTATION_RAD = math.radians(2.0)
+DISTINCT_TRANSLATION_FRAC = 0.01
+
+
+def distinct(Ts: np.ndarray, order: np.ndarray, size: float, k: int) -> list[int]:
+    """Greedy: indices (in ``order``) of up to k mutually distinct poses."""
+    picked: list[int] = []
+    for i in order:
+        ok = True
+        for j in picked:
+            if (
+                rotation_error_rad(Ts[i], Ts[j]) < DISTINCT_ROTATION_RAD
+                and translation_error_m(Ts[i], Ts[j]) < DISTINCT_TRANSLATION_FRAC * size
+            ):
+                ok = False
+                break
+        if ok:
+            picked.append(int(i))
+            if len(picked) >= k:
+                break
+    return picked
+
+
+def is_distinct(A, B, size) -> bool:
+    return (
+        rotation_error_rad(A, B) >= DISTINCT_ROTATION_RAD
+        or translation_error_m(A, B) >= DISTINCT_TRANSLATION_FRAC * size
+    )
+
+
+def refine_candidates(exact, y_v, primary, lanes: LaneResult, extent: float, max_candidates: int,
+                      L: float) -> tuple[np.ndarray, np.ndarray]:
+    """The method's own pose (``primary``, or None) and the best distinct coarse minima,
+    refined with exact closest points on the verification points ``y_v``.
+
+    Returns:
+        ((K, 4, 4) refined poses, (K,) their eps, the sum of squared distances [m^2]).
+    """
+    cand: list[np.ndarray] = []
+    if primary is not None:
+        cand.append(primary)
+    order = np.argsort(lanes.eps)
+    pick = distinct(lanes.T, order, extent, int(max_candidates))
+    cand.extend(lanes.T[i] for i in pick)
+    cand_T = np.asarray(cand)
+    keep = distinct(cand_T, np.arange(len(cand_T)), extent, len(cand_T))
+    return refine(exact, y_v, cand_T[keep], L)
+
+
+def refine(exact, y_v, T: np.ndarray, L: float) -> tuple[np.ndarray, np.ndarray]:
+    """A short exact descent from each pose of T (B, 4, 4) on the points y_v."""
+    ref = descend(exact, y_v, T, L=L, delta1=1e-6, delta2=np.inf, delta3=1e-7, max_iter_per_descent=15,
+                  rng=None)
+    return ref.T, ref.eps
+
+
+_SYMMETRY_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def symmetries_of(index) -> np.ndarray:
+    """The model's symmetries (K, 4, 4) (identity first), cached per mesh index."""
+    try:
+        S = _SYMMETRY_CACHE.get(index)
+    except TypeError:
+        S = None
+    if S is None:
+        S = model_symmetries(index.mesh, index=index)
+        try:
+            _SYMMETRY_CACHE[index] = S
+        except TypeError:
+            pass
+    return S
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The outcome of :func:`verify`.
+
+    Attributes:
+        status: FAILED, AMBIGUOUS, UNOBSERVABLE or OK.
+        message: the verdict in words.
+        solutions: the equally good poses, the result first.
+        candidates: ``(T, rms_m)`` of the distinct minima, the result first.
+        sigma_eff_m: the effective noise sigma used [m] (estimated when not given).
+        rms_m: the result's RMS residual on the verification points [m].
+        n_points: verification points used.
+    """
+
+    status: Status
+    message: str
+    solutions: tuple
+    candidates: tuple
+    sigma_eff_m: float
+    rms_m: float
+    n_points: int
+
+
+def verify(index, y_v, T_final, refined_T, refined_eps, *, extent: float, sig_eff: float | None,
+           model_error_m: float, method: str, observable: bool, polish_message: str,
+           symmetries: np.ndarray) -> Verdict:
+    """Compare the result with the other distinct minima and the model's symmetric poses.
+
+    Args:
+        index: the model's MeshIndex.
+        y_v: (n, 3) [m] verification points (inliers), world frame.
+        T_final: (4, 4) the result.
+        refined_T, refined_eps: the refined candidates and their eps on ``y_v``.
+        extent: the model's size [m].
+        sig_eff: the effective noise sigma [m], or None (estimated from the result's residual).
+        model_error_m: allowance for model error [m] (added in quadrature when estimating).
+        method: the global method's name (for the message).
+        observable: whether the polish found every direction fixed.
+        polish_message: the polish's message (for an unobservable verdict).
+        symmetries: (K, 4, 4) the model's symmetries, identity first.
+    """
+    x = (y_v - T_final[:3, 3]) @ T_final[:3, :3]
+    eps_final = float(np.sum(index.query(x).distance ** 2))
+    nv = len(y_v)
+    if sig_eff is None:
+        sig_eff = math.hypot(math.sqrt(eps_final / max(nv - 6, 1)), model_error_m)
+    thr = AMBIGUITY_CHI2 * sig_eff**2
+    rms_final = math.sqrt(eps_final / nv)
+    consistent = rms_final <= NOISE_ACCEPT_FACTOR * sig_eff
+    # distinct from the answer and from each other (refinement can merge coarse minima)
+    others: list[tuple[float, np.ndarray]] = []
+    for i in np.argsort(refined_eps):
+        T, e = refined_T[i], float(refined_eps[i])
+        if np.isfinite(e) and is_distinct(T, T_final, extent) and all(
+            is_distinct(T, To, extent) for _, To in others
+        ):
+            others.append((e, T))
+    equivalent = [T_final] + [T for e, T in others if abs(e - eps_final) <= thr]
+    better = [T for e, T in others if e < eps_final - thr]
+    candidates = [(T_final, rms_final)] + [(T, math.sqrt(e / nv)) for e, T in others]
+    # the model's symmetries: T S fits every point as T does
+    for S in symmetries[1:]:
+        T = T_final @ S
+        if all(is_distinct(T, Te, extent) for Te in equivalent):
+            xs = (y_v - T[:3, 3]) @ T[:3, :3]
+            e = float(np.sum(index.query(xs).distance ** 2))
+            if abs(e - eps_final) <= thr:
+                equivalent.append(T)
+                candidates.append((T, math.sqrt(e / nv)))
+    ambiguous = len(equivalent) > 1
+    if better:
+        status = Status.FAILED
+        message = (
+            f"failed: a distinct pose fits better (rms {math.sqrt(others[0][0] / nv):.3g} m vs "
+            f"{rms_final:.3g} m): the {method} search ended in a local minimum"
+        )
+    elif not consistent:
+        status = Status.FAILED
+        message = (
+            f"failed: rms residual {rms_final:.3g} m is above {NOISE_ACCEPT_FACTOR:g} x the expected "
+            f"noise {sig_eff:.3g} m: no start reached the true pose (or the points are not of this part)"
+        )
+    elif ambiguous:
+        status = Status.AMBIGUOUS
+        message = (
+            f"ambiguous: {len(equivalent)} distinct poses fit equally well (rms within the noise "
+            f"{sig_eff:.3g} m): the part is symmetric for these points; solutions lists them"
+        )
+    elif not observable:
+        status = Status.UNOBSERVABLE
+        message = "unobservable: " + polish_message.split(":", 1)[-1].strip()
+    else:
+        status = Status.OK
+        message = (
+            f"ok: unique pose, rms {rms_final:.3g} m consistent with the noise {sig_eff:.3g} m; "
+            "second-best distinct pose rms "
+            + (f"{math.sqrt(others[0][0] / nv):.3g} m" if others else "none found")
+        )
+    return Verdict(status, message, tuple(equivalent), tuple(candidates), sig_eff, rms_final, nv)
