@@ -1,9 +1,12 @@
 """Localization benchmark: this library against Open3D and small_gicp on the same problems.
 
-Not a test: a script that measures and writes a table. Run from the repository root:
+Not a test: a script that measures and writes a table. Run as a module from the repository
+root:
 
-    python benchmarks/bench_localization.py                 # full run (about 10-20 minutes)
-    python benchmarks/bench_localization.py --trials 3      # quicker, noisier numbers
+    python -m benchmarks.bench_localization                 # full run (about 10-20 minutes)
+    python -m benchmarks.bench_localization --trials 3      # quicker, noisier numbers
+    python -m benchmarks.bench_localization --problems s_surface --sizes 150 --sigmas-mm 0.05 \
+        --trials 1 --far-trials 1 --no-global --out /tmp/smoke.md   # a smoke run
 
 Problems (document 000's workpiece A and document 004's S-surface part, from
 ``twin.parts``):
@@ -60,15 +63,12 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from algorithms.geometry.mesh_index import MeshIndex  # noqa: E402
-from algorithms.registration.global_search import global_localize  # noqa: E402
-from algorithms.registration.local import localize  # noqa: E402
-from algorithms.geometry.se3 import inv_pose, rotation_error_rad, translation_error_m  # noqa: E402
-from algorithms.registration.uncertainty import crlb, observability, pose_error_twist, whitened_error  # noqa: E402
-from twin.parts import make_workpiece  # noqa: E402
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import inv_pose
+from algorithms.registration import global_localize, localize
+from algorithms.registration.uncertainty import crlb, observability, pose_error_twist, whitened_error
+from tests.helpers import ROOT, pose_errors
+from twin.parts import make_workpiece
 
 try:
     import open3d as o3d
@@ -127,7 +127,8 @@ def dense_target(mesh, spacing=TARGET_SPACING_M):
     return pts, np.asarray(mesh.face_normals)[fi]
 
 
-def random_pose(rng):
+def random_world_pose(rng):
+    """A uniformly random orientation somewhere in the cell (not a small motion)."""
     T = np.eye(4)
     T[:3, :3] = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
     T[:3, 3] = rng.uniform(-0.3, 0.3, 3) + [0.5, 0.0, 0.2]
@@ -261,18 +262,15 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
     def err(T_est, T_true):
         if T_est is None or not np.all(np.isfinite(T_est)):
             return None
-        return (
-            rotation_error_rad(T_est, T_true),
-            translation_error_m(T_est, T_true),
-            pose_error_twist(T_est, T_true),
-        )
+        et, er = pose_errors(T_est, T_true)
+        return er, et, pose_error_twist(T_est, T_true)
 
     # local methods from each start
     for start in STARTS_DEG:
         cases = []
         n_trials = trials if start <= 45 else max(1, min(trials, far_trials))
-        for t in range(n_trials):
-            T_true = random_pose(rng)
+        for _ in range(n_trials):
+            T_true = random_world_pose(rng)
             T0 = start_pose(T_true, c_model, start, rng)
             y = feet @ T_true[:3, :3].T + T_true[:3, 3] + rng.normal(0.0, sigma, feet.shape)
             cases.append((T_true, T0, y))
@@ -300,8 +298,8 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
 
     # global methods: random true orientation, no start
     cases = []
-    for t in range(trials):
-        T_true = random_pose(rng)
+    for _ in range(trials):
+        T_true = random_world_pose(rng)
         y = feet @ T_true[:3, :3].T + T_true[:3, 3] + rng.normal(0.0, sigma, feet.shape)
         cases.append((T_true, y))
     for method in methods_global:
@@ -315,7 +313,7 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
                         y, index=index, method=method[5:], noise_sigma_m=sigma, rng=np.random.default_rng(seed + k)
                     )
                     T = r.T_world_workpiece
-                    note = r.status.split(":")[0]
+                    note = r.status.value
                 elif method == "open3d_fpfh_ransac":
                     voxel = max(0.0025, 1.5 * spacing if n < 2000 else 0.0025)
                     T = peers.fpfh_ransac(y, voxel, seed + k)
@@ -330,14 +328,15 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
         summary = ""
         if any(notes):
             vals, counts = np.unique([x for x in notes if x], return_counts=True)
-            summary = "status " + ", ".join(f"{v} {c}" for v, c in zip(vals, counts))
+            summary = "status " + ", ".join(f"{v} {c}" for v, c in zip(vals, counts, strict=True))
         record(method, "any", errs, times, summary)
     return rows, obs
 
 
 def markdown(rows):
     out = [
-        "| problem | sigma [mm] | N | start [deg] | method | success | RMS error / CRLB | median time [ms] | min time [ms] | notes |",
+        "| problem | sigma [mm] | N | start [deg] | method | success | RMS error / CRLB | median time [ms] "
+        "| min time [ms] | notes |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -352,7 +351,8 @@ def markdown(rows):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--trials", type=int, default=8, help="trials per (problem, sigma, N, start, method)")
-    ap.add_argument("--far-trials", type=int, default=4, help="trials for the 90 and 180 degree starts of local methods")
+    ap.add_argument("--far-trials", type=int, default=4,
+                    help="trials for the 90 and 180 degree starts of local methods")
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--problems", nargs="+", default=list(PROBLEMS), choices=PROBLEMS)
     ap.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
@@ -388,15 +388,16 @@ def main(argv=None):
         methods_local = ["ours_hong_tan"] + [m for m in peers.available if m != "open3d_fpfh_ransac"]
         # warm-up (compilation, caches), not recorded
         run_config(name, mesh, index, peers, 50e-6, 150, 1, args.seed + 99, methods_local,
-                   [] if args.no_global else ["ours_multistart", "ours_genetic", "ours_pso"], lambda m: None, far_trials=1)
+                   [] if args.no_global else ["ours_multistart", "ours_genetic", "ours_pso"], lambda m: None,
+                   far_trials=1)
         methods_global = [] if args.no_global else ["ours_multistart", "ours_genetic", "ours_pso"]
         if "open3d_fpfh_ransac" in peers.available and not args.no_global:
             methods_global.append("open3d_fpfh_ransac")
         for sigma_mm in args.sigmas_mm:
             for n in args.sizes:
                 rows, obs = run_config(
-                    name, mesh, index, peers, sigma_mm * 1e-3, n, args.trials, args.seed, methods_local, methods_global, log,
-                    far_trials=args.far_trials,
+                    name, mesh, index, peers, sigma_mm * 1e-3, n, args.trials, args.seed, methods_local,
+                    methods_global, log, far_trials=args.far_trials,
                 )
                 all_rows.extend(rows)
                 if sigma_mm == args.sigmas_mm[0]:
@@ -407,7 +408,7 @@ def main(argv=None):
     total = time.perf_counter() - t_all
     load = os.getloadavg() if hasattr(os, "getloadavg") else None
     table = markdown(all_rows)
-    cmd = "python " + " ".join([os.path.relpath(__file__, ROOT)] + (argv if argv is not None else sys.argv[1:]))
+    cmd = " ".join(["python -m benchmarks.bench_localization"] + (argv if argv is not None else sys.argv[1:]))
     peers_v = []
     if o3d is not None:
         peers_v.append(f"open3d {o3d.__version__}")

@@ -1,11 +1,12 @@
 """Subsampling benchmark: document 000's pseudo-Hammersley rule (Algorithm 4) against the full
 grid, a uniform sub-grid and a random subset of the same size.
 
-Not a test: a script that measures and writes ``benchmarks/results_subsampling.md``. Run from
-the repository root:
+Not a test: a script that measures and writes ``benchmarks/results_subsampling.md``. Run as a
+module from the repository root:
 
-    python benchmarks/bench_subsampling.py              # about 2-4 minutes (100 trials)
-    python benchmarks/bench_subsampling.py --trials 10  # quicker, noisier
+    python -m benchmarks.bench_subsampling              # about 2-4 minutes (100 trials)
+    python -m benchmarks.bench_subsampling --trials 10  # quicker, noisier
+    python -m benchmarks.bench_subsampling --trials 1 --out /tmp/smoke.md   # a smoke run
 
 Document 000 (section 9, conclusion 1) claims: uniformly distributed data subsampled by the
 pseudo-Hammersley rule keep at least 90 % of the full data's accuracy at 30-39 % of the
@@ -50,20 +51,17 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from algorithms.geometry.mesh_index import MeshIndex  # noqa: E402
-from algorithms.registration.local import localize  # noqa: E402
-from algorithms.registration.uncertainty import crlb, observability  # noqa: E402
-from algorithms.geometry.se3 import rotation_error_rad, translation_error_m  # noqa: E402
-from algorithms.registration.subsampling import (  # noqa: E402
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.registration.local import localize
+from algorithms.registration.subsampling import (
     full_grid,
     pseudo_hammersley_subsample,
     random_subsample,
     uniform_subsample,
 )
-from twin.parts import make_workpiece  # noqa: E402
+from algorithms.registration.uncertainty import crlb, observability
+from tests.helpers import ROOT, pose_errors
+from twin.parts import make_workpiece
 
 GRIDS = ((10, 10), (20, 31), (40, 60))
 PROBLEMS = {
@@ -99,7 +97,8 @@ def grid_points(mesh, M, N, xr, yr):
     return np.stack([X.ravel(), Y.ravel(), z], axis=1).reshape(M, N, 3)
 
 
-def random_pose(rng):
+def random_world_pose(rng):
+    """A uniformly random orientation somewhere in the cell (not a small motion)."""
     T = np.eye(4)
     T[:3, :3] = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
     T[:3, 3] = rng.uniform(-0.2, 0.2, 3) + [0.5, 0.0, 0.2]
@@ -147,7 +146,7 @@ def main(argv=None):
             for noise_name, (mu, sigma) in NOISE.items():
                 res = {k: {"t": [], "r": [], "time": []} for k in samplers}
                 for _ in range(args.trials):
-                    T = random_pose(rng)
+                    T = random_world_pose(rng)
                     T0 = start_from(T, rng)
                     y_all = flat_pts @ T[:3, :3].T + T[:3, 3] + rng.normal(mu, sigma, flat_pts.shape)
                     for k, sub in samplers.items():
@@ -155,9 +154,10 @@ def main(argv=None):
                         t0 = time.perf_counter()
                         r = localize(y, index=index, method="hong_tan", init=T0, sigma=sigma)
                         res[k]["time"].append(time.perf_counter() - t0)
-                        res[k]["t"].append(translation_error_m(r.T_world_workpiece, T))
-                        res[k]["r"].append(rotation_error_rad(r.T_world_workpiece, T))
-                def rms(k):
+                        et, er = pose_errors(r.T_world_workpiece, T)
+                        res[k]["t"].append(et)
+                        res[k]["r"].append(er)
+                def rms(k, res=res):
                     t = np.asarray(res[k]["t"])
                     r = np.asarray(res[k]["r"])
                     ok = (t < GROSS_T_M) & (r < GROSS_R_RAD)
@@ -211,14 +211,15 @@ def main(argv=None):
         dup = f", {r['dup']} repeats moved" if r["dup"] else ""
         lines.append(
             f"| {r['problem']} | {r['grid']} | {r['noise']} | {r['sampler']} | {r['count']} "
-            f"({r['fraction']:.0%}{dup}) | {r['rel_eig']:.1e} | {r['crlb_t_um']:.1f} | {r['t_um']:.2f} | {r['r_urad']:.2f} | "
+            f"({r['fraction']:.0%}{dup}) | {r['rel_eig']:.1e} | {r['crlb_t_um']:.1f} | {r['t_um']:.2f} | "
+            f"{r['r_urad']:.2f} | "
             f"{r['failures']} | {r['keep_t']:.2f} | "
             f"{r['keep_r']:.2f} | {r['time_ms']:.2f} | {r['time_rel']:.2f} |"
         )
     ph = [r for r in rows if r["sampler"] == "pseudo-Hammersley"]
     claim_acc = sum(1 for r in ph if min(r["keep_t"], r["keep_r"]) >= 0.9)
     claim_time = sum(1 for r in ph if 0.30 <= r["time_rel"] <= 0.39)
-    cmd = "python " + " ".join([os.path.relpath(__file__, ROOT)] + (argv if argv is not None else sys.argv[1:]))
+    cmd = " ".join(["python -m benchmarks.bench_subsampling"] + (argv if argv is not None else sys.argv[1:]))
     text = "\n".join(
         [
             "# Subsampling benchmark (document 000, Algorithm 4)",

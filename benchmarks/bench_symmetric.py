@@ -1,6 +1,7 @@
 """Numbers behind the symmetric/hybrid localization bar (document 000, Algorithms 2 and 3).
 
     python -m benchmarks.bench_symmetric [--trials N]     (from the repository root)
+    python -m benchmarks.bench_symmetric --trials 1 --sections algorithm2 cube   # a smoke run
 
 Prints, for every feature of the table, Algorithm 2's error in the fixed directions and the
 free directions it reports; the automatic detection's hit rate over seeded trials at the
@@ -16,10 +17,9 @@ import time
 import numpy as np
 
 from algorithms.geometry.mesh_index import MeshIndex
-from algorithms.registration.symmetric.features import FEATURE_TABLE, FEATURE_TYPES
-from algorithms.registration.hybrid import envelope_distances, localize_hybrid
 from algorithms.geometry.se3 import exp_se3, inv_pose, transform_points
-from algorithms.registration.symmetric import algorithm2, localize_symmetric
+from algorithms.registration.hybrid import envelope_distances, localize_hybrid
+from algorithms.registration.symmetric import FEATURE_TABLE, FEATURE_TYPES, algorithm2, localize_symmetric
 from tests.helpers import scenario
 from tests.test_features import example_features, sample_feature
 from tests.test_symmetric import SYMMETRIC_MESHES, _cube_faces, _random_pose, _scan_like
@@ -27,7 +27,8 @@ from tests.test_symmetric import SYMMETRIC_MESHES, _cube_faces, _random_pose, _s
 
 def bar_algorithm2():
     print("Algorithm 2 on every feature (200 exact points, random pose, init off by ~2 deg / 4 mm):")
-    print(f"  {'feature':9s} {'free':>4s} {'table':>5s} {'fixed-dir error [rad, m]':>28s} {'Tangent/Hong-Tan rank':>22s}")
+    print(f"  {'feature':9s} {'free':>4s} {'table':>5s} {'fixed-dir error [rad, m]':>28s} "
+          f"{'Tangent/Hong-Tan rank':>22s}")
     for kind in FEATURE_TYPES:
         rng = np.random.default_rng(FEATURE_TYPES.index(kind) + 100)
         f = example_features()[kind]
@@ -71,17 +72,23 @@ def bar_cube():
         T = _random_pose(rng)
         Y = transform_points(T, _cube_faces(rng, which)) + rng.normal(0, 2e-6, (100 * len(which), 3))
         res = localize_symmetric(Y, cube, init=T @ exp_se3([0.03, -0.02, 0.02, 0.002, 0.001, -0.002]))
-        print(f"  {name:11s}: {len(res.solutions)} solutions, free_dofs {res.free_dofs} ({res.feature})")
+        print(f"  {name:11s}: {len(res.solutions)} solutions, free_dofs {res.free_dofs} ({res.feature}), "
+              f"status {res.status.value}")
 
 
 def bar_hybrid():
-    from twin.scan import run_scan
-    from twin.parts.symmetric import (cast_blank, cast_blank_finished, cast_blank_geometry,
-                                      cast_blank_rough_points, classify_cast_blank_points)
+    from twin.parts.symmetric import (
+        cast_blank,
+        cast_blank_finished,
+        cast_blank_geometry,
+        cast_blank_rough_points,
+        classify_cast_blank_points,
+    )
+    from twin.scan import scan_scenario
 
     sc = scenario("cast_blank")
     t0 = time.perf_counter()
-    scan = run_scan(sc)
+    scan = scan_scenario(sc)
     P = scan.valid_points_base
     T_nom, T_true = scan.T_base_workpiece_nominal, scan.T_base_workpiece_true
     lab = classify_cast_blank_points(transform_points(inv_pose(T_nom), P))
@@ -102,7 +109,7 @@ def bar_hybrid():
         d_true, _, _ = envelope_distances(feet, res.T_world_workpiece, fin_i)
         Zd, _ = cast_blank_rough_points(20000, np.random.default_rng(9))
         d_dense, _, _ = envelope_distances(transform_points(T_true, Zd), res.T_world_workpiece, fin_i)
-        print(f"  allowance {allowance * 1e3:.1f} mm: feasible={res.feasible}, measured min margin "
+        print(f"  allowance {allowance * 1e3:.1f} mm: {res.status.value}, feasible={res.feasible}, measured min margin "
               f"{res.margin_m.min() * 1e3:+.6f} mm, true min margin (measured points' true surface) "
               f"{(d_true.min() - allowance) * 1e3:+.4f} mm, (visible domes, 20000 samples) "
               f"{(d_dense.min() - allowance) * 1e3:+.4f} mm, best achievable {res.best_min_margin_m * 1e3:+.4f} mm, "
@@ -111,14 +118,22 @@ def bar_hybrid():
               f"{res.lp_solves} LPs, {time.perf_counter() - t1:.2f} s")
 
 
-def main():
+SECTIONS = ("algorithm2", "detection", "cube", "hybrid")
+
+
+def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=50)
-    args = ap.parse_args()
-    bar_algorithm2()
-    bar_detection(args.trials)
-    bar_cube()
-    bar_hybrid()
+    ap.add_argument("--sections", nargs="+", choices=SECTIONS, default=list(SECTIONS))
+    args = ap.parse_args(argv)
+    if "algorithm2" in args.sections:
+        bar_algorithm2()
+    if "detection" in args.sections:
+        bar_detection(args.trials)
+    if "cube" in args.sections:
+        bar_cube()
+    if "hybrid" in args.sections:
+        bar_hybrid()
 
 
 if __name__ == "__main__":
