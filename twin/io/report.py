@@ -49,8 +49,8 @@ def localization_report(result) -> dict:
     return {
         "method": loc.method,
         "converged": bool(loc.converged),
-        "status": _status_value(loc),
-        "message": getattr(loc, "message", str(loc.status)),
+        "status": loc.status.value,
+        "message": loc.message,
         "iterations": int(loc.iterations),
         "rmse_um": float(loc.rmse_m * UM),
         "sigma_um": float(loc.sigma_m * UM),
@@ -61,11 +61,6 @@ def localization_report(result) -> dict:
         "nominal_rotation_error_deg": float(np.degrees(e.nominal_rotation_rad)),
         "nominal_translation_error_mm": float(e.nominal_translation_m * MM),
     }
-
-
-def _status_value(res) -> str:
-    status = res.status
-    return status.value if hasattr(status, "value") else str(status).split(":", 1)[0]
 
 
 def ik_report(ik, traj) -> dict:
