@@ -63,10 +63,12 @@ if _nb is not None:
 
 HAVE_NUMBA = _nb is not None
 
-__all__ = ["ClosestPoints", "MeshIndex", "closest_points_on_triangles"]
+__all__ = ["ClosestPoints", "MeshIndex", "NearFaces", "closest_points_on_triangles"]
 
 # Neighbour counts tried before the ball query (points near the surface need few).
 _K_STAGES = (8, 48)
+#: Faces each point keeps in its :class:`NearFaces` list (the foot's face and its neighbours).
+NEAR_K = 4
 # Above this many queries the KD-tree uses every core (threads cost more than they save
 # for a few hundred points).
 _PARALLEL_MIN = 4000
@@ -91,6 +93,33 @@ class ClosestPoints:
     def plane_residual(self, points: np.ndarray) -> np.ndarray:
         """(N,) [m] ``<points - foot, normal>``: signed point-to-tangent-plane residual."""
         return np.einsum("ij,ij->i", np.asarray(points, dtype=np.float64) - self.foot, self.normal)
+
+
+@dataclass
+class NearFaces:
+    """Each point's nearest faces, kept between queries: a certificate that lets a point that
+    moved a little be answered from its own short list, exactly.
+
+    For a point ``p`` that has moved ``delta = |p - anchor|`` since its list was found, every
+    face outside the first ``j + 1`` of its list is at least ``reach[j] - delta`` from ``p``
+    (triangle inequality). So once the nearest of the first ``j + 1`` faces is within
+    ``reach[j] - delta`` it is the nearest face of the mesh: usually after one or two
+    point-triangle tests. When no ``j`` certifies, the point's list is found again by the
+    tree. Mutable: updated in place by :meth:`MeshIndex.query_near`.
+
+    Attributes:
+        anchor: (N, 3) [m] where each point's list was found (mesh frame).
+        faces: (N, K) int64 the K faces nearest to ``anchor``, nearest first (-1 pads a mesh
+            with fewer faces).
+        reach: (N, K) [m] every face not among ``faces[:, :j + 1]`` is at least ``reach[:, j]``
+            from ``anchor`` (inf when the list holds every face; -inf: no list yet).
+        n_rebuilt: how many points the last query had to look up in the tree.
+    """
+
+    anchor: np.ndarray
+    faces: np.ndarray
+    reach: np.ndarray
+    n_rebuilt: int = 0
 
 
 def closest_points_on_triangles(points: np.ndarray, triangles: np.ndarray):
@@ -259,6 +288,9 @@ class MeshIndex:
             self._bvh = _nb_build(tri.min(axis=1), tri.max(axis=1), centroid, _BVH_LEAF)
         scale = np.ptp(vertices, axis=0)
         self.extent = float(np.linalg.norm(scale))  # bounding-box diagonal [m]
+        # median edge length [m]: the scale below which a point's nearest faces stay its
+        # nearest faces (see query_near)
+        self.face_size = float(np.median(np.linalg.norm(ab, axis=1))) if len(ab) else 0.0
         self._smooth: np.ndarray | None = None
 
     # ------------------------------------------------------------------ queries
@@ -332,6 +364,54 @@ class MeshIndex:
         kernel(np.ascontiguousarray(q), hints, self._data, *self._bvh,
                self.face_normals, face, foot, dist, normal)
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal)
+
+    def query_near(self, points, near: NearFaces | None = None) -> tuple[ClosestPoints, NearFaces]:
+        """Exact closest points, answered from each point's list of nearest faces where the
+        list's certificate holds (see :class:`NearFaces`), from the tree elsewhere.
+
+        Meant for a sequence of queries of the same points as they move by small steps (the
+        iterations of a registration): a point that stays within its certificate costs a
+        handful of point-triangle tests instead of a tree search. The answers are those of
+        :meth:`query` (exact; only the face chosen between faces at exactly equal distance
+        may differ).
+
+        Args:
+            points: (N, 3) [m] query points, mesh frame, finite.
+            near: the lists returned by the previous call for the same N points (updated in
+                place), or None to find them for every point.
+
+        Returns:
+            (ClosestPoints, NearFaces).
+        """
+        q = np.ascontiguousarray(np.asarray(points, dtype=np.float64))
+        if q.ndim != 2 or q.shape[1] != 3:
+            raise AlgorithmError(f"points must be (N, 3), got {q.shape}")
+        if not np.all(np.isfinite(q)):
+            raise AlgorithmError("query points contain NaN or infinite coordinates")
+        n = len(q)
+        if near is None:
+            near = NearFaces(anchor=np.zeros((n, 3)), faces=np.full((n, NEAR_K), -1, np.int64),
+                             reach=np.full((n, NEAR_K), -np.inf))
+        elif near.faces.shape[0] != n:
+            raise AlgorithmError(f"near lists were made for {near.faces.shape[0]} points, got {n}")
+        if self.backend != "numba" or n == 0:
+            cp = self.query(q)
+            near.anchor[:] = q
+            near.faces[:] = -1
+            near.faces[:, 0] = cp.face
+            near.reach[:] = cp.distance[:, None]  # every other face is at least as far
+            near.n_rebuilt = n
+            return cp, near
+        face = np.empty(n, dtype=np.int64)
+        foot = np.empty((n, 3))
+        dist = np.empty(n)
+        normal = np.empty((n, 3))
+        rebuilt = np.zeros(n, dtype=np.uint8)
+        kernel = _nb_near_parallel if n >= _PARALLEL_MIN else _nb_near_serial
+        kernel(q, near.anchor, near.faces, near.reach, self._data, *self._bvh, self.face_normals,
+               face, foot, dist, normal, rebuilt)
+        near.n_rebuilt = int(rebuilt.sum())
+        return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal), near
 
     def _best_of(self, q, faces):
         """Exact nearest among candidate faces (n, c) for points q (n, 3)."""
@@ -748,3 +828,155 @@ if _nb is not None:
             for i in range(c * chunk, min(n, (c + 1) * chunk)):
                 _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
                         out_face, out_foot, out_dist, out_normal, stack, stack_lb)
+
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _nb_descend_k(px, py, pz, root, kd2, kf, m, data, lo, hi, left, right, start, count, perm,
+                      stack, stack_lb):  # pragma: no cover - compiled
+        """Best-first search of the subtree at ``root`` for the K nearest faces: ``kd2``/``kf``
+        (K,) hold the ``m`` nearest found so far, ascending; returns the new ``m``."""
+        kk = kd2.shape[0]
+        stack[0] = root
+        stack_lb[0] = _nb_box_d2(px, py, pz, lo, hi, root)
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            bnd = kd2[kk - 1] if m == kk else np.inf
+            if stack_lb[sp] >= bnd:
+                continue
+            node = stack[sp]
+            lft = left[node]
+            if lft < 0:
+                s = start[node]
+                for j in range(s, s + count[node]):
+                    f = perm[j]
+                    d2, _v, _w = _nb_tri(px, py, pz, data, f)
+                    if m == kk and d2 >= kd2[kk - 1]:
+                        continue
+                    pos = m if m < kk else kk - 1
+                    while pos > 0 and kd2[pos - 1] > d2:
+                        kd2[pos] = kd2[pos - 1]
+                        kf[pos] = kf[pos - 1]
+                        pos -= 1
+                    kd2[pos] = d2
+                    kf[pos] = f
+                    if m < kk:
+                        m += 1
+            else:
+                rgt = right[node]
+                dl = _nb_box_d2(px, py, pz, lo, hi, lft)
+                dr = _nb_box_d2(px, py, pz, lo, hi, rgt)
+                if dl <= dr:
+                    if dr < bnd:
+                        stack[sp] = rgt
+                        stack_lb[sp] = dr
+                        sp += 1
+                    if dl < bnd:
+                        stack[sp] = lft
+                        stack_lb[sp] = dl
+                        sp += 1
+                else:
+                    if dl < bnd:
+                        stack[sp] = lft
+                        stack_lb[sp] = dl
+                        sp += 1
+                    if dr < bnd:
+                        stack[sp] = rgt
+                        stack_lb[sp] = dr
+                        sp += 1
+        return m
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _nb_near_one(i, q, anchor, faces, reach, data, lo, hi, left, right, start, count, perm, up,
+                     leaf_of, normals, out_face, out_foot, out_dist, out_normal, rebuilt, kd2,
+                     stack, stack_lb):  # pragma: no cover - compiled
+        px = q[i, 0]
+        py = q[i, 1]
+        pz = q[i, 2]
+        kk = faces.shape[1]
+        dx = px - anchor[i, 0]
+        dy = py - anchor[i, 1]
+        dz = pz - anchor[i, 2]
+        moved = np.sqrt(dx * dx + dy * dy + dz * dz)
+        best = np.inf
+        bestf = -1
+        certified = False
+        for j in range(kk):
+            f = faces[i, j]
+            if f < 0:
+                certified = bestf >= 0  # the list holds every face of the mesh
+                break
+            d2, _v, _w = _nb_tri(px, py, pz, data, f)
+            if d2 < best:
+                best = d2
+                bestf = f
+            slack = reach[i, j] - moved
+            if slack >= 0.0 and best <= slack * slack:
+                certified = True
+                break
+        if not certified:
+            # the certificate fails: the K nearest faces here, from the tree (walking up from
+            # the list's best face when there is one, as in _nb_one; from the root otherwise)
+            m = 0
+            if bestf >= 0:
+                node = leaf_of[bestf]
+                m = _nb_descend_k(px, py, pz, node, kd2, faces[i], m, data, lo, hi, left, right,
+                                  start, count, perm, stack, stack_lb)
+                while node != 0:
+                    par = up[node]
+                    sib = right[par] if left[par] == node else left[par]
+                    bnd = kd2[kk - 1] if m == kk else np.inf
+                    if _nb_box_d2(px, py, pz, lo, hi, sib) < bnd:
+                        m = _nb_descend_k(px, py, pz, sib, kd2, faces[i], m, data, lo, hi, left,
+                                          right, start, count, perm, stack, stack_lb)
+                    node = par
+            else:
+                m = _nb_descend_k(px, py, pz, 0, kd2, faces[i], m, data, lo, hi, left, right,
+                                  start, count, perm, stack, stack_lb)
+            for j in range(kk):
+                if j >= m:
+                    faces[i, j] = -1
+                    reach[i, j] = np.inf
+                elif j + 1 < m:
+                    reach[i, j] = np.sqrt(kd2[j + 1])
+                else:  # the last face of the list: the others are at least as far as it
+                    reach[i, j] = np.sqrt(kd2[j]) if m == kk else np.inf
+            anchor[i, 0] = px
+            anchor[i, 1] = py
+            anchor[i, 2] = pz
+            bestf = faces[i, 0]
+            rebuilt[i] = 1
+        d2, v, w = _nb_tri(px, py, pz, data, bestf)
+        out_face[i] = bestf
+        out_dist[i] = np.sqrt(d2)
+        for k in range(3):
+            out_foot[i, k] = data[bestf, k] + v * data[bestf, 3 + k] + w * data[bestf, 6 + k]
+            out_normal[i, k] = normals[bestf, k]
+
+    @_nb.njit(cache=True, nogil=True)
+    def _nb_near_serial(q, anchor, faces, reach, data, lo, hi, left, right, start, count, perm, up,
+                        leaf_of, normals, out_face, out_foot, out_dist, out_normal,
+                        rebuilt):  # pragma: no cover - compiled
+        stack = np.empty(_STACK, np.int64)
+        stack_lb = np.empty(_STACK)
+        kd2 = np.empty(faces.shape[1])
+        for i in range(q.shape[0]):
+            _nb_near_one(i, q, anchor, faces, reach, data, lo, hi, left, right, start, count, perm,
+                         up, leaf_of, normals, out_face, out_foot, out_dist, out_normal, rebuilt,
+                         kd2, stack, stack_lb)
+
+    @_nb.njit(cache=True, nogil=True, parallel=True)
+    def _nb_near_parallel(q, anchor, faces, reach, data, lo, hi, left, right, start, count, perm, up,
+                          leaf_of, normals, out_face, out_foot, out_dist, out_normal,
+                          rebuilt):  # pragma: no cover - compiled
+        n = q.shape[0]
+        chunk = 256
+        nchunks = (n + chunk - 1) // chunk
+        for c in _nb.prange(nchunks):
+            stack = np.empty(_STACK, np.int64)
+            stack_lb = np.empty(_STACK)
+            kd2 = np.empty(faces.shape[1])
+            for i in range(c * chunk, min(n, (c + 1) * chunk)):
+                _nb_near_one(i, q, anchor, faces, reach, data, lo, hi, left, right, start, count,
+                             perm, up, leaf_of, normals, out_face, out_foot, out_dist, out_normal,
+                             rebuilt, kd2, stack, stack_lb)

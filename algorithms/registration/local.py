@@ -89,7 +89,7 @@ import time
 import numpy as np
 
 from algorithms.errors import AlgorithmError
-from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex, NearFaces
 from algorithms.geometry.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose
 from algorithms.registration.inputs import (
     MIN_POINTS,
@@ -132,6 +132,16 @@ TOLERANCE = {"hong_tan": 1e-9, "tangent": 1e-9, "menq": 1e-9, "va": 1e-12, "icp"
 #: RMS residual below ``FLOOR_REL * model size`` counts as an exact fit.
 FLOOR_REL = 1e-12
 OBSERVABILITY_MAX_POINTS = 4096
+#: Closest points come from each point's near-face list once a step moves no point by more
+#: than this many median edge lengths of the mesh (the lists would be rebuilt otherwise).
+NEAR_SWITCH_REL = 0.1
+#: A fallback step (halved or point-to-point, taken when the linearised update overshoots)
+#: that moves the pose by less than this many of its standard deviations ends the
+#: iteration: converged (see _iterate).
+FALLBACK_MIN_SIGMAS = 0.1
+#: From this many points on, the early updates use a regular subset of SUBSET_POINTS points.
+SUBSET_MIN_POINTS = 500
+SUBSET_POINTS = 160
 #: Initial (and smallest) Levenberg-Marquardt damping of "menq", relative to diag(J^T J).
 LM_LAMBDA0 = 1e-8
 
@@ -245,7 +255,7 @@ def localize_checked(
     Y = Y[order]
     rows = rows[order]
 
-    state = _iterate(method, Y, index, T0, max_it, tol, outlier_cfg)
+    state = _iterate_staged(method, Y, index, T0, max_it, tol, outlier_cfg)
     T, cp, mask = state["T"], state["cp"], state["mask"]
     n_used = count(mask, len(Y))
     if n_used < MIN_POINTS:
@@ -371,13 +381,72 @@ def _apply(T: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 
 
-def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
+def _iterate_staged(method, Y, index, T0, max_it, tol, outlier_cfg):
+    """:func:`_iterate`, with the early updates on a regular subset of the points when there
+    are many.
+
+    The updates far from the minimum only need enough points to point the way; a regular
+    subset (every k-th point along the Morton curve, so spread over the whole scan) of
+    ``SUBSET_POINTS`` converges first, and the iteration then goes on over all points from
+    there. The last updates move the points by a fraction of the subset's own uncertainty,
+    so their closest points come from each point's near-face list (a few point-triangle
+    tests a point, see :class:`_Feet`). Same fixed point, same stopping rule on all points.
+    """
+    n = len(Y)
+    if n < SUBSET_MIN_POINTS:
+        return _iterate(method, Y, index, T0, max_it, tol, outlier_cfg)
+    stride = n // SUBSET_POINTS
+    sub = _iterate(method, Y[::stride], index, T0, max_it, tol, outlier_cfg, tighten=False)
+    full = _iterate(method, Y, index, sub["T"], max_it - sub["iterations"], tol, outlier_cfg,
+                    near_from_start=True)
+    full["iterations"] += sub["iterations"]
+    full["history"] = sub["history"] + full["history"][1:]
+    full["status"] += (f"; the first {sub['iterations']} update(s) on a regular subset of "
+                       f"{len(Y[::stride])} points (history: their RMS)")
+    return full
+
+
+class _Feet:
+    """Exact closest points of the points ``Y`` (world) under trial poses: from the tree
+    while the steps are large, from each point's list of nearest faces
+    (:meth:`MeshIndex.query_near`) once a step moves no point by more than
+    ``NEAR_SWITCH_REL`` faces (then a query costs a few point-triangle tests a point)."""
+
+    def __init__(self, index: MeshIndex, Y: np.ndarray, near_from_start: bool = False):
+        self.index = index
+        self.Y = Y
+        self.near: NearFaces | None = None
+        self.near_from_start = near_from_start
+        self.switch_m2 = (NEAR_SWITCH_REL * index.face_size) ** 2
+        self.n_queries = 0
+
+    def __call__(self, T, Ym_ref=None, hint=None):
+        """(ClosestPoints, (N, 3) model-frame points) at the pose T; ``Ym_ref`` the points at
+        the current pose and ``hint`` their faces."""
+        Ym = _apply(inv_pose(T), self.Y)
+        self.n_queries += 1
+        if self.near is None and self.near_from_start:
+            cp, self.near = self.index.query_near(Ym)
+            return cp, Ym
+        if self.near is None and Ym_ref is not None:
+            d = Ym - Ym_ref
+            if float(np.max(np.einsum("ij,ij->i", d, d))) < self.switch_m2:
+                cp, self.near = self.index.query_near(Ym)
+                return cp, Ym
+        if self.near is not None:
+            cp, self.near = self.index.query_near(Ym, self.near)
+            return cp, Ym
+        return self.index.query(Ym, hint=hint), Ym
+
+
+def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_from_start=False):
     """Algorithm 1: alternate exact closest points and the method's pose update.
 
     Outliers follow the staged rule of :mod:`algorithms.registration.robust`: the coarse cut
-    until the iteration first converges, then the final one; if that changes the inlier set
-    the iteration goes on. (A tight cut from a poor start throws away the far points that
-    carry the correction.)
+    until the iteration first converges, then the final one (unless ``tighten`` is False);
+    if that changes the inlier set the iteration goes on. (A tight cut from a poor start
+    throws away the far points that carry the correction.) ``near_from_start``: the start
+    is already close (the closest points come from near-face lists from the first query).
     """
     size = index.extent
     floor2 = (FLOOR_REL * size) ** 2
@@ -387,8 +456,9 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
         d = cp_.distance[mask_]
         return float((d * d).sum() / len(d))  # no BLAS: its threads contend with numba's
 
+    feet = _Feet(index, Y, near_from_start)
     T = T0
-    cp = index.query(_apply(inv_pose(T), Y))
+    cp, Ym = feet(T)
     mask = stages.mask(cp.distance)
     e_prev = mse(cp, mask)
     history = [float(np.sqrt(e_prev))]
@@ -405,10 +475,10 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
         elif n_updates >= max_it:
             break
         else:
-            Ym = _apply(inv_pose(T), Y)
             step = None
+            at_minimum = overshoot = False
             if method == "menq":
-                T_new, cp_new, e_new, lm_lambda, ok = _menq_step(T, Ym, Y, cp, mask, index, e_prev, lm_lambda)
+                T_new, cp_new, Ym_new, e_new, lm_lambda, ok = _menq_step(T, Ym, cp, mask, feet, e_prev, lm_lambda)
                 if not ok:
                     e_new = np.inf
                     cp_new = cp
@@ -416,36 +486,45 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                     # heavily damped: the local model is poor and the steps are tiny; a
                     # point-to-point step may go further (it never raises the residual)
                     T_icp, _ = _update_icp(T, Ym, cp, mask)
-                    cp_icp = index.query(_apply(inv_pose(T_icp), Y), hint=cp.face)
+                    cp_icp, Ym_icp = feet(T_icp, Ym, cp.face)
                     e_icp = mse(cp_icp, mask)
                     if e_icp < e_new:
-                        T_new, cp_new, e_new = T_icp, cp_icp, e_icp
+                        T_new, cp_new, Ym_new, e_new = T_icp, cp_icp, Ym_icp, e_icp
                         n_fallback += 1
             else:
                 T_new, step = _UPDATES[method](T, Ym, cp, mask)
-                cp_new = index.query(_apply(inv_pose(T_new), Y), hint=cp.face)
+                cp_new, Ym_new = feet(T_new, Ym, cp.face)
                 e_new = mse(cp_new, mask)
-                if e_new > e_prev * (1.0 + 1e-6) and method != "fine_001":
+                overshoot = e_new > e_prev * (1.0 + 1e-6)
+                if overshoot and method != "fine_001":
                     # overshoot far from the minimum: halve the motion (a safeguard the
                     # linearised updates need from large initial errors)
                     xi = log_se3(inv_pose(T) @ T_new)
                     for _ in range(8):
                         xi = 0.5 * xi
                         T_try = T @ exp_se3(xi)
-                        cp_try = index.query(_apply(inv_pose(T_try), Y), hint=cp.face)
+                        cp_try, Ym_try = feet(T_try, Ym, cp.face)
                         e_try = mse(cp_try, mask)
                         if e_try < e_prev:
-                            T_new, cp_new, e_new = T_try, cp_try, e_try
+                            T_new, cp_new, Ym_new, e_new = T_try, cp_try, Ym_try, e_try
                             break
             if not e_new <= e_prev * (1.0 + 1e-6) and method != "icp":
                 # The linearised model is wrong here (far from the minimum, feet on edges):
                 # take one closed-form point-to-point step, which never raises the residual.
                 T_icp, _ = _update_icp(T, Ym, cp, mask)
-                cp_icp = index.query(_apply(inv_pose(T_icp), Y), hint=cp.face)
+                cp_icp, Ym_icp = feet(T_icp, Ym, cp.face)
                 e_icp = mse(cp_icp, mask)
                 if e_icp < e_prev:
-                    T_new, cp_new, e_new, step = T_icp, cp_icp, e_icp, np.inf
+                    T_new, cp_new, Ym_new, e_new, step = T_icp, cp_icp, Ym_icp, e_icp, np.inf
                     n_fallback += 1
+            if overshoot and e_new <= e_prev:
+                # At a minimum of the piecewise-smooth distance (feet on edges) the linearised
+                # update overshoots and the shortened or point-to-point steps that follow gain
+                # next to nothing, forever: stop when the pose moves by less than
+                # FALLBACK_MIN_SIGMAS of its own standard deviation (a gain of g in the sum of
+                # squares moves it by sqrt(g) / sigma, sigma^2 ~ e_prev N / (N - 6)).
+                gain = (1.0 - e_new / e_prev) * max(count(mask, len(Y)) - 6, 1)
+                at_minimum = gain < FALLBACK_MIN_SIGMAS**2
             if not e_new <= e_prev:
                 # no decrease: keep the previous pose
                 done = True
@@ -460,7 +539,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                     )
             else:
                 n_updates += 1
-                T, cp = T_new, cp_new
+                T, cp, Ym = T_new, cp_new, Ym_new
                 history.append(float(np.sqrt(e_new)))
                 rel = 1.0 - e_new / e_prev if e_prev > 0 else 0.0
                 new_mask = stages.mask(cp.distance)
@@ -472,6 +551,13 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                     status = f"converged: residual at the numerical floor (RMS {np.sqrt(e_prev):.3g} m)"
                 elif mask_changed:
                     pass
+                elif at_minimum:
+                    done, converged = True, True
+                    status = (
+                        "converged: the update overshoots and the fallback step moves the pose by "
+                        f"less than {FALLBACK_MIN_SIGMAS:g} of its standard deviation "
+                        f"(1 - e_k/e_(k-1) = {rel:.3g})"
+                    )
                 elif method == "fine_001":
                     if step < tol:
                         done, converged = True, True
@@ -480,7 +566,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg):
                     done, converged = True, True
                     status = f"converged: relative decrease 1 - e_k/e_(k-1) = {rel:.3g} < delta = {tol:g}"
         if done:
-            if converged and stages.tighten():
+            if converged and tighten and stages.tighten():
                 new_mask = stages.mask(cp.distance)
                 if not same_mask(new_mask, mask):
                     mask = new_mask
@@ -628,10 +714,10 @@ def _update_fine_001(T, Ym, cp, mask):
     return T @ inv_pose(Td_prime), step
 
 
-def _menq_step(T, Ym, Y, cp, mask, index, e_prev, lam):
+def _menq_step(T, Ym, cp, mask, feet, e_prev, lam):
     """One accepted Levenberg-Marquardt step on the true point-to-surface distances.
 
-    Returns (T, closest points, e, next lambda, ok). The damping ``lam`` (relative to the
+    Returns (T, closest points, model-frame points, e, next lambda, ok). The damping ``lam`` (relative to the
     diagonal of J^T J) grows tenfold after each rejected trial, shrinks tenfold after an
     accepted one; ok is False when no trial up to lam = 1e8 lowers the residual.
     """
@@ -642,13 +728,13 @@ def _menq_step(T, Ym, Y, cp, mask, index, e_prev, lam):
     while lam <= 1e8:
         xi = _solve(A + lam * diag, g)
         T_try = _centered(T, c, xi)
-        cp_try = index.query(_apply(inv_pose(T_try), Y), hint=cp.face)
+        cp_try, Ym_try = feet(T_try, Ym, cp.face)
         d = cp_try.distance[mask]
         e_try = float((d * d).sum() / len(d))
         if e_try <= e_prev:
-            return T_try, cp_try, e_try, max(lam * 0.1, LM_LAMBDA0), True
+            return T_try, cp_try, Ym_try, e_try, max(lam * 0.1, LM_LAMBDA0), True
         lam *= 10.0
-    return T, cp, e_prev, LM_LAMBDA0, False
+    return T, cp, Ym, e_prev, LM_LAMBDA0, False
 
 
 _UPDATES = {
