@@ -285,7 +285,15 @@ class MeshIndex:
             self._tree = cKDTree(samples, leafsize=16)
             self.n_samples = len(samples)
         else:
-            self._bvh = _nb_build(tri.min(axis=1), tri.max(axis=1), centroid, _BVH_LEAF)
+            lo, hi, left, right, start, count, perm, up, leaf_of = _nb_build(
+                tri.min(axis=1), tri.max(axis=1), centroid, _BVH_LEAF)
+            inner = left >= 0
+            assert np.array_equal(right[inner], left[inner] + 1)  # siblings are adjacent
+            # Memory layout for the search (fewer cache misses): each node's box in one row,
+            # and the face constants in leaf order, so that a leaf's triangles are one
+            # contiguous block (``perm`` maps a leaf slot back to its face).
+            self._bvh = (np.ascontiguousarray(self._data[perm]), np.ascontiguousarray(np.c_[lo, hi]),
+                         left, start, count, perm, up, leaf_of)
         scale = np.ptp(vertices, axis=0)
         self.extent = float(np.linalg.norm(scale))  # bounding-box diagonal [m]
         # median edge length [m]: the scale below which a point's nearest faces stay its
@@ -650,10 +658,10 @@ if _nb is not None:
         return ex * ex + ey * ey + ez * ez, v, w
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_box_d2(px, py, pz, lo, hi, n):  # pragma: no cover - compiled
-        dx = max(lo[n, 0] - px, 0.0, px - hi[n, 0])
-        dy = max(lo[n, 1] - py, 0.0, py - hi[n, 1])
-        dz = max(lo[n, 2] - pz, 0.0, pz - hi[n, 2])
+    def _nb_box_d2(px, py, pz, box, n):  # pragma: no cover - compiled
+        dx = max(box[n, 0] - px, 0.0, px - box[n, 3])
+        dy = max(box[n, 1] - py, 0.0, py - box[n, 4])
+        dz = max(box[n, 2] - pz, 0.0, pz - box[n, 5])
         return dx * dx + dy * dy + dz * dz
 
     @_nb.njit(cache=True, nogil=True)
@@ -729,11 +737,11 @@ if _nb is not None:
                 start[:n_nodes].copy(), count[:n_nodes].copy(), perm, up, leaf_of)
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_descend(px, py, pz, root, best, bestf, data, lo, hi, left, right, start, count, perm,
+    def _nb_descend(px, py, pz, root, best, bestf, data, leaf_data, box, left,  start, count, perm,
                     stack, stack_lb):  # pragma: no cover - compiled
         """Best-first search of the subtree at ``root``; returns the improved (best, face)."""
         stack[0] = root
-        stack_lb[0] = _nb_box_d2(px, py, pz, lo, hi, root)
+        stack_lb[0] = _nb_box_d2(px, py, pz, box, root)
         sp = 1
         while sp > 0:
             sp -= 1
@@ -745,14 +753,14 @@ if _nb is not None:
                 s = start[node]
                 for j in range(s, s + count[node]):
                     f = perm[j]
-                    d2, _v, _w = _nb_tri(px, py, pz, data, f)
+                    d2, _v, _w = _nb_tri(px, py, pz, leaf_data, j)
                     if d2 < best:
                         best = d2
                         bestf = f
             else:
-                rgt = right[node]
-                dl = _nb_box_d2(px, py, pz, lo, hi, lft)
-                dr = _nb_box_d2(px, py, pz, lo, hi, rgt)
+                rgt = lft + 1  # siblings are adjacent
+                dl = _nb_box_d2(px, py, pz, box, lft)
+                dr = _nb_box_d2(px, py, pz, box, rgt)
                 # push the farther child first so the nearer is searched first
                 if dl <= dr:
                     if dr < best:
@@ -775,7 +783,7 @@ if _nb is not None:
         return best, bestf
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
+    def _nb_one(i, q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
                 out_face, out_foot, out_dist, out_normal, stack, stack_lb):  # pragma: no cover
         px = q[i, 0]
         py = q[i, 1]
@@ -788,17 +796,17 @@ if _nb is not None:
             best, _v, _w = _nb_tri(px, py, pz, data, h)
             bestf = h
             node = leaf_of[h]
-            best, bestf = _nb_descend(px, py, pz, node, best, bestf, data, lo, hi, left, right,
+            best, bestf = _nb_descend(px, py, pz, node, best, bestf, data, leaf_data, box, left, 
                                       start, count, perm, stack, stack_lb)
             while node != 0:
                 par = up[node]
-                sib = right[par] if left[par] == node else left[par]
-                if _nb_box_d2(px, py, pz, lo, hi, sib) < best:
-                    best, bestf = _nb_descend(px, py, pz, sib, best, bestf, data, lo, hi, left,
-                                              right, start, count, perm, stack, stack_lb)
+                sib = left[par] + 1 if left[par] == node else left[par]
+                if _nb_box_d2(px, py, pz, box, sib) < best:
+                    best, bestf = _nb_descend(px, py, pz, sib, best, bestf, data, leaf_data, box, left,
+                                               start, count, perm, stack, stack_lb)
                 node = par
         else:
-            best, bestf = _nb_descend(px, py, pz, 0, np.inf, -1, data, lo, hi, left, right,
+            best, bestf = _nb_descend(px, py, pz, 0, np.inf, -1, data, leaf_data, box, left, 
                                       start, count, perm, stack, stack_lb)
         d2, v, w = _nb_tri(px, py, pz, data, bestf)
         out_face[i] = bestf
@@ -808,16 +816,16 @@ if _nb is not None:
             out_normal[i, k] = normals[bestf, k]
 
     @_nb.njit(cache=True, nogil=True)
-    def _nb_query_serial(q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
+    def _nb_query_serial(q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
                          out_face, out_foot, out_dist, out_normal):  # pragma: no cover
         stack = np.empty(_STACK, np.int64)
         stack_lb = np.empty(_STACK)
         for i in range(q.shape[0]):
-            _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
+            _nb_one(i, q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
                     out_face, out_foot, out_dist, out_normal, stack, stack_lb)
 
     @_nb.njit(cache=True, nogil=True, parallel=True)
-    def _nb_query_parallel(q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
+    def _nb_query_parallel(q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
                            out_face, out_foot, out_dist, out_normal):  # pragma: no cover
         n = q.shape[0]
         chunk = 256
@@ -826,18 +834,18 @@ if _nb is not None:
             stack = np.empty(_STACK, np.int64)
             stack_lb = np.empty(_STACK)
             for i in range(c * chunk, min(n, (c + 1) * chunk)):
-                _nb_one(i, q, hints, data, lo, hi, left, right, start, count, perm, up, leaf_of, normals,
+                _nb_one(i, q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
                         out_face, out_foot, out_dist, out_normal, stack, stack_lb)
 
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_descend_k(px, py, pz, root, kd2, kf, m, data, lo, hi, left, right, start, count, perm,
+    def _nb_descend_k(px, py, pz, root, kd2, kf, m, data, leaf_data, box, left,  start, count, perm,
                       stack, stack_lb):  # pragma: no cover - compiled
         """Best-first search of the subtree at ``root`` for the K nearest faces: ``kd2``/``kf``
         (K,) hold the ``m`` nearest found so far, ascending; returns the new ``m``."""
         kk = kd2.shape[0]
         stack[0] = root
-        stack_lb[0] = _nb_box_d2(px, py, pz, lo, hi, root)
+        stack_lb[0] = _nb_box_d2(px, py, pz, box, root)
         sp = 1
         while sp > 0:
             sp -= 1
@@ -850,7 +858,7 @@ if _nb is not None:
                 s = start[node]
                 for j in range(s, s + count[node]):
                     f = perm[j]
-                    d2, _v, _w = _nb_tri(px, py, pz, data, f)
+                    d2, _v, _w = _nb_tri(px, py, pz, leaf_data, j)
                     if m == kk and d2 >= kd2[kk - 1]:
                         continue
                     pos = m if m < kk else kk - 1
@@ -863,9 +871,9 @@ if _nb is not None:
                     if m < kk:
                         m += 1
             else:
-                rgt = right[node]
-                dl = _nb_box_d2(px, py, pz, lo, hi, lft)
-                dr = _nb_box_d2(px, py, pz, lo, hi, rgt)
+                rgt = lft + 1  # siblings are adjacent
+                dl = _nb_box_d2(px, py, pz, box, lft)
+                dr = _nb_box_d2(px, py, pz, box, rgt)
                 if dl <= dr:
                     if dr < bnd:
                         stack[sp] = rgt
@@ -887,7 +895,7 @@ if _nb is not None:
         return m
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_near_one(i, q, anchor, faces, reach, data, lo, hi, left, right, start, count, perm, up,
+    def _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left,  start, count, perm, up,
                      leaf_of, normals, out_face, out_foot, out_dist, out_normal, rebuilt, kd2,
                      stack, stack_lb):  # pragma: no cover - compiled
         px = q[i, 0]
@@ -920,18 +928,18 @@ if _nb is not None:
             m = 0
             if bestf >= 0:
                 node = leaf_of[bestf]
-                m = _nb_descend_k(px, py, pz, node, kd2, faces[i], m, data, lo, hi, left, right,
+                m = _nb_descend_k(px, py, pz, node, kd2, faces[i], m, data, leaf_data, box, left, 
                                   start, count, perm, stack, stack_lb)
                 while node != 0:
                     par = up[node]
-                    sib = right[par] if left[par] == node else left[par]
+                    sib = left[par] + 1 if left[par] == node else left[par]
                     bnd = kd2[kk - 1] if m == kk else np.inf
-                    if _nb_box_d2(px, py, pz, lo, hi, sib) < bnd:
-                        m = _nb_descend_k(px, py, pz, sib, kd2, faces[i], m, data, lo, hi, left,
-                                          right, start, count, perm, stack, stack_lb)
+                    if _nb_box_d2(px, py, pz, box, sib) < bnd:
+                        m = _nb_descend_k(px, py, pz, sib, kd2, faces[i], m, data, leaf_data, box, left,
+                                           start, count, perm, stack, stack_lb)
                     node = par
             else:
-                m = _nb_descend_k(px, py, pz, 0, kd2, faces[i], m, data, lo, hi, left, right,
+                m = _nb_descend_k(px, py, pz, 0, kd2, faces[i], m, data, leaf_data, box, left, 
                                   start, count, perm, stack, stack_lb)
             for j in range(kk):
                 if j >= m:
@@ -954,19 +962,19 @@ if _nb is not None:
             out_normal[i, k] = normals[bestf, k]
 
     @_nb.njit(cache=True, nogil=True)
-    def _nb_near_serial(q, anchor, faces, reach, data, lo, hi, left, right, start, count, perm, up,
+    def _nb_near_serial(q, anchor, faces, reach, data, leaf_data, box, left,  start, count, perm, up,
                         leaf_of, normals, out_face, out_foot, out_dist, out_normal,
                         rebuilt):  # pragma: no cover - compiled
         stack = np.empty(_STACK, np.int64)
         stack_lb = np.empty(_STACK)
         kd2 = np.empty(faces.shape[1])
         for i in range(q.shape[0]):
-            _nb_near_one(i, q, anchor, faces, reach, data, lo, hi, left, right, start, count, perm,
+            _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left,  start, count, perm,
                          up, leaf_of, normals, out_face, out_foot, out_dist, out_normal, rebuilt,
                          kd2, stack, stack_lb)
 
     @_nb.njit(cache=True, nogil=True, parallel=True)
-    def _nb_near_parallel(q, anchor, faces, reach, data, lo, hi, left, right, start, count, perm, up,
+    def _nb_near_parallel(q, anchor, faces, reach, data, leaf_data, box, left,  start, count, perm, up,
                           leaf_of, normals, out_face, out_foot, out_dist, out_normal,
                           rebuilt):  # pragma: no cover - compiled
         n = q.shape[0]
@@ -977,6 +985,6 @@ if _nb is not None:
             stack_lb = np.empty(_STACK)
             kd2 = np.empty(faces.shape[1])
             for i in range(c * chunk, min(n, (c + 1) * chunk)):
-                _nb_near_one(i, q, anchor, faces, reach, data, lo, hi, left, right, start, count,
+                _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left,  start, count,
                              perm, up, leaf_of, normals, out_face, out_foot, out_dist, out_normal,
                              rebuilt, kd2, stack, stack_lb)

@@ -134,7 +134,7 @@ FLOOR_REL = 1e-12
 OBSERVABILITY_MAX_POINTS = 4096
 #: Closest points come from each point's near-face list once a step moves no point by more
 #: than this many median edge lengths of the mesh (the lists would be rebuilt otherwise).
-NEAR_SWITCH_REL = 0.1
+NEAR_SWITCH_REL = 0.3
 #: A fallback step (halved or point-to-point, taken when the linearised update overshoots)
 #: that moves the pose by less than this many of its standard deviations ends the
 #: iteration: converged (see _iterate).
