@@ -17,7 +17,7 @@ equal distance may differ):
 
 ``numba`` (used when numba is installed): a bounding-volume hierarchy over the triangles
 (median splits, 4 triangles a leaf) searched per point with best-first pruning by box
-distance, in parallel above a few thousand points. With a ``hint`` (the previous iteration's
+distance, on one thread per core above a few thousand points. With a ``hint`` (the previous iteration's
 face of each point) the search starts at the hint's leaf with the hint's distance as bound
 and walks up, visiting the sibling of each node on the way only where its box is closer than
 the best so far: exact, and about twice as fast as a search from the root.
@@ -52,18 +52,10 @@ try:  # optional: compiled kernels (about 10-50x faster); results are identical
     import numba as _nb
 except ImportError:  # pragma: no cover - depends on the environment
     _nb = None
-if _nb is not None:
-    import os as _os
-
-    if "NUMBA_THREADING_LAYER" not in _os.environ:
-        # OpenMP worker threads spin after a parallel region and starve the BLAS calls that
-        # follow (measured: a 20k-element dot product took 18 ms instead of 0.01 ms on two
-        # cores); the workqueue layer sleeps instead.
-        _nb.config.THREADING_LAYER = "workqueue"
-
 HAVE_NUMBA = _nb is not None
 
-__all__ = ["ClosestPoints", "MeshIndex", "NearFaces", "closest_points_on_triangles"]
+__all__ = ["ClosestPoints", "MeshIndex", "NearFaces", "closest_points_on_triangles", "compile_kernels",
+           "kernels_cached"]
 
 # Neighbour counts tried before the ball query (points near the surface need few).
 _K_STAGES = (8, 48)
@@ -205,6 +197,88 @@ def _barycentric(d1, d2, abab, acac, abac):
     return v, w
 
 
+_compiled = False
+
+
+def kernels_cached() -> bool | None:
+    """Whether numba's on-disk cache holds every closest-point kernel for this source (None:
+    cannot tell, numba's cache layout being private)."""
+    try:
+        return all(bool(k._cache._cache_file._load_index()) for k in _KERNELS)
+    except Exception:  # pragma: no cover - depends on numba's internals
+        return None
+
+
+def compile_kernels(announce=True) -> float:
+    """Compile (or load from numba's cache) every closest-point kernel now, and return the
+    seconds it took.
+
+    Numba compiles the kernels on their first call and caches them on disk (``cache=True``),
+    so only the first run of an installation pays the compilation (see
+    ``benchmarks/results_speed.md`` for the time measured; loading the cache takes well under
+    a second). :class:`MeshIndex` calls this on the
+    first index a process builds; with ``announce`` it says on stderr that it is compiling
+    when the cache does not hold the kernels (``twin warmup`` calls it at install time).
+    """
+    global _compiled
+    if _nb is None or _compiled:
+        return 0.0
+    import sys
+    import time
+
+    t0 = time.perf_counter()
+    if announce and kernels_cached() is False:
+        print("compiling closest-point kernels, first run only ...", file=sys.stderr, flush=True)
+    _compiled = True
+    # one tetrahedron and one point: every kernel in the argument types of real calls
+    vertices = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+
+    class _Tet:
+        pass
+
+    tet = _Tet()
+    tet.vertices, tet.faces = vertices, faces  # type: ignore[attr-defined]
+    index = MeshIndex(tet, backend="numba")
+    q = np.array([[0.2, 0.2, 0.2], [2.0, 2.0, 2.0]])
+    index._query_numba(q, None)
+    index._query_near_numba(q, None)
+    return time.perf_counter() - t0
+
+
+def _in_chunks(run, n: int) -> None:
+    """run(a, b) over [0, n): in one call below _PARALLEL_MIN, else in one chunk per core on
+    threads (the compiled kernels release the GIL). Threads over a serial kernel instead of
+    numba's parallel=True: the same speed here, and half the first-run compilation time."""
+    workers = min(_pool_size(), -(-n // _PARALLEL_MIN))
+    if workers <= 1:
+        run(0, n)
+        return
+    bounds = np.linspace(0, n, workers + 1).astype(int)
+    list(_pool().map(lambda k: run(bounds[k], bounds[k + 1]), range(workers)))
+
+
+def _pool_size() -> int:
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+_POOL = None
+
+
+def _pool():
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=_pool_size(), thread_name_prefix="mesh_index")
+    return _POOL
+
+
 class MeshIndex:
     """A spatial index over a triangle mesh for exact closest-point queries.
 
@@ -285,6 +359,7 @@ class MeshIndex:
             self._tree = cKDTree(samples, leafsize=16)
             self.n_samples = len(samples)
         else:
+            compile_kernels()
             lo, hi, left, right, start, count, perm, up, leaf_of = _nb_build(
                 tri.min(axis=1), tri.max(axis=1), centroid, _BVH_LEAF)
             inner = left >= 0
@@ -368,9 +443,16 @@ class MeshIndex:
         foot = np.empty((n, 3))
         dist = np.empty(n)
         normal = np.empty((n, 3))
-        kernel = _nb_query_parallel if n >= _PARALLEL_MIN else _nb_query_serial
-        kernel(np.ascontiguousarray(q), hints, self._data, *self._bvh,
-               self.face_normals, face, foot, dist, normal)
+        # writeable C arrays: the types the kernel was compiled (and cached) for
+        q = np.require(q, requirements=("C", "W"))
+        bvh = self._bvh
+        normals = self.face_normals
+
+        def run(a, b):
+            _nb_query_serial(q[a:b], hints[a:b], self._data, *bvh, normals, face[a:b], foot[a:b],
+                             dist[a:b], normal[a:b])
+
+        _in_chunks(run, n)
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal)
 
     def query_near(self, points, near: NearFaces | None = None) -> tuple[ClosestPoints, NearFaces]:
@@ -391,33 +473,45 @@ class MeshIndex:
         Returns:
             (ClosestPoints, NearFaces).
         """
-        q = np.ascontiguousarray(np.asarray(points, dtype=np.float64))
+        q = np.require(np.asarray(points, dtype=np.float64), requirements=("C", "W"))
         if q.ndim != 2 or q.shape[1] != 3:
             raise AlgorithmError(f"points must be (N, 3), got {q.shape}")
         if not np.all(np.isfinite(q)):
             raise AlgorithmError("query points contain NaN or infinite coordinates")
+        if self.backend != "numba" or len(q) == 0:
+            return self._query_near_numpy(q, near)
+        return self._query_near_numba(q, near)
+
+    def _query_near_numpy(self, q, near):
+        """The numpy backend keeps no lists: every query is a tree query."""
+        n = len(q)
+        cp = self.query(q)
+        near = NearFaces(anchor=q.copy(), faces=np.full((n, NEAR_K), -1, np.int64),
+                         reach=np.repeat(cp.distance[:, None], NEAR_K, axis=1))
+        near.faces[:, 0] = cp.face
+        near.n_rebuilt = n
+        return cp, near
+
+    def _query_near_numba(self, q, near):
         n = len(q)
         if near is None:
             near = NearFaces(anchor=np.zeros((n, 3)), faces=np.full((n, NEAR_K), -1, np.int64),
                              reach=np.full((n, NEAR_K), -np.inf))
         elif near.faces.shape[0] != n:
             raise AlgorithmError(f"near lists were made for {near.faces.shape[0]} points, got {n}")
-        if self.backend != "numba" or n == 0:
-            cp = self.query(q)
-            near.anchor[:] = q
-            near.faces[:] = -1
-            near.faces[:, 0] = cp.face
-            near.reach[:] = cp.distance[:, None]  # every other face is at least as far
-            near.n_rebuilt = n
-            return cp, near
         face = np.empty(n, dtype=np.int64)
         foot = np.empty((n, 3))
         dist = np.empty(n)
         normal = np.empty((n, 3))
         rebuilt = np.zeros(n, dtype=np.uint8)
-        kernel = _nb_near_parallel if n >= _PARALLEL_MIN else _nb_near_serial
-        kernel(q, near.anchor, near.faces, near.reach, self._data, *self._bvh, self.face_normals,
-               face, foot, dist, normal, rebuilt)
+        bvh = self._bvh
+        normals = self.face_normals
+
+        def run(a, b):
+            _nb_near_serial(q[a:b], near.anchor[a:b], near.faces[a:b], near.reach[a:b], self._data,
+                            *bvh, normals, face[a:b], foot[a:b], dist[a:b], normal[a:b], rebuilt[a:b])
+
+        _in_chunks(run, n)
         near.n_rebuilt = int(rebuilt.sum())
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal), near
 
@@ -737,7 +831,7 @@ if _nb is not None:
                 start[:n_nodes].copy(), count[:n_nodes].copy(), perm, up, leaf_of)
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_descend(px, py, pz, root, best, bestf, data, leaf_data, box, left,  start, count, perm,
+    def _nb_descend(px, py, pz, root, best, bestf, data, leaf_data, box, left, start, count, perm,
                     stack, stack_lb):  # pragma: no cover - compiled
         """Best-first search of the subtree at ``root``; returns the improved (best, face)."""
         stack[0] = root
@@ -783,31 +877,34 @@ if _nb is not None:
         return best, bestf
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_one(i, q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
+    def _nb_one(i, q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
                 out_face, out_foot, out_dist, out_normal, stack, stack_lb):  # pragma: no cover
         px = q[i, 0]
         py = q[i, 1]
         pz = q[i, 2]
         h = hints[i]
+        # Bottom-up from the hint's leaf: every subtree off the leaf-to-root path is the
+        # sibling of a node on it, so visiting each sibling (pruned by its box) is exact, and
+        # with the hint's distance as the bound most siblings cost one box test. Without a
+        # hint: the whole tree from the root. (One call site of _nb_descend: it is inlined.)
+        best = np.inf
+        bestf = -1
+        node = 0
         if h >= 0:
-            # Bottom-up from the hint's leaf: every subtree off the leaf-to-root path is the
-            # sibling of a node on it, so visiting each sibling (pruned by its box) is exact,
-            # and with the hint's distance as the bound most siblings cost one box test.
             best, _v, _w = _nb_tri(px, py, pz, data, h)
             bestf = h
             node = leaf_of[h]
-            best, bestf = _nb_descend(px, py, pz, node, best, bestf, data, leaf_data, box, left, 
-                                      start, count, perm, stack, stack_lb)
-            while node != 0:
-                par = up[node]
-                sib = left[par] + 1 if left[par] == node else left[par]
-                if _nb_box_d2(px, py, pz, box, sib) < best:
-                    best, bestf = _nb_descend(px, py, pz, sib, best, bestf, data, leaf_data, box, left,
-                                               start, count, perm, stack, stack_lb)
-                node = par
-        else:
-            best, bestf = _nb_descend(px, py, pz, 0, np.inf, -1, data, leaf_data, box, left, 
-                                      start, count, perm, stack, stack_lb)
+        sub = node
+        while True:
+            if sub >= 0:
+                best, bestf = _nb_descend(px, py, pz, sub, best, bestf, data, leaf_data, box, left,
+                                          start, count, perm, stack, stack_lb)
+            if node == 0:
+                break
+            par = up[node]
+            sib = left[par] + 1 if left[par] == node else left[par]
+            sub = sib if _nb_box_d2(px, py, pz, box, sib) < best else -1
+            node = par
         d2, v, w = _nb_tri(px, py, pz, data, bestf)
         out_face[i] = bestf
         out_dist[i] = np.sqrt(d2)
@@ -816,30 +913,16 @@ if _nb is not None:
             out_normal[i, k] = normals[bestf, k]
 
     @_nb.njit(cache=True, nogil=True)
-    def _nb_query_serial(q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
+    def _nb_query_serial(q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
                          out_face, out_foot, out_dist, out_normal):  # pragma: no cover
         stack = np.empty(_STACK, np.int64)
         stack_lb = np.empty(_STACK)
         for i in range(q.shape[0]):
-            _nb_one(i, q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
+            _nb_one(i, q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
                     out_face, out_foot, out_dist, out_normal, stack, stack_lb)
 
-    @_nb.njit(cache=True, nogil=True, parallel=True)
-    def _nb_query_parallel(q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
-                           out_face, out_foot, out_dist, out_normal):  # pragma: no cover
-        n = q.shape[0]
-        chunk = 256
-        nchunks = (n + chunk - 1) // chunk
-        for c in _nb.prange(nchunks):
-            stack = np.empty(_STACK, np.int64)
-            stack_lb = np.empty(_STACK)
-            for i in range(c * chunk, min(n, (c + 1) * chunk)):
-                _nb_one(i, q, hints, data, leaf_data, box, left,  start, count, perm, up, leaf_of, normals,
-                        out_face, out_foot, out_dist, out_normal, stack, stack_lb)
-
-
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_descend_k(px, py, pz, root, kd2, kf, m, data, leaf_data, box, left,  start, count, perm,
+    def _nb_descend_k(px, py, pz, root, kd2, kf, m, data, leaf_data, box, left, start, count, perm,
                       stack, stack_lb):  # pragma: no cover - compiled
         """Best-first search of the subtree at ``root`` for the K nearest faces: ``kd2``/``kf``
         (K,) hold the ``m`` nearest found so far, ascending; returns the new ``m``."""
@@ -895,7 +978,7 @@ if _nb is not None:
         return m
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left,  start, count, perm, up,
+    def _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left, start, count, perm, up,
                      leaf_of, normals, out_face, out_foot, out_dist, out_normal, rebuilt, kd2,
                      stack, stack_lb):  # pragma: no cover - compiled
         px = q[i, 0]
@@ -926,21 +1009,19 @@ if _nb is not None:
             # the certificate fails: the K nearest faces here, from the tree (walking up from
             # the list's best face when there is one, as in _nb_one; from the root otherwise)
             m = 0
-            if bestf >= 0:
-                node = leaf_of[bestf]
-                m = _nb_descend_k(px, py, pz, node, kd2, faces[i], m, data, leaf_data, box, left, 
-                                  start, count, perm, stack, stack_lb)
-                while node != 0:
-                    par = up[node]
-                    sib = left[par] + 1 if left[par] == node else left[par]
-                    bnd = kd2[kk - 1] if m == kk else np.inf
-                    if _nb_box_d2(px, py, pz, box, sib) < bnd:
-                        m = _nb_descend_k(px, py, pz, sib, kd2, faces[i], m, data, leaf_data, box, left,
-                                           start, count, perm, stack, stack_lb)
-                    node = par
-            else:
-                m = _nb_descend_k(px, py, pz, 0, kd2, faces[i], m, data, leaf_data, box, left, 
-                                  start, count, perm, stack, stack_lb)
+            node = leaf_of[bestf] if bestf >= 0 else 0
+            sub = node
+            while True:  # as in _nb_one, with one call site
+                if sub >= 0:
+                    m = _nb_descend_k(px, py, pz, sub, kd2, faces[i], m, data, leaf_data, box, left,
+                                      start, count, perm, stack, stack_lb)
+                if node == 0:
+                    break
+                par = up[node]
+                sib = left[par] + 1 if left[par] == node else left[par]
+                bnd = kd2[kk - 1] if m == kk else np.inf
+                sub = sib if _nb_box_d2(px, py, pz, box, sib) < bnd else -1
+                node = par
             for j in range(kk):
                 if j >= m:
                     faces[i, j] = -1
@@ -962,29 +1043,15 @@ if _nb is not None:
             out_normal[i, k] = normals[bestf, k]
 
     @_nb.njit(cache=True, nogil=True)
-    def _nb_near_serial(q, anchor, faces, reach, data, leaf_data, box, left,  start, count, perm, up,
+    def _nb_near_serial(q, anchor, faces, reach, data, leaf_data, box, left, start, count, perm, up,
                         leaf_of, normals, out_face, out_foot, out_dist, out_normal,
                         rebuilt):  # pragma: no cover - compiled
         stack = np.empty(_STACK, np.int64)
         stack_lb = np.empty(_STACK)
         kd2 = np.empty(faces.shape[1])
         for i in range(q.shape[0]):
-            _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left,  start, count, perm,
+            _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left, start, count, perm,
                          up, leaf_of, normals, out_face, out_foot, out_dist, out_normal, rebuilt,
                          kd2, stack, stack_lb)
 
-    @_nb.njit(cache=True, nogil=True, parallel=True)
-    def _nb_near_parallel(q, anchor, faces, reach, data, leaf_data, box, left,  start, count, perm, up,
-                          leaf_of, normals, out_face, out_foot, out_dist, out_normal,
-                          rebuilt):  # pragma: no cover - compiled
-        n = q.shape[0]
-        chunk = 256
-        nchunks = (n + chunk - 1) // chunk
-        for c in _nb.prange(nchunks):
-            stack = np.empty(_STACK, np.int64)
-            stack_lb = np.empty(_STACK)
-            kd2 = np.empty(faces.shape[1])
-            for i in range(c * chunk, min(n, (c + 1) * chunk)):
-                _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left,  start, count,
-                             perm, up, leaf_of, normals, out_face, out_foot, out_dist, out_normal,
-                             rebuilt, kd2, stack, stack_lb)
+    _KERNELS = (_nb_build, _nb_query_serial, _nb_near_serial)

@@ -14,7 +14,7 @@ import sys
 from algorithms.errors import AlgorithmError
 from twin.errors import TwinError
 
-COMMANDS = ["scan", "demo", "localize", "run"]
+COMMANDS = ["scan", "demo", "localize", "run", "warmup"]
 
 
 def build_parser() -> argparse.ArgumentParser:
