@@ -200,11 +200,12 @@ def _barycentric(d1, d2, abab, acac, abac):
 _compiled = False
 
 
-def kernels_cached() -> bool | None:
-    """Whether numba's on-disk cache holds every closest-point kernel for this source (None:
-    cannot tell, numba's cache layout being private)."""
+def kernels_cached(kernels=None) -> bool | None:
+    """Whether numba's on-disk cache holds the given compiled functions (default: every
+    closest-point kernel) for their current source (None: cannot tell, numba's cache layout
+    being private)."""
     try:
-        return all(bool(k._cache._cache_file._load_index()) for k in _KERNELS)
+        return all(bool(k._cache._cache_file._load_index()) for k in (kernels or _KERNELS))
     except Exception:  # pragma: no cover - depends on numba's internals
         return None
 
