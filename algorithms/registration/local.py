@@ -693,7 +693,7 @@ def _plane_system(Ym, cp, mask):
         global _announced
         if not _announced:
             _announced = True
-            if kernels_cached([_nb_plane_system]) is False:
+            if kernels_cached([_nb_plane_system, _nb_centered_step]) is False:
                 print("compiling localization kernels, first run only ...", file=sys.stderr, flush=True)
         sel = np.ones(len(Ym), dtype=np.bool_) if isinstance(mask, slice) else mask
         return _nb_plane_system(Ym, cp.foot, cp.normal, sel)
@@ -705,8 +705,9 @@ def _plane_system(Ym, cp, mask):
 
 def _update_hong_tan(T, Ym, cp, mask):
     A, g, c = _plane_system(Ym, cp, mask)
-    xi = _solve(A, g)
-    return _centered(T, c, xi), None
+    if _nb_centered_step is not None:
+        return _nb_centered_step(T, A, g, c), None
+    return _centered(T, c, _solve(A, g)), None
 
 
 def _rot_xyz(t):
@@ -813,5 +814,121 @@ def _compile_plane_system():
     return plane_system
 
 
+def _compile_centered_step():
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - depends on the environment
+        return None
+
+    @numba.njit(cache=True, nogil=True)
+    def jacobi_eigh(B):  # pragma: no cover - compiled
+        """Eigenvalues (ascending) and vectors of a small symmetric matrix (cyclic Jacobi;
+        compiles in a fraction of the time of numba's LAPACK binding)."""
+        n = B.shape[0]
+        a = B.copy()
+        V = np.zeros((n, n))
+        for k in range(n):
+            V[k, k] = 1.0
+        for _sweep in range(50):
+            off = 0.0
+            for p in range(n):
+                for q in range(p + 1, n):
+                    off += a[p, q] * a[p, q]
+            if off <= 1e-300:
+                break
+            for p in range(n):
+                for q in range(p + 1, n):
+                    apq = a[p, q]
+                    if apq == 0.0:
+                        continue
+                    tau = (a[q, q] - a[p, p]) / (2.0 * apq)
+                    t = (1.0 if tau >= 0.0 else -1.0) / (abs(tau) + np.sqrt(1.0 + tau * tau))
+                    cs = 1.0 / np.sqrt(1.0 + t * t)
+                    sn = t * cs
+                    for k in range(n):
+                        akp = a[k, p]
+                        akq = a[k, q]
+                        a[k, p] = cs * akp - sn * akq
+                        a[k, q] = sn * akp + cs * akq
+                    for k in range(n):
+                        apk = a[p, k]
+                        aqk = a[q, k]
+                        a[p, k] = cs * apk - sn * aqk
+                        a[q, k] = sn * apk + cs * aqk
+                    for k in range(n):
+                        vkp = V[k, p]
+                        vkq = V[k, q]
+                        V[k, p] = cs * vkp - sn * vkq
+                        V[k, q] = sn * vkp + cs * vkq
+        w = np.empty(n)
+        for k in range(n):
+            w[k] = a[k, k]
+        for i in range(n):  # ascending, with their vectors (insertion sort: n is 6)
+            j = i
+            while j > 0 and w[j - 1] > w[j]:
+                w[j - 1], w[j] = w[j], w[j - 1]
+                for k in range(n):
+                    V[k, j - 1], V[k, j] = V[k, j], V[k, j - 1]
+                j -= 1
+        return w, V
+
+    @numba.njit(cache=True, nogil=True)
+    def centered_step(T, A, g, c):  # pragma: no cover - compiled
+        """_centered(T, c, _solve(A, g)) in one compiled call (the same formulas)."""
+        d = np.empty(6)
+        for k in range(6):
+            d[k] = np.sqrt(A[k, k]) if A[k, k] > 0.0 else 1.0
+        B = np.empty((6, 6))
+        for i in range(6):
+            for j in range(6):
+                B[i, j] = A[i, j] / d[i] / d[j]
+        w, V = jacobi_eigh(B)
+        gs = g / d
+        xi = np.zeros(6)
+        for k in range(6):
+            if w[k] > w[5] * 1e-13:
+                coef = 0.0
+                for i in range(6):
+                    coef += V[i, k] * gs[i]
+                coef /= w[k]
+                for i in range(6):
+                    xi[i] += V[i, k] * coef
+        xi /= d
+        # exponential map of [omega, v] (se3.exp_se3), then about c: [R, V v + c - R c]
+        W = np.zeros((3, 3))
+        W[0, 1], W[0, 2], W[1, 0], W[1, 2], W[2, 0], W[2, 1] = -xi[2], xi[1], xi[2], -xi[0], -xi[1], xi[0]
+        W2 = np.zeros((3, 3))
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    W2[i, j] += W[i, k] * W[k, j]
+        theta = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
+        if theta < 1e-9:
+            a, b, cc = 1.0, 0.5, 1.0 / 6.0
+        else:
+            a = np.sin(theta) / theta
+            b = (1.0 - np.cos(theta)) / theta**2
+            cc = (theta - np.sin(theta)) / theta**3
+        E = np.zeros((4, 4))
+        E[3, 3] = 1.0
+        for i in range(3):
+            for j in range(3):
+                E[i, j] = (1.0 if i == j else 0.0) + a * W[i, j] + b * W2[i, j]
+        for i in range(3):
+            t = c[i]
+            for j in range(3):
+                t += ((1.0 if i == j else 0.0) + b * W[i, j] + cc * W2[i, j]) * xi[3 + j] - E[i, j] * c[j]
+            E[i, 3] = t
+        out = np.zeros((4, 4))
+        for i in range(4):
+            for j in range(4):
+                for k in range(4):
+                    out[i, j] += T[i, k] * E[k, j]
+        return out
+
+    return centered_step
+
+
 _nb_plane_system = _compile_plane_system()
+_nb_centered_step = _compile_centered_step()
 _announced = False
