@@ -209,7 +209,7 @@ def test_multistart_with_noise(part):
     _check_recovered(r, T, GLOBAL_NOISY_M, GLOBAL_NOISY_RAD)
     # wrong noise level: the residual check refuses the pose instead of claiming success
     bad = global_localize(y, m, "multistart", index=idx, noise_sigma_m=2e-6, rng=np.random.default_rng(5))
-    assert not bad.trusted and bad.status is Status.FAILED and bad.message.startswith("failed")
+    assert not bad.trusted and bad.status is Status.POOR_FIT and bad.message.startswith("poor fit")
 
 
 def test_same_seed_same_result(part):
@@ -277,7 +277,7 @@ def test_outliers_are_rejected_and_verification_uses_the_inliers(part):
     assert r.diagnostics.n_verify == len(pts) - r.n_outliers  # the verification used the inliers
     # keeping every point, the outliers spoil the residual: no confident pose
     kept = global_localize(y, m, index=idx, noise_sigma_m=20e-6, rng=np.random.default_rng(1), outlier=None)
-    assert kept.status is Status.FAILED
+    assert kept.status is Status.POOR_FIT
 
 
 # ------------------------------------------------------------------ inputs

@@ -294,7 +294,8 @@ def test_a_local_minimum_is_reported_as_a_poor_fit():
     good = localize(Y, index=idx, sigma=sigma, init=T)
     assert good.status is Status.OK and "poor fit" not in good.message
     assert_recovered(good, T)
-    # without sigma there is no scale to judge the residual by
+    # without sigma the residual is judged against the point-to-point noise; 150 points are
+    # too sparse for that to tell (fit_check's docstring), so the verdict rests on sigma here
     assert localize(Y, index=wrong, init=T).status is Status.OK
 
 

@@ -13,6 +13,7 @@ from tests.helpers import SCENARIOS, scenario
 from tests.tolerances import MAX_DEVIATION_MM, MAX_SURFACE_ERROR_MM, TRIANGULATION_RMS_DEG
 from twin.cell import build_cell
 from twin.cli.run import run_and_report
+from twin.io.output import Staged
 from twin.replay import replay
 from twin.trajectory import plan_joint_trajectory
 
@@ -21,9 +22,11 @@ SHORT = {"scan": {"max_lines": 3}, "path": {"line_spacing_m": 0.02}}
 
 @pytest.fixture(scope="module")
 def loop(tmp_path_factory):
-    out = tmp_path_factory.mktemp("run")
+    out = tmp_path_factory.mktemp("run") / "out"
     sc = scenario("s_surface", **SHORT)
-    result, report = run_and_report(sc, out, out / "run.rrd")
+    with Staged(out) as stage:
+        result, report = run_and_report(sc, stage, out / "run.rrd")
+        stage.commit()
     return sc, out, report, result
 
 

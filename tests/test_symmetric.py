@@ -337,18 +337,20 @@ def test_cli_symmetric_auto_reports_free_directions_and_all_poses(cube_files, ca
     d, T = cube_files
     rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "three.ply", "--init", d / "init.json",
                         "--symmetric", "auto", "--json")
-    assert rc == EXIT_UNTRUSTED, err  # 24 equally good poses: not one pose to trust
+    # 24 equally good poses: the answer symmetric handling was asked for (exit 0), listed
+    assert rc == 0, err
     res = json.loads(out)
-    assert res["status"] == "ambiguous" and res["method"] == "algorithm2"
+    assert res["status"] == "ambiguous" and res["method"] == "algorithm2" and not res["trusted"]
     assert res["free_dofs"] == 0 and res["free_directions"] == [] and len(res["solutions"]) == 24
     assert np.asarray(res["covariance"]).shape == (6, 6)
     assert all(np.asarray(S).shape == (4, 4) for S in res["solutions"])
     assert rotation_error_rad(np.asarray(res["T_world_workpiece"]), T) < RECOVER_RAD
     rc, out, err = _cli(capsys, "--model", d / "cube.ply", "--points", d / "top.ply", "--init", d / "init.json",
                         "--symmetric", "plane", "--json")
-    assert rc == EXIT_UNTRUSTED, err
+    assert rc == 0, err
     res = json.loads(out)
-    assert res["feature"] == "plane" and res["free_dofs"] == 3 and len(res["solutions"]) == 6
+    assert res["status"] == "ambiguous" and res["feature"] == "plane"
+    assert res["free_dofs"] == 3 and len(res["solutions"]) == 6
     assert np.asarray(res["determined_directions"]).shape == (3, 6) and np.asarray(res["covariance"]).shape == (3, 3)
     W = np.asarray(res["free_directions"])
     assert W.shape == (3, 6)

@@ -401,13 +401,17 @@ def test_load_mesh_round_trips_with_scaling(tmp_path, small_part, ext, units):
     assert mesh.volume == pytest.approx(small_part.volume, rel=1e-5)
 
 
-def test_load_mesh_concatenates_a_scene(tmp_path, monkeypatch):
-    path = tmp_path / "two.obj"
-    path.write_text("v 0 0 0\n")
+def test_load_mesh_concatenates_a_scene(tmp_path):
     a = trimesh.creation.box((1.0, 1.0, 1.0))
     b = trimesh.creation.box((1.0, 1.0, 1.0))
     b.apply_translation((3.0, 0.0, 0.0))
-    monkeypatch.setattr(trimesh, "load", lambda *args, **kwargs: trimesh.Scene([a, b]))
+    lines = []
+    for k, (name, box) in enumerate((("a", a), ("b", b))):
+        lines.append(f"o {name}")
+        lines += [f"v {x} {y} {z}" for x, y, z in box.vertices]
+        lines += [f"f {i + 1 + 8 * k} {j + 1 + 8 * k} {m + 1 + 8 * k}" for i, j, m in box.faces]
+    path = tmp_path / "two.obj"
+    path.write_text("\n".join(lines) + "\n")
     mesh = load_mesh(path, "mm")
     assert len(mesh.faces) == 24
     assert np.allclose(mesh.bounds, [[-0.0005, -0.0005, -0.0005], [0.0035, 0.0005, 0.0005]])

@@ -104,8 +104,8 @@ class HybridResult(RegistrationResult):
     The base fields: ``T_world_workpiece`` is Algorithm 3's optimum when feasible, else the
     max-min placement (the best achievable); ``method`` is ``"algorithm3"``; ``status`` is
     INFEASIBLE when no pose gives every rough point its allowance (``message`` names the
-    limiting points), else NOT_CONVERGED, UNOBSERVABLE (directions of ``G_0`` the rough points
-    do not constrain either: ``free_directions``), POOR_FIT (the finished points' fit) or OK;
+    limiting points), else NOT_CONVERGED, POOR_FIT (the finished points' fit), UNOBSERVABLE
+    (directions of ``G_0`` the rough points do not constrain either: ``free_directions``) or OK;
     ``rmse_m``, the inliers and ``sigma_m`` are those of the finished points at the result;
     ``iterations`` counts the accepted LP steps (max-min stage + Algorithm 3) and ``history``
     the envelope objective's RMS [m] at the start of Algorithm 3 and after each of its steps.
@@ -339,10 +339,10 @@ def localize_hybrid(
         verdict = Status.INFEASIBLE
     elif not converged:
         verdict = Status.NOT_CONVERGED
-    elif len(free_dirs):
-        verdict = Status.UNOBSERVABLE
     elif sym.status is Status.POOR_FIT:
         verdict = Status.POOR_FIT
+    elif len(free_dirs):
+        verdict = Status.UNOBSERVABLE
     else:
         verdict = Status.OK
     # the finished points at the result (Algorithm 3 moves the pose along G_0 only)
@@ -368,6 +368,7 @@ def localize_hybrid(
         solutions=(T_out,),
         relative_eigenvalues=sym.relative_eigenvalues,
         time_s=time.perf_counter() - t0,
+        poor_fit_reason=sym.poor_fit_reason,
         feasible=feasible,
         symmetric=sym,
         T_max_min=T_mm,

@@ -68,15 +68,18 @@ ICP step when its damping has grown large. The number of such fallback steps is 
 Local minima: like every local method these converge to the nearest minimum; how often each
 method recovers the pose from random starts is measured by
 ``python -m benchmarks.bench_closest_point --section basin`` (figures in
-``benchmarks/results_closest_point.md``). With ``sigma`` given, a converged fit whose RMS
-exceeds 3 sigma is reported as ``Status.POOR_FIT``; an unknown pose goes through
+``benchmarks/results_closest_point.md``). A converged fit the noise cannot explain is reported
+as ``Status.POOR_FIT`` (:mod:`algorithms.registration.fit_check`: the RMS against the given
+sigma, or without one against the point-to-point noise, and the fraction of points off the
+model); an unknown pose goes through
 :func:`algorithms.registration.global_search.global_localize` (Algorithm 5's multistart) instead.
 
 The verdict (``status``): ``Status.NOT_CONVERGED`` if the iteration did not meet its
-stopping rule; else ``Status.UNOBSERVABLE`` if the points leave directions free (a plane,
-a cylinder, a sphere: ``free_directions``; the covariance then covers the determined
-directions only); else ``Status.POOR_FIT`` if ``sigma`` is given and the RMS exceeds 3
-sigma; else ``Status.OK``.
+stopping rule; else ``Status.POOR_FIT`` if the fit check finds a reason (``poor_fit_reason``;
+set, and said in ``message``, for a fit that did not converge too); else
+``Status.UNOBSERVABLE`` if the points leave directions free (a plane, a cylinder, a sphere:
+``free_directions``; the covariance then covers the determined directions only); else
+``Status.OK``.
 
 Input checks (non-finite rows, units) are those of :mod:`algorithms.registration.inputs`;
 outliers are rejected by the rules of :mod:`algorithms.registration.robust`.
@@ -84,6 +87,7 @@ outliers are rejected by the rules of :mod:`algorithms.registration.robust`.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -92,6 +96,7 @@ import numpy as np
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex, NearFaces, kernels_cached
 from algorithms.geometry.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose
+from algorithms.registration.fit_check import poor_fit_reason, white_noise_sigma_m
 from algorithms.registration.inputs import (
     MIN_POINTS,
     UNITS_MAX_RATIO,
@@ -101,7 +106,7 @@ from algorithms.registration.inputs import (
     finite_rows,
     mesh_index,
 )
-from algorithms.registration.result import POOR_FIT_SIGMAS, RegistrationResult, fit_status
+from algorithms.registration.result import RegistrationResult, fit_status
 from algorithms.registration.robust import (
     OUTLIER_COARSE_FLOOR_REL,
     OUTLIER_FLOOR_REL,
@@ -294,15 +299,14 @@ def localize_checked(
         covariance = _covariance_along(J @ determined.T, sigma_used)
     free = unit_twists(obs.weak_directions)
     rmse = float(np.sqrt(np.mean(cp.distance[mask] ** 2)))
-    status = fit_status(state["converged"], len(free), rmse, sigma)
+    # converged, but to residuals the noise cannot explain: a local minimum (global_localize
+    # is the remedy) or a model that does not match the part
+    poor = poor_fit_reason(rmse, n_used, len(Y), index.extent, sigma,
+                           white_noise_sigma_m(Ym[mask], s) if sigma is None else math.nan)
+    status = fit_status(state["converged"], len(free), poor)
     message = state["status"]
-    if sigma is not None and rmse > POOR_FIT_SIGMAS * sigma:
-        # converged, but to residuals the stated noise cannot explain: a local minimum
-        # (global_localize is the remedy) or a model that does not match the part
-        message += (
-            f"; poor fit: RMS {rmse:.3g} m is {rmse / sigma:.0f} times the given sigma "
-            "(local minimum or wrong model?)"
-        )
+    if poor is not None:
+        message += f"; poor fit: {poor}"
     if not obs.observable:
         message = (
             f"unobservable: {len(free)} weakly constrained direction(s) "
@@ -331,6 +335,7 @@ def localize_checked(
         solutions=(T,),
         relative_eigenvalues=obs.relative_eigenvalues,
         time_s=time.perf_counter() - t_start,
+        poor_fit_reason=poor,
     )
 
 

@@ -33,10 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Status", "RegistrationResult", "POOR_FIT_SIGMAS", "fit_status"]
-
-#: With a given sigma, an RMS residual above this many sigmas is reported as a poor fit.
-POOR_FIT_SIGMAS = 3.0
+__all__ = ["Status", "RegistrationResult", "fit_status"]
 
 
 class Status(enum.Enum):
@@ -91,6 +88,8 @@ class RegistrationResult:
             ``T_world_workpiece``.
         relative_eigenvalues: scaled information eigenvalues / the largest, ascending.
         time_s: wall time of the call [s].
+        poor_fit_reason: why the noise cannot explain the fit
+            (:func:`algorithms.registration.fit_check.poor_fit_reason`), or None.
     """
 
     T_world_workpiece: np.ndarray
@@ -112,6 +111,7 @@ class RegistrationResult:
     solutions: tuple = field(repr=False)
     relative_eigenvalues: np.ndarray
     time_s: float
+    poor_fit_reason: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.status, Status):
@@ -153,14 +153,16 @@ class RegistrationResult:
         return 0.5 * (C + C.T)
 
 
-def fit_status(converged: bool, free_dofs: int, rmse_m: float, sigma: float | None) -> Status:
-    """The verdict of a fit from a given start: NOT_CONVERGED if not converged; else
-    UNOBSERVABLE if a direction is free; else POOR_FIT if ``sigma`` is given and the RMS
-    residual exceeds ``POOR_FIT_SIGMAS`` sigmas; else OK."""
+def fit_status(converged: bool, free_dofs: int, poor_fit_reason: str | None) -> Status:
+    """The verdict of a fit from a given start: NOT_CONVERGED if not converged (its residual is
+    no verdict on the model yet); else POOR_FIT if the fit check
+    (:func:`algorithms.registration.fit_check.poor_fit_reason`) gave a reason (a model that
+    does not explain the points makes its free directions moot); else UNOBSERVABLE if a
+    direction is free; else OK."""
     if not converged:
         return Status.NOT_CONVERGED
+    if poor_fit_reason is not None:
+        return Status.POOR_FIT
     if free_dofs:
         return Status.UNOBSERVABLE
-    if sigma is not None and rmse_m > POOR_FIT_SIGMAS * sigma:
-        return Status.POOR_FIT
     return Status.OK

@@ -1,45 +1,107 @@
 """The ``twin`` command line.
 
 Each subcommand lives in its own module ``twin/cli/<name>.py`` exposing
-``add_parser(subparsers)`` and ``run(args) -> int``. Domain errors become one line on
-stderr and a non-zero exit, never a traceback.
+``add_parser(subparsers)`` and ``run(args) -> int``. Whatever goes wrong ends in one line on
+stderr and a documented exit status, never a traceback (README, "Exit status"):
+
+- 0: done, and the result can be trusted;
+- 2: bad input (a file, an option, an output location, a file system error): nothing written;
+- 3: finished, but the result cannot be trusted (printed and written all the same, saying so);
+- 130 / 143: interrupted by SIGINT / SIGTERM: temporary files removed, nothing written;
+- 141: the reader of stdout went away (``twin ... | head``): ends quietly.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
+from types import FrameType
 
 from algorithms.errors import AlgorithmError
+from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM, OneLineParser
 from twin.errors import TwinError
 
 COMMANDS = ["scan", "demo", "localize", "run", "warmup"]
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised where the program is, so that every staged output is cleaned up."""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="twin",
         description="Digital twin for robotic laser scanning and CAD-based workpiece localization.",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
     for name in COMMANDS:
         module = importlib.import_module(f"twin.cli.{name}")
         module.add_parser(sub)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    # one interrupt is enough: the clean-up that follows must not be interrupted in turn
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _quiet_stdout() -> None:
+    """After a broken pipe, send what is left to /dev/null so that the exit does not fail again."""
     try:
-        return int(args.run(args) or 0)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _os_error_line(exc: OSError) -> str:
+    where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
+    return f"{exc.strerror or type(exc).__name__}{where}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    in_main_thread = True
+    try:
+        for s in handlers:
+            signal.signal(s, _on_signal)
+    except ValueError:  # not the main thread (an embedding program): leave signals alone
+        in_main_thread = False
+    command = "twin"
+    try:
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exc:  # --help (0) or a one-line argument error (2)
+            return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
+        command = f"twin {args.command}"
+        code = int(args.run(args) or 0)
+        sys.stdout.flush()
+        return code
     except (TwinError, AlgorithmError) as exc:
-        print(f"twin {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        print(f"{command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except BrokenPipeError:
+        _quiet_stdout()
+        return EXIT_BROKEN_PIPE
+    except OSError as exc:
+        print(f"{command}: error: {_os_error_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        print(f"twin {args.command}: interrupted", file=sys.stderr)
-        return 130
+        print(f"{command}: interrupted (SIGINT); nothing written", file=sys.stderr)
+        return EXIT_SIGINT
+    except Terminated:
+        print(f"{command}: terminated (SIGTERM); nothing written", file=sys.stderr)
+        return EXIT_SIGTERM
+    finally:
+        if in_main_thread:
+            for s, h in handlers.items():
+                signal.signal(s, h)
 
 
 if __name__ == "__main__":

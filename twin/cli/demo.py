@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
+from twin.cli.common import add_output_options, checked_outputs
 from twin.cli.run import run_and_report
+from twin.errors import TwinError
 from twin.io import write_scan
+from twin.io.output import Staged
 from twin.io.report import headline
 from twin.robot import MODELS_DIR
 from twin.scenario import load_scenario
@@ -24,16 +26,20 @@ def add_parser(sub) -> None:
                     "cell and report errors against the truth, path deviation and contacts.",
     )
     p.add_argument("--scenario", default=str(DEFAULT_SCENARIO), help="scenario TOML (default: S-surface)")
-    p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    p.add_argument("--rrd", help="recording path (default: OUT/demo.rrd)")
+    add_output_options(p, "output folder (default: out/demo; refused if it exists, unless --force)",
+                       default_out="out/demo", rrd_help="recording path (default: OUT/demo.rrd)")
     p.add_argument("--no-rrd", action="store_true", help="do not write a recording")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.out)
-    rrd = None if args.no_rrd else (Path(args.rrd) if args.rrd else out / "demo.rrd")
-    result, report = run_and_report(load_scenario(args.scenario), out, rrd)
-    write_scan(result.scan, out)
+    if args.no_rrd and args.rrd:
+        raise TwinError("--rrd and --no-rrd exclude each other; give one")
+    scenario = load_scenario(args.scenario)
+    out, rrd = checked_outputs(args, default_rrd_name=None if args.no_rrd else "demo.rrd")
+    with Staged(out) as stage:
+        result, report = run_and_report(scenario, stage, rrd, command="demo")
+        write_scan(result.scan, stage.folder)
+        stage.commit()
     print(json.dumps(headline(report), indent=2))
     return 0

@@ -5,16 +5,19 @@ frame; the printed ``T_world_workpiece`` maps workpiece coordinates to world coo
 (``points ~= T_world_workpiece @ model_points``). Mesh and points are read in the same units
 (``--units``, metres by default); everything printed is in metres and radians.
 
-From a start (``--init FILE``, default identity) the local method runs (document 000's
-Algorithm 1); ``--init global`` searches every orientation first
-(:func:`algorithms.registration.global_search.global_localize`, with ``--sigma`` and the
-outlier rule) and prints every equally good pose of a symmetric part. ``--symmetric`` and
-``--allowance`` run Algorithms 2 and 3 from that pose.
+From a start (``--init FILE``) the local method runs (document 000's Algorithm 1); without
+``--init`` (or with ``--init global``) every orientation is searched first
+(:func:`algorithms.registration.global_search.global_localize`: Algorithm 5's multistart from
+p0 = mean(y), with ``--sigma`` and the outlier rule), and every equally good pose of a
+symmetric part is printed. ``--symmetric`` and ``--allowance`` run Algorithms 2 and 3 from
+that pose.
 
-Exit status: 0 when the result can be trusted (status ``ok``); 2 for bad input (nothing
-printed on stdout); ``EXIT_UNTRUSTED`` (3) when the command finished but the result cannot be
-trusted as one determined pose (``not_converged``, ``poor_fit``, ``unobservable``,
-``ambiguous``, ``failed``, ``infeasible``): the result is printed all the same.
+Exit status: 0 when the result can be trusted (status ``ok``; with ``--symmetric`` or
+``--allowance`` also ``unobservable`` and ``ambiguous``, the answers symmetric handling
+expects); 2 for bad input (nothing printed on stdout); ``EXIT_UNTRUSTED`` (3) when the
+command finished but the result cannot be trusted as one determined pose (``not_converged``,
+``poor_fit``, ``unobservable``, ``ambiguous``, ``failed``, ``infeasible``): the result is
+printed all the same.
 """
 
 from __future__ import annotations
@@ -29,11 +32,12 @@ import numpy as np
 from algorithms.geometry.se3 import as_pose
 from algorithms.registration import GlobalLocalizationResult, HybridResult, SymmetricResult, global_localize
 from algorithms.registration.local import DEFAULT_METHOD, METHODS, localize
+from algorithms.registration.result import Status
 from algorithms.registration.symmetric import FEATURE_TYPES
+from twin.cli.common import EXIT_UNTRUSTED, non_negative_int, positive_float, positive_int
 from twin.errors import TwinError
 
-#: Exit status of a finished run whose result cannot be trusted (see the module docstring).
-EXIT_UNTRUSTED = 3
+__all__ = ["EXIT_UNTRUSTED", "add_parser", "read_init", "result_to_json", "run"]
 UNIT_SCALE = {"m": 1.0, "mm": 1e-3}
 
 
@@ -49,9 +53,10 @@ def add_parser(sub) -> None:
             "[omega, v] (workpiece frame; rad^2, rad m, m^2). Output is in metres."
         ),
         epilog=(
-            f"exit status: 0 a trusted result (status ok); 2 bad input; {EXIT_UNTRUSTED} finished, but "
-            "the result cannot be trusted as one determined pose (not_converged, poor_fit, unobservable, "
-            "ambiguous, failed, infeasible): it is printed all the same"
+            f"exit status: 0 a trusted result (status ok; with --symmetric or --allowance also unobservable "
+            f"and ambiguous); 2 bad input; {EXIT_UNTRUSTED} finished, but the result cannot be trusted as "
+            "one determined pose (not_converged, poor_fit, unobservable, ambiguous, failed, infeasible): "
+            "it is printed all the same"
         ),
     )
     p.add_argument("--model", required=True, help="workpiece mesh (STL, OBJ or PLY), workpiece frame")
@@ -59,23 +64,25 @@ def add_parser(sub) -> None:
     p.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS,
                    help=f"pose update of Algorithm 1 (default {DEFAULT_METHOD})")
     p.add_argument("--init", default=None,
-                   help="initial pose: 'global' (search every orientation: document 000's multistart, "
-                        "verified; with --sigma it can tell a wrong part) or a JSON file holding a 4x4 "
-                        "list or a previous output of this command (its T_world_workpiece); "
-                        "metres; default identity")
-    p.add_argument("--sigma", type=float, default=None,
+                   help="initial pose: 'global' (the default: search every orientation with document "
+                        "000's multistart from p0 = mean(points), verified) or a JSON file holding a 4x4 "
+                        "list of 16 finite numbers or a previous output of this command (its "
+                        "T_world_workpiece); metres")
+    p.add_argument("--sigma", type=positive_float, default=None,
                    help="noise sigma along the normals, in --units (default: estimated from residuals); "
                         "a residual far above it is reported (poor_fit; failed with --init global)")
     p.add_argument("--units", choices=sorted(UNIT_SCALE), default="m",
                    help="units of the mesh and point files (default m)")
-    p.add_argument("--max-iterations", type=int, default=None, help="cap on pose updates (default per method)")
-    p.add_argument("--tolerance", type=float, default=None,
+    p.add_argument("--max-iterations", type=positive_int, default=None,
+                   help="cap on pose updates (default per method)")
+    p.add_argument("--tolerance", type=positive_float, default=None,
                    help="delta of 1 - e_k/e_(k-1) < delta (d of the step rule for fine_001)")
     p.add_argument("--outlier", default="mad",
                    help="'mad' (robust 5-sigma cut, default), 'none', or a maximum distance in --units")
-    p.add_argument("--seed", type=int, default=0, help="seed of the global search (with --init global)")
+    p.add_argument("--seed", type=non_negative_int, default=0,
+                   help="seed of the global search (a non-negative integer; default 0)")
     p.add_argument("--global-method", default="multistart", choices=("multistart", "genetic", "pso"),
-                   help="global search with --init global (default multistart)")
+                   help="global search without --init (default multistart)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     # symmetric and hybrid localization (document 000, Algorithms 2 and 3)
     p.add_argument("--symmetric", default=None, metavar="auto|none|FEATURE",
@@ -92,27 +99,16 @@ def add_parser(sub) -> None:
                         "--points then holds the finished-surface points only")
     p.add_argument("--allowance-value", type=float, default=None, metavar="VALUE",
                    help="machining allowance in --units for rough points without an allowance column")
-    p.add_argument("--stock", type=float, default=None, metavar="VALUE",
+    p.add_argument("--stock", type=positive_float, default=None, metavar="VALUE",
                    help="nominal stock in --units: rough points inside the finished model by more are "
                         "refused (default: the 10th percentile of the rough points' stock)")
     p.set_defaults(run=run)
 
 
 def _load_mesh(path: str, units: str):
-    try:
-        from twin.parts import load_mesh
-    except ImportError:  # pragma: no cover - the module is part of the package
-        load_mesh = None
-    if load_mesh is not None:
-        return load_mesh(path, units)
-    import trimesh  # pragma: no cover
+    from twin.parts import load_mesh
 
-    p = Path(path)  # pragma: no cover
-    if not p.is_file():  # pragma: no cover
-        raise TwinError(f"mesh file not found: {path}")
-    mesh = trimesh.load(str(p), force="mesh")  # pragma: no cover
-    mesh.apply_scale(UNIT_SCALE[units])  # pragma: no cover
-    return mesh  # pragma: no cover
+    return load_mesh(path, units)
 
 
 def _load_points(path: str, units: str) -> np.ndarray:
@@ -139,12 +135,15 @@ def read_init(path: str) -> np.ndarray:
         if "T_world_workpiece" not in data:
             raise TwinError(f"--init file {path} holds an object without T_world_workpiece")
         data = data["T_world_workpiece"]
-    try:
-        T = np.asarray(data, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TwinError(f"--init file {path} must hold a 4x4 list of numbers") from None
-    if T.shape != (4, 4):
-        raise TwinError(f"--init file {path} must hold a 4x4 matrix, got shape {T.shape}")
+    rows_ok = isinstance(data, list) and len(data) == 4 and all(isinstance(r, list) and len(r) == 4 for r in data)
+    if not rows_ok:
+        raise TwinError(f"--init file {path} must hold a 4x4 list (4 rows of 4 numbers)")
+    values = [v for r in data for v in r]
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        raise TwinError(f"--init file {path} must hold 16 numbers (no booleans, strings or nulls)")
+    T = np.asarray(values, dtype=np.float64).reshape(4, 4)
+    if not np.all(np.isfinite(T)):
+        raise TwinError(f"--init file {path} holds a non-finite number; 16 finite numbers are needed")
     return as_pose(T, name=f"--init pose from {path}")
 
 
@@ -223,23 +222,22 @@ def result_to_json(res) -> dict:
     return out
 
 
-def _exit_code(res) -> int:
-    return 0 if res.trusted else EXIT_UNTRUSTED
+def _exit_code(res, symmetric_asked: bool) -> int:
+    """0 for a trusted result, and for the answers symmetric handling expects when it was asked for."""
+    if res.trusted:
+        return 0
+    if symmetric_asked and res.status in (Status.UNOBSERVABLE, Status.AMBIGUOUS):
+        return 0
+    return EXIT_UNTRUSTED
 
 
 def run(args: argparse.Namespace) -> int:
     scale = UNIT_SCALE[args.units]
     mesh = _load_mesh(args.model, args.units)
     points = _load_points(args.points, args.units)
-    if args.init is None or args.init == "global":
-        init = None
-    else:
-        init = read_init(args.init)
-    sigma = None
-    if args.sigma is not None:
-        if not (math.isfinite(args.sigma) and args.sigma > 0):
-            raise TwinError(f"--sigma must be a positive number, got {args.sigma}")
-        sigma = args.sigma * scale
+    search = args.init is None or args.init == "global"
+    init = None if search else read_init(args.init)
+    sigma = None if args.sigma is None else args.sigma * scale
     outlier = args.outlier
     if outlier not in ("mad", "none"):
         try:
@@ -248,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
             raise TwinError(f"--outlier must be 'mad', 'none' or a distance, got {args.outlier!r}") from None
     symmetric = _symmetric_choice(args)
     found = None
-    if args.init == "global":
+    if search:
         found = global_localize(points, mesh, args.global_method, rng=np.random.default_rng(args.seed),
                                 noise_sigma_m=sigma, outlier=outlier, polish=args.method)
         init = found.T_world_workpiece
@@ -260,7 +258,7 @@ def run(args: argparse.Namespace) -> int:
         res = localize(points, mesh, method=args.method, init=init, sigma=sigma,
                        max_iterations=args.max_iterations, tolerance=args.tolerance, outlier=outlier)
     _print(res, result_to_json(res), args.json)
-    return _exit_code(res)
+    return _exit_code(res, symmetric_asked=False)
 
 
 def _print(res, out: dict, as_json: bool) -> None:
@@ -268,7 +266,9 @@ def _print(res, out: dict, as_json: bool) -> None:
     if as_json:
         print(json.dumps(out))
         return
-    print(f"{out['method']}: {out['status']}: {out['message']}")
+    words = out["status"].replace("_", " ")
+    said = out["message"].startswith((out["status"], words))
+    print(f"{out['method']}: {out['message']}" if said else f"{out['method']}: {out['status']}: {out['message']}")
     if "symmetry_group" in out:
         print(f"G_0: {out['symmetry_group']}")
     if out["free_dofs"]:
@@ -378,12 +378,8 @@ def _run_symmetric(args, mesh, points, init, sigma, outlier, symmetric, scale) -
         from algorithms.registration.hybrid import localize_hybrid
 
         rough, allowance, groups = read_allowance(args.allowance, args.units, args.allowance_value)
-        stock = None
-        if args.stock is not None:
-            if not (math.isfinite(args.stock) and args.stock > 0):
-                raise TwinError(f"--stock must be a positive number, got {args.stock}")
-            stock = args.stock * scale
+        stock = None if args.stock is None else args.stock * scale
         res = localize_hybrid(points, rough, mesh, allowance, groups=groups, symmetric=symmetric,
                               init=init, stock_m=stock, sigma=sigma, outlier=outlier)
     _print(res, result_to_json(res), args.json)
-    return _exit_code(res)
+    return _exit_code(res, symmetric_asked=True)

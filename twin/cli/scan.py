@@ -1,4 +1,4 @@
-"""``twin scan SCENARIO --out DIR [--rrd FILE]``: simulate a scan and write its files."""
+"""``twin scan SCENARIO --out DIR [--rrd FILE] [--force]``: simulate a scan and write its files."""
 
 from __future__ import annotations
 
@@ -8,8 +8,9 @@ import json
 import time
 
 from twin.cell import build_cell
-from twin.errors import TwinError
+from twin.cli.common import add_output_options, checked_outputs
 from twin.io import write_scan
+from twin.io.output import Staged
 from twin.realize import realize
 from twin.scan import run_scan
 from twin.scenario import load_scenario
@@ -20,11 +21,12 @@ def add_parser(sub) -> None:
         "scan", help="simulate a scan of a scenario and write samples, points and metadata",
         description="Simulate the scenario's raster scan at 1 ms in the true cell and write "
                     "DIR/samples.parquet (t, q1..q6, d, valid, status, line), DIR/points.ply "
-                    "(valid points, robot base frame, metres) and DIR/scan.json.",
+                    "(valid points, robot base frame, metres) and DIR/scan.json. The folder (and the "
+                    "recording) appear when everything is written; an existing one is refused "
+                    "unless --force.",
     )
     p.add_argument("scenario", help="scenario TOML file (see scenarios/README.md)")
-    p.add_argument("--out", required=True, help="output folder (created)")
-    p.add_argument("--rrd", help="also save a rerun recording to this .rrd file")
+    add_output_options(p, "output folder (created; refused if it exists, unless --force)")
     p.add_argument("--noise-off", action="store_true", help="switch every error source off")
     p.set_defaults(run=run)
 
@@ -33,17 +35,18 @@ def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     if args.noise_off:
         scenario = dataclasses.replace(scenario, noise=scenario.noise.all_off())
-    if args.rrd and not args.rrd.endswith(".rrd"):
-        raise TwinError(f"--rrd must name a .rrd file, got {args.rrd!r}")
+    out, rrd = checked_outputs(args)
     t0 = time.perf_counter()
-    realized = realize(scenario)
-    true_cell = build_cell(realized, "true")
-    scan = run_scan(realized, build_cell(realized, "nominal"), true_cell)
-    out = write_scan(scan, args.out)
-    if args.rrd:
-        from twin.viz import save_scan_recording
+    with Staged(out) as stage:
+        realized = realize(scenario)
+        true_cell = build_cell(realized, "true")
+        scan = run_scan(realized, build_cell(realized, "nominal"), true_cell)
+        write_scan(scan, stage.folder, extra={"recording": str(rrd)} if rrd else None)
+        if rrd is not None:
+            from twin.viz import save_scan_recording
 
-        save_scan_recording(args.rrd, true_cell, scan)
+            save_scan_recording(stage.file(rrd), true_cell, scan)
+        stage.commit()
     summary = {
         "out": str(out),
         "samples": int(len(scan.t)),

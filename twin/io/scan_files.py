@@ -14,23 +14,21 @@
 ``points.ply``: the valid reconstructed points, robot base frame, metres (float64 x, y, z).
 ``scan.json``: the scenario, sensor settings, sample period, counts and file list.
 
-Files are written into a temporary folder and moved into place at the end, so an
-interrupted run never leaves a folder that looks complete.
+The commands stage these files in a temporary folder and move it into place at the end
+(:mod:`twin.io.output`), so an interrupted run never leaves a folder that looks complete.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-import trimesh
 
 from twin.errors import TwinError
+from twin.formats import read_ply
 
 SAMPLES_FILE, POINTS_FILE, META_FILE = "samples.parquet", "points.ply", "scan.json"
 
@@ -87,26 +85,22 @@ def scan_metadata(scan) -> dict:
     }
 
 
-def write_scan(scan, out_dir: str | Path, extra: dict | None = None) -> Path:
-    """Write the scan's three files into ``out_dir`` (created; existing files replaced)."""
-    out = Path(out_dir)
+def write_scan(scan, folder: str | Path, extra: dict | None = None) -> Path:
+    """Write the scan's three files into ``folder`` (created if missing).
+
+    The commands write into a staged folder (:class:`twin.io.output.Staged`) that is moved
+    into place when everything is written; this function itself is not atomic.
+    """
+    out = Path(folder)
     if out.exists() and not out.is_dir():
-        raise TwinError(f"--out {out} exists and is not a folder")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
-        pq.write_table(samples_table(scan), tmp / SAMPLES_FILE)
-        pts = scan.valid_points_base
-        write_points_ply(tmp / POINTS_FILE, pts)
-        meta = scan_metadata(scan)
-        if extra:
-            meta.update(extra)
-        (tmp / META_FILE).write_text(json.dumps(meta, indent=2))
-        out.mkdir(exist_ok=True)
-        for f in (SAMPLES_FILE, POINTS_FILE, META_FILE):
-            shutil.move(str(tmp / f), out / f)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        raise TwinError(f"{out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    pq.write_table(samples_table(scan), out / SAMPLES_FILE)
+    write_points_ply(out / POINTS_FILE, scan.valid_points_base)
+    meta = scan_metadata(scan)
+    if extra:
+        meta.update(extra)
+    (out / META_FILE).write_text(json.dumps(meta, indent=2))
     return out
 
 
@@ -123,15 +117,9 @@ def write_points_ply(path: str | Path, points: np.ndarray) -> None:
 
 
 def read_points_ply(path: str | Path) -> np.ndarray:
-    """(N, 3) float64 points from a PLY file (vertices of a point cloud or a mesh)."""
+    """(N, 3) float64 points from a PLY file (vertices of a point cloud or a mesh), checked
+    strictly (:func:`twin.formats.read_ply`)."""
     path = Path(path)
     if not path.is_file():
         raise TwinError(f"points file not found: {path}")
-    try:
-        obj = trimesh.load(path, process=False)
-    except Exception as exc:  # trimesh raises many types on bad files
-        raise TwinError(f"cannot read points from {path}: {exc}") from None
-    pts = np.asarray(getattr(obj, "vertices", np.empty((0, 3))), dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise TwinError(f"{path} holds no (N, 3) points")
-    return pts
+    return read_ply(path).vertices

@@ -2,17 +2,24 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from twin.errors import TwinError
+from twin.formats import check_obj, check_stl, read_ply
 
 __all__ = ["MESH_EXTENSIONS", "load_mesh"]
 
 MESH_EXTENSIONS: tuple[str, ...] = (".stl", ".obj", ".ply")
 """File extensions accepted by :func:`load_mesh` (case-insensitive)."""
+
+#: A workpiece in a cell lies within this distance of its file's origin [m].
+MAX_COORDINATE_M = 100.0
+#: A face is degenerate below this area, relative to the squared size of the model.
+AREA_TOL_REL = 1e-12
 
 
 def _one_line(exc: BaseException) -> str:
@@ -36,8 +43,10 @@ def load_mesh(path: str | Path, units: str) -> trimesh.Trimesh:
         Mesh with vertices in metres, in the file's own frame.
 
     Raises:
-        TwinError: bad units, unsupported extension, missing or unreadable file, or a file
-            that holds no triangles.
+        TwinError: bad units, unsupported extension, missing or unreadable file, a file whose
+            structure disagrees with itself (:mod:`twin.formats`: counts, non-finite
+            coordinates, faces referencing missing vertices), or a model no workpiece can be
+            (no face with an area, coordinates beyond ``MAX_COORDINATE_M``).
     """
     if units not in ("m", "mm"):
         raise TwinError(f"units must be 'm' or 'mm', got {units!r}")
@@ -53,9 +62,29 @@ def load_mesh(path: str | Path, units: str) -> trimesh.Trimesh:
     if not p.is_file():
         raise TwinError(f"mesh path is not a file: {str(p)!r}")
     try:
-        loaded = trimesh.load(str(p), file_type=ext[1:], process=True)
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise TwinError(f"cannot read mesh file {str(p)!r}: {exc.strerror}") from None
+    if ext == ".ply":
+        data = read_ply(p)
+        if data.faces is None:
+            raise TwinError(f"mesh file {str(p)!r} has no faces")
+        vertices, faces = data.vertices, data.faces
+    else:
+        (check_stl if ext == ".stl" else check_obj)(p, raw)
+        vertices, faces = _parse(p, raw, ext)
+    if units == "mm":
+        vertices = vertices * 1e-3
+    _check_model(p, vertices, faces)
+    return trimesh.Trimesh(vertices=vertices, faces=faces, process=True)
+
+
+def _parse(p: Path, raw: bytes, ext: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and faces of a checked STL or OBJ file, as stored (nothing dropped or merged)."""
+    try:
+        loaded = trimesh.load(io.BytesIO(raw), file_type=ext[1:], process=False)
     except Exception as exc:  # noqa: BLE001 - any parser failure is an unreadable file
-        raise TwinError(f"could not read mesh file {str(p)!r}: {_one_line(exc)}") from exc
+        raise TwinError(f"could not read mesh file {str(p)!r}: {_one_line(exc)}") from None
     if isinstance(loaded, trimesh.Scene):
         geometries = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
         if not geometries:
@@ -64,13 +93,22 @@ def load_mesh(path: str | Path, units: str) -> trimesh.Trimesh:
     elif isinstance(loaded, trimesh.Trimesh):
         mesh = loaded
     else:
-        raise TwinError(
-            f"mesh file {str(p)!r} has no faces (it holds a {type(loaded).__name__})"
-        )
-    if len(mesh.faces) == 0:
+        raise TwinError(f"mesh file {str(p)!r} has no faces (it holds a {type(loaded).__name__})")
+    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+
+
+def _check_model(p: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Refuse a model no workpiece can be: no faces, non-finite or absurd coordinates, no area."""
+    if len(faces) == 0:
         raise TwinError(f"mesh file {str(p)!r} has no faces")
-    if not np.all(np.isfinite(mesh.vertices)):
+    if not np.all(np.isfinite(vertices)):
         raise TwinError(f"mesh file {str(p)!r} has non-finite vertex coordinates")
-    if units == "mm":
-        mesh.apply_scale(1e-3)
-    return mesh
+    reach = float(np.max(np.abs(vertices)))
+    if reach > MAX_COORDINATE_M:
+        raise TwinError(f"bad model {str(p)!r}: coordinates reach {reach:.3g} m, more than {MAX_COORDINATE_M:g} m "
+                        "from the origin: not a workpiece in a cell (wrong --units?)")
+    tri = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    size = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    if not size > 0 or not np.any(area > AREA_TOL_REL * size**2):
+        raise TwinError(f"bad model {str(p)!r}: none of its {len(faces)} faces has a non-zero area")

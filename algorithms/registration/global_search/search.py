@@ -122,7 +122,7 @@ class GlobalLocalizationResult(RegistrationResult):
         diagnostics: :class:`GlobalDiagnostics`.
 
     ``method`` is the global method's name; ``status`` is OK, AMBIGUOUS (``solutions`` lists
-    every equally good pose), UNOBSERVABLE or FAILED; ``iterations``, ``converged``,
+    every equally good pose), UNOBSERVABLE, POOR_FIT or FAILED; ``iterations``, ``converged``,
     ``history``, the covariance and the directions are those of the final polish.
     """
 
@@ -176,7 +176,7 @@ def global_localize(
             ``np.random.default_rng(0)`` so that a call is reproducible.
         index: a prebuilt :class:`algorithms.geometry.mesh_index.MeshIndex` of ``mesh``.
         noise_sigma_m: measurement noise sigma [m] along the normals. Sets Algorithm 5's
-            ``delta2``, the perturbations and the residual check (the FAILED verdict). None:
+            ``delta2``, the perturbations and the residual check (the POOR_FIT verdict). None:
             estimated from the best fit (the residual check then cannot reject the best pose;
             ambiguity is still tested).
         model_error_m: allowance for model error (tessellation, form) [m], added in
@@ -203,7 +203,7 @@ def global_localize(
 
     Returns:
         GlobalLocalizationResult: ``status`` OK (one pose the noise explains), AMBIGUOUS
-        (``solutions`` holds every equally good pose), UNOBSERVABLE or FAILED.
+        (``solutions`` holds every equally good pose), UNOBSERVABLE, POOR_FIT or FAILED.
 
     Raises:
         AlgorithmError: bad points, units, options or an unknown method.
@@ -338,12 +338,16 @@ def global_localize(
         genetic=ga_diag,
         pso=pso_diag,
     )
+    status, message = verdict.status, verdict.message
+    if res.poor_fit_reason is not None and status in (Status.OK, Status.AMBIGUOUS, Status.UNOBSERVABLE):
+        # the polish's fit check sees what a residual test against an estimated sigma cannot
+        status, message = Status.POOR_FIT, f"poor fit: {res.poor_fit_reason}; {verdict.message}"
     base = {f.name: getattr(res, f.name) for f in fields(RegistrationResult)}
     base.update(
         T_world_workpiece=T_final,
         method=method,
-        status=verdict.status,
-        message=verdict.message,
+        status=status,
+        message=message,
         solutions=verdict.solutions,
         time_s=time.perf_counter() - t0,
     )

@@ -6,7 +6,9 @@ The best pose is trusted only if its RMS residual is consistent with the noise
 compared with the other *distinct* solutions found (rotation differing by more than 2 degrees
 or translation by more than 1 % of the part's size, refined with exact closest points on the
 same points): a distinct pose whose residual is lower by more than the noise can explain
-means the search ended in a local minimum (``Status.FAILED``); one that is statistically
+means the search ended in a local minimum (``Status.FAILED``); a best pose whose residual the
+noise cannot explain is a poor fit (``Status.POOR_FIT``: points of another part, or no start
+reached the pose); one that is statistically
 indistinguishable (``|eps_2 - eps_1| <= 2 chi2_0.999(6) sigma_eff^2``, about 45
 sigma_eff^2) makes the result *ambiguous* (``Status.AMBIGUOUS``): ``solutions`` lists the
 equally good poses. A symmetric or near-symmetric part is therefore never reported as a
@@ -206,10 +208,10 @@ def verify(index, y_v, T_final, refined_T, refined_eps, *, extent: float, sig_ef
             f"{rms_final:.3g} m): the {method} search ended in a local minimum"
         )
     elif not consistent:
-        status = Status.FAILED
+        status = Status.POOR_FIT
         message = (
-            f"failed: rms residual {rms_final:.3g} m is above {NOISE_ACCEPT_FACTOR:g} x the expected "
-            f"noise {sig_eff:.3g} m: no start reached the true pose (or the points are not of this part)"
+            f"poor fit: rms residual {rms_final:.3g} m is above {NOISE_ACCEPT_FACTOR:g} x the expected "
+            f"noise {sig_eff:.3g} m: the points are not of this part (or no start reached the true pose)"
         )
     elif ambiguous:
         status = Status.AMBIGUOUS

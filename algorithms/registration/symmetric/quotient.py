@@ -35,6 +35,7 @@ sigma; else OK.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -43,6 +44,7 @@ import numpy as np
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, rotation_error_rad, transform_points
+from algorithms.registration.fit_check import poor_fit_reason, white_noise_sigma_m
 from algorithms.registration.inputs import check_sigma
 from algorithms.registration.local import localize
 from algorithms.registration.result import RegistrationResult, Status, fit_status
@@ -351,13 +353,16 @@ def algorithm2(
     inliers = np.zeros(len(P), dtype=bool)
     inliers[rows[mask]] = True
     rmse = float(np.sqrt(np.mean(dist[mask] ** 2)))
-    status = fit_status(converged, group.dim + deficient, rmse, sigma)
+    extent = float(np.linalg.norm(np.ptp(P[finite], axis=0)))
+    poor = poor_fit_reason(rmse, n_used, int(finite.sum()), extent, sigma,
+                           white_noise_sigma_m(Ym[mask], s.reshape(n_used, -1)) if sigma is None else math.nan)
+    status = fit_status(converged, group.dim + deficient, poor)
     return SymmetricResult(
         T_world_workpiece=T,
         method="algorithm2",
         converged=converged,
         status=status,
-        message=_with_fit(message, rmse, sigma),
+        message=message + (f"; poor fit: {poor}" if poor else ""),
         rmse_m=rmse,
         iterations=it,
         history=tuple(history),
@@ -372,6 +377,7 @@ def algorithm2(
         solutions=(T,),
         relative_eigenvalues=rel_eig,
         time_s=time.perf_counter() - t0,
+        poor_fit_reason=poor,
         feature=group.kind,
         group=group,
         solution_rmse_m=np.array([rmse]),
@@ -380,14 +386,6 @@ def algorithm2(
         detection_tol=DETECTION_TOL,
         algorithm="2",
     )
-
-
-def _with_fit(message: str, rmse: float, sigma: float | None) -> str:
-    """The message, with the poor-fit sentence when the residual exceeds 3 given sigmas."""
-    if sigma is not None and fit_status(True, 0, rmse, sigma) is Status.POOR_FIT:
-        message += (f"; poor fit: RMS {rmse:.3g} m is {rmse / sigma:.0f} times the given sigma "
-                    "(local minimum or wrong model?)")
-    return message
 
 
 def _check_planar_pose(T):
@@ -476,12 +474,12 @@ def localize_symmetric(
             determined, cov = np.eye(6), res1.covariance
         return SymmetricResult(
             T_world_workpiece=T1, method=res1.method, converged=res1.converged,
-            status=fit_status(res1.converged, len(weak), res1.rmse_m, check_sigma(sigma)),
+            status=fit_status(res1.converged, len(weak), res1.poor_fit_reason),
             message=res1.message, rmse_m=res1.rmse_m, iterations=res1.iterations, history=res1.history,
             inliers=res1.inliers, n_points_used=res1.n_points_used, n_outliers=res1.n_outliers,
             n_dropped_nonfinite=res1.n_dropped_nonfinite, sigma_m=res1.sigma_m,
             determined_directions=determined, covariance=cov, free_directions=weak, solutions=(T1,),
-            relative_eigenvalues=rel, time_s=time.perf_counter() - t0,
+            relative_eigenvalues=rel, time_s=time.perf_counter() - t0, poor_fit_reason=res1.poor_fit_reason,
             feature="none", group=other_group(weak, obs.centroid, obs.characteristic_length_m),
             solution_rmse_m=np.array([res1.rmse_m]),
             general_system_rank=int(np.sum(rel >= tol)),
@@ -525,7 +523,7 @@ def localize_symmetric(
     cond = float(1.0 / rel[0]) if rank6 == 6 else float("inf")
     if len(sols) > 1:
         message += f"; {len(sols)} equally good poses (discrete symmetry of the model)"
-        if status is not Status.NOT_CONVERGED:
+        if status not in (Status.NOT_CONVERGED, Status.POOR_FIT):
             status = Status.AMBIGUOUS
     return SymmetricResult(
         T_world_workpiece=sols[0], method=res2.method, converged=res2.converged, status=status,
@@ -537,6 +535,7 @@ def localize_symmetric(
         covariance=res2.covariance,
         free_directions=_move_twists(res2.free_directions, T2, sols[0]),
         solutions=tuple(sols), relative_eigenvalues=rel, time_s=time.perf_counter() - t0,
+        poor_fit_reason=res2.poor_fit_reason,
         feature=res2.feature, group=_move_group(group, T2, sols[0]), solution_rmse_m=np.asarray(rms),
         general_system_rank=rank6, general_system_condition=cond, detection_tol=tol, algorithm="2",
     )

@@ -1,0 +1,310 @@
+"""Every input boundary of ``twin``: output locations, interrupts, broken pipes, corrupt files,
+argument errors and honest localization verdicts. Each case ends in a documented exit status
+with one line on stderr (or a complete output), never a traceback or a half-written folder.
+The property-based fuzzing of the same boundaries is in ``tests/test_fuzz.py``."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import transform_points
+from algorithms.registration import Status, localize
+from tests.helpers import ROOT, SCENARIOS, random_pose, sample_surface
+from twin.cli import main
+from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNTRUSTED
+from twin.io import write_points_ply
+from twin.io.output import PARTIAL_MARK
+from twin.parts import WORKPIECE_NAMES, make_workpiece
+
+IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
+NOISE_M = 5e-6
+
+
+def run_main(capsys, *argv) -> tuple[int, str, str]:
+    rc = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def one_line_refusal(rc: int, err: str) -> bool:
+    return rc == EXIT_BAD_INPUT and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def leftovers(folder) -> list[str]:
+    return [p.name for p in folder.rglob("*") if PARTIAL_MARK in p.name or ".old-" in p.name]
+
+
+def short_scenario(tmp_path, lines: int = 1, name: str = "short.toml"):
+    text = (SCENARIOS / "s_surface.toml").read_text()
+    text = text.replace('line_axis = "x"', f'line_axis = "x"\nmax_lines = {lines}')
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """Two parts' meshes, 2,000 noisy points of the S-surface part at a pose far from the
+    identity (in a robot base frame), and an --init file at that pose."""
+    d = tmp_path_factory.mktemp("hard")
+    rng = np.random.default_rng(11)
+    mesh = make_workpiece("s_surface")
+    mesh.export(d / "part.stl")
+    make_workpiece("hemisphere_punch").export(d / "other.stl")
+    X, _ = sample_surface(mesh, 2000, rng)
+    T = random_pose(rng, X.mean(axis=0), 0.1, max_deg=60)
+    T[:3, 3] += [0.45, 0.12, 0.0]
+    Y = transform_points(T, X) + rng.normal(0.0, NOISE_M, X.shape)
+    write_points_ply(d / "points.ply", Y)
+    (d / "init.json").write_text(json.dumps(T.tolist()))
+    return d, T
+
+
+# ------------------------------------------------------------------ output locations
+def test_out_that_is_a_file_is_refused_before_any_work(tmp_path, capsys):
+    target = tmp_path / "taken"
+    target.write_text("x")
+    rc, out, err = run_main(capsys, "run", SCENARIOS / "s_surface.toml", "--out", target)
+    assert one_line_refusal(rc, err) and "is not a folder" in err and out == ""
+    assert "[run]" not in err  # refused before the loop started
+    assert target.read_text() == "x"
+
+
+def test_rrd_whose_parent_is_a_file_is_refused(tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    rc, _, err = run_main(capsys, "scan", short_scenario(tmp_path), "--out", tmp_path / "o",
+                          "--rrd", tmp_path / "file" / "x.rrd")
+    assert one_line_refusal(rc, err) and "is a file" in err
+    assert not (tmp_path / "o").exists() and leftovers(tmp_path) == []
+
+
+@pytest.mark.skipif(IS_ROOT, reason="root writes into read-only folders")
+def test_read_only_folders_are_refused(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        for target in (ro / "out", ro / "deeper" / "out"):
+            rc, _, err = run_main(capsys, "scan", short_scenario(tmp_path), "--out", target)
+            assert one_line_refusal(rc, err) and "not writable" in err
+    finally:
+        ro.chmod(0o755)
+
+
+def test_existing_out_is_refused_and_force_replaces_it_whole(tmp_path, capsys):
+    sc = short_scenario(tmp_path)
+    out = tmp_path / "scan"
+    out.mkdir()
+    (out / "report.json").write_text("{}")  # an older run's file
+    rc, _, err = run_main(capsys, "scan", sc, "--out", out)
+    assert one_line_refusal(rc, err) and "--force" in err
+    rc, _, err = run_main(capsys, "scan", sc, "--out", out, "--force")
+    assert rc == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["points.ply", "samples.parquet", "scan.json"]
+    assert leftovers(tmp_path) == []
+
+
+def test_a_failing_recording_leaves_no_folder(tmp_path, capsys, monkeypatch):
+    import twin.viz
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device", str(tmp_path / "scan.rrd"))
+
+    monkeypatch.setattr(twin.viz, "save_scan_recording", broken)
+    rc, out, err = run_main(capsys, "scan", short_scenario(tmp_path), "--out", tmp_path / "scan",
+                            "--rrd", tmp_path / "scan.rrd")
+    assert one_line_refusal(rc, err) and "No space left on device" in err and out == ""
+    assert not (tmp_path / "scan").exists() and not (tmp_path / "scan.rrd").exists()
+    assert leftovers(tmp_path) == []
+
+
+# ------------------------------------------------------------------ signals and pipes
+def _twin(*args, **kw):
+    return subprocess.Popen([sys.executable, "-m", "twin.cli", *map(str, args)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+
+
+def _kill_at(tmp_path, sig, after_s: float, lines: int = 3):
+    """Start ``twin run --rrd``, wait for its first progress line (the loop has begun), then
+    ``after_s`` more seconds, and send ``sig``; returns (exit status, stderr, out, rrd)."""
+    out, rrd = tmp_path / "out", tmp_path / "rec.rrd"
+    proc = _twin("run", short_scenario(tmp_path, lines), "--out", out, "--rrd", rrd)
+    first = proc.stderr.readline()
+    time.sleep(after_s)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=120)
+    return proc.returncode, first + err, out, rrd
+
+
+def _check_after_kill(rc, err, out, rrd, tmp_path, sig):
+    assert "Traceback" not in err
+    assert leftovers(tmp_path) == [], leftovers(tmp_path)
+    if rc == 0:  # the signal came after the run had finished: complete
+        report = json.loads((out / "report.json").read_text())
+        assert report["recording"] == str(rrd) and rrd.stat().st_size > 0
+    else:
+        assert rc == (EXIT_SIGTERM if sig == signal.SIGTERM else EXIT_SIGINT), err
+        assert not out.exists() and not rrd.exists()
+
+
+@pytest.mark.parametrize("sig, after_s", [(signal.SIGTERM, 0.5), (signal.SIGINT, 3.0)])
+def test_an_interrupted_run_leaves_nothing_that_looks_complete(tmp_path, sig, after_s):
+    rc, err, out, rrd = _kill_at(tmp_path, sig, after_s)
+    _check_after_kill(rc, err, out, rrd, tmp_path, sig)
+    assert rc != 0  # these moments fall inside the run (a short run takes longer)
+
+
+@pytest.mark.slow
+def test_ten_random_kills_of_twin_run(tmp_path):
+    rng = np.random.default_rng(2026)
+    for k in range(10):
+        sig = signal.SIGTERM if k % 2 else signal.SIGINT
+        d = tmp_path / f"k{k}"
+        d.mkdir()
+        rc, err, out, rrd = _kill_at(d, sig, float(rng.uniform(0.0, 20.0)))
+        _check_after_kill(rc, err, out, rrd, d, sig)
+
+
+def test_a_closed_pipe_ends_quietly(files):
+    d, _ = files
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "twin.cli", "localize", "--model", str(d / "part.stl"), "--points",
+         str(d / "points.ply"), "--init", str(d / "init.json")],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # the reader (``| head -c 0``) went away before the output
+    err = proc.stderr.read().decode()
+    proc.wait(timeout=120)
+    assert proc.returncode == EXIT_BROKEN_PIPE
+    assert "Traceback" not in err and "error" not in err.lower(), err
+
+
+# ------------------------------------------------------------------ arguments
+@pytest.mark.parametrize("argv, names", [
+    (["localize", "--model", "m.stl", "--points", "p.ply", "--method", "newton"], ["--method", "hong_tan"]),
+    (["localize", "--model", "m.stl", "--points", "p.ply", "--units", "inch"], ["--units", "mm"]),
+    (["localize", "--model", "m.stl", "--points", "p.ply", "--seed", "-1"], ["--seed", "non-negative"]),
+    (["localize", "--model", "m.stl", "--points", "p.ply", "--sigma", "nan"], ["--sigma", "positive"]),
+    (["localize", "--model", "m.stl", "--points", "p.ply", "--max-iterations", "0"], ["--max-iterations"]),
+    (["scan"], ["scenario"]),
+    (["fly"], ["fly", "scan"]),
+])
+def test_argument_errors_are_one_line(capsys, argv, names):
+    rc, out, err = run_main(capsys, *argv)
+    assert one_line_refusal(rc, err) and out == ""
+    assert all(n in err for n in names), err
+
+
+# ------------------------------------------------------------------ corrupt files
+def _ascii_ply(points, declared: int | None = None) -> str:
+    head = (f"ply\nformat ascii 1.0\nelement vertex {len(points) if declared is None else declared}\n"
+            "property double x\nproperty double y\nproperty double z\nend_header\n")
+    return head + "".join(f"{x} {y} {z}\n" for x, y, z in points)
+
+
+@pytest.mark.parametrize("declared_delta", [-5, +5])
+def test_a_ply_whose_count_disagrees_with_its_body_is_refused(files, capsys, declared_delta):
+    d, _ = files
+    from twin.io import read_points_ply
+
+    pts = read_points_ply(d / "points.ply")[:200]
+    bad = d / f"count{declared_delta}.ply"
+    bad.write_text(_ascii_ply(pts, len(pts) + declared_delta))
+    rc, _, err = run_main(capsys, "localize", "--model", d / "part.stl", "--points", bad, "--init", d / "init.json")
+    assert one_line_refusal(rc, err) and "declares" in err and bad.name in err
+
+
+def test_nan_vertices_of_a_mesh_are_refused_before_processing(tmp_path, files, capsys):
+    d, _ = files
+    mesh = make_workpiece("cube")
+    v = mesh.vertices.copy()
+    v[3] = np.nan
+    head = (f"ply\nformat ascii 1.0\nelement vertex {len(v)}\nproperty double x\nproperty double y\n"
+            f"property double z\nelement face {len(mesh.faces)}\nproperty list uchar int vertex_indices\nend_header\n")
+    body = "".join(f"{a} {b} {c}\n" for a, b, c in v) + "".join(f"3 {a} {b} {c}\n" for a, b, c in mesh.faces)
+    (tmp_path / "nan.ply").write_text(head + body)
+    rc, _, err = run_main(capsys, "localize", "--model", tmp_path / "nan.ply", "--points", d / "points.ply")
+    assert one_line_refusal(rc, err) and "vertex 3" in err and "non-finite" in err
+
+
+@pytest.mark.parametrize("content, message", [
+    ([[True, False, False, False]] * 4, "16 numbers"),
+    ([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]], "4x4"),
+    ([[1, 0, 0, "x"], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "16 numbers"),
+])
+def test_init_must_hold_16_numbers(tmp_path, files, capsys, content, message):
+    d, _ = files
+    (tmp_path / "init.json").write_text(json.dumps(content))
+    rc, _, err = run_main(capsys, "localize", "--model", d / "part.stl", "--points", d / "points.ply",
+                          "--init", tmp_path / "init.json")
+    assert one_line_refusal(rc, err) and message in err
+
+
+@pytest.mark.parametrize("name, write, message", [
+    ("garbage.stl", lambda p: p.write_bytes(np.random.default_rng(0).bytes(1000)), "not a valid STL"),
+    ("flat.obj", lambda p: p.write_text("v 0 0 0\nv 0.001 0 0\nv 0.002 0 0\nf 1 2 3\nf 2 3 1\nf 3 1 2\n"),
+     "bad model"),
+    ("huge.obj", lambda p: p.write_text("v 0 0 0\nv 1e6 0 0\nv 0 1e6 0\nv 0 0 1e6\nf 1 2 3\nf 1 3 4\nf 1 4 2\n"
+                                        "f 2 4 3\n"), "bad model"),
+    ("holey.obj", lambda p: p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n"), "does not exist"),
+])
+def test_bad_models_are_named_as_such(tmp_path, files, capsys, name, write, message):
+    d, _ = files
+    write(tmp_path / name)
+    rc, _, err = run_main(capsys, "localize", "--model", tmp_path / name, "--points", d / "points.ply")
+    assert one_line_refusal(rc, err) and message in err, err
+
+
+# ------------------------------------------------------------------ honest verdicts
+def test_default_start_is_the_global_search_not_the_identity(files, capsys):
+    d, T = files
+    rc, out, err = run_main(capsys, "localize", "--model", d / "part.stl", "--points", d / "points.ply", "--json")
+    assert rc == 0, err
+    res = json.loads(out)
+    Te = np.asarray(res["T_world_workpiece"])
+    assert res["status"] == "ok" and np.linalg.norm(Te[:3, 3] - T[:3, 3]) < 1e-4
+
+
+@pytest.mark.parametrize("sigma", [None, NOISE_M])
+def test_points_of_another_part_are_a_poor_fit_on_the_command_line(files, capsys, sigma):
+    d, _ = files
+    extra = [] if sigma is None else ["--sigma", sigma]
+    rc, out, err = run_main(capsys, "localize", "--model", d / "other.stl", "--points", d / "points.ply",
+                            "--json", *extra)
+    assert rc == EXIT_UNTRUSTED, err
+    res = json.loads(out)
+    assert res["status"] == "poor_fit" and not res["trusted"]
+
+
+@pytest.fixture(scope="module")
+def indexes():
+    return {n: MeshIndex(make_workpiece(n)) for n in WORKPIECE_NAMES}
+
+
+@pytest.mark.parametrize("points_of", WORKPIECE_NAMES)
+def test_every_pair_of_parts_is_told_apart(indexes, points_of):
+    """Each part's points (2,000, 5 um noise) fitted to every other part's model, from the
+    model's centre moved onto the points: a poor fit with and without sigma (poor_fit, or
+    not_converged with the poor-fit reason); on its own model: ok (or unobservable)."""
+    rng = np.random.default_rng(WORKPIECE_NAMES.index(points_of))
+    mesh = indexes[points_of].mesh
+    X, _ = sample_surface(mesh, 2000, rng)
+    Y = X + rng.normal(0.0, NOISE_M, X.shape)
+    for model, index in indexes.items():
+        T0 = np.eye(4)
+        T0[:3, 3] = Y.mean(axis=0) - index.mesh.bounds.mean(axis=0)
+        for sigma in (None, NOISE_M):
+            r = localize(Y, index=index, init=T0 if model != points_of else np.eye(4), sigma=sigma)
+            if model == points_of:
+                assert r.status in (Status.OK, Status.UNOBSERVABLE), (model, sigma, r.message)
+            else:  # a fit that has not converged either says both
+                assert r.poor_fit_reason is not None and not r.trusted, (points_of, model, sigma, r.message)
+                assert r.status in (Status.POOR_FIT, Status.NOT_CONVERGED)

@@ -1,0 +1,11 @@
+"""Strict readers of the file formats users hand the twin: PLY points and meshes, STL, OBJ.
+
+Each reader refuses a file whose structure disagrees with itself (a count that does not match
+the body, a non-finite coordinate, a face that references a missing vertex) before any
+processing can drop or repair what is wrong, naming the file and the element or line.
+"""
+
+from twin.formats.mesh_files import check_obj, check_stl
+from twin.formats.ply import PlyData, read_ply
+
+__all__ = ["PlyData", "check_obj", "check_stl", "read_ply"]
