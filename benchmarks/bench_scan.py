@@ -7,16 +7,23 @@
 The scenario is realized once and its nominal and true cells built once per case; the times
 exclude that set-up.
 
-Run from the repository root: ``python -m benchmarks.bench_scan`` (prints a markdown table;
-numbers are best of 3). ``--max-lines N`` scans only the first N lines of the point-sensor
-case (a quick check that the script runs, not a benchmark).
+Run from the repository root: ``python -m benchmarks.bench_scan`` (prints a markdown table
+and writes it to ``benchmarks/results_scan.md``, ``--out`` elsewhere; numbers are best of 3).
+Each figure is also given as a ratio to its limit measured in the same run: real time (1 ms
+of simulated time per ms), and MuJoCo's own ``rollout`` of the same model and joint references
+(``twin.sim.simulate`` is that rollout with the sensor read-out). ``--max-lines N`` scans only
+the first N lines of the point-sensor case (a quick check that the script runs, not a
+benchmark); ``--line-only`` runs the line profiler case alone.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import platform
+import sys
 import time
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -54,15 +61,18 @@ def point_sensor(rows, max_lines=None):
     q_ref, qd_ref = solve_joint_references(nominal, plan)
     sim_s = len(q_ref) * 0.001
     wall = best_of(lambda: simulate(true, q_ref, qd_ref, _ignore))
-    rows.append(("point sensor, 1 ms rollout, contacts on", f"{sim_s:.1f}", f"{wall:.3f}", f"{sim_s / wall:.0f}x"))
+    rollout_wall = wall
+    rows.append(("point sensor, 1 ms rollout, contacts on", f"{sim_s:.1f}", f"{wall:.3f}", f"{sim_s / wall:.0f}x",
+                 "1.00"))
     flags = true.model.opt.disableflags
     true.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
     wall = best_of(lambda: simulate(true, q_ref, qd_ref, _ignore))
     true.model.opt.disableflags = flags  # the whole scan below runs with contacts, as a scan does
-    rows.append(("point sensor, 1 ms rollout, contacts off", f"{sim_s:.1f}", f"{wall:.3f}", f"{sim_s / wall:.0f}x"))
+    rows.append(("point sensor, 1 ms rollout, contacts off", f"{sim_s:.1f}", f"{wall:.3f}", f"{sim_s / wall:.0f}x",
+                 f"{rollout_wall / wall:.2f}"))
     wall = best_of(lambda: run_scan(realized, nominal, true), n=1)
     rows.append(("point sensor, whole scan (plan + IK + rollout + sensor model + eq. 2)",
-                 f"{sim_s:.1f}", f"{wall:.3f}", f"{sim_s / wall:.0f}x"))
+                 f"{sim_s:.1f}", f"{wall:.3f}", f"{sim_s / wall:.0f}x", f"{rollout_wall / wall:.2f}"))
 
 
 def line_profiler(rows, beams=1024):
@@ -73,11 +83,13 @@ def line_profiler(rows, beams=1024):
     q_ref, qd_ref = solve_joint_references(nominal, plan)
     sim_s = len(q_ref) * 0.001
     wall = best_of(lambda: simulate(true, q_ref, qd_ref, _ignore))
+    rollout_wall = wall
     rows.append((f"line profiler {beams} beams, 1 ms rollout", f"{sim_s:.1f}", f"{wall:.3f}",
-                 f"{sim_s / wall:.2f}x ({len(q_ref) * beams / wall / 1e6:.2f} M samples/s)"))
+                 f"{sim_s / wall:.2f}x ({len(q_ref) * beams / wall / 1e6:.2f} M samples/s)", "1.00"))
     wall = best_of(lambda: run_scan(realized, nominal, true), n=1)
     rows.append((f"line profiler {beams} beams, whole scan", f"{sim_s:.1f}", f"{wall:.3f}",
-                 f"{sim_s / wall:.2f}x ({len(q_ref) * beams / wall / 1e6:.2f} M samples/s)"))
+                 f"{sim_s / wall:.2f}x ({len(q_ref) * beams / wall / 1e6:.2f} M samples/s)",
+                 f"{rollout_wall / wall:.2f}"))
 
 
 def main(argv=None):
@@ -85,16 +97,32 @@ def main(argv=None):
     ap.add_argument("--max-lines", type=int, default=None,
                     help="scan only this many lines in the point-sensor case (quick check)")
     ap.add_argument("--beams", type=int, default=1024, help="beams of the line profiler")
+    ap.add_argument("--line-only", action="store_true", help="only the line profiler case")
+    ap.add_argument("--out", default=str(Path(__file__).with_name("results_scan.md")))
     args = ap.parse_args(argv)
     rows = []
-    point_sensor(rows, args.max_lines)
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    if not args.line_only:
+        point_sensor(rows, args.max_lines)
     line_profiler(rows, args.beams)
+    load1 = os.getloadavg()
     machine = platform.processor() or platform.machine()
-    print(f"mujoco {mujoco.__version__}, {machine}, python {platform.python_version()}")
-    print("| case | simulated s | wall s | speed (x real time) |")
-    print("|---|---|---|---|")
-    for r in rows:
-        print("| " + " | ".join(r) + " |")
+    cmd = " ".join(["python -m benchmarks.bench_scan"] + (argv if argv is not None else sys.argv[1:]))
+    lines = [
+        "# Scan-cell speed",
+        "",
+        f"Produced by `{cmd}` in {(time.perf_counter() - t0) / 60:.1f} min on {platform.node()}: "
+        f"{machine}, {os.cpu_count()} CPUs, Python {platform.python_version()}, mujoco {mujoco.__version__}. "
+        f"Load average (1 min) {load0[0]:.1f} at the start, {load1[0]:.1f} at the end: other processes "
+        "share the machine, so the ratios (same run) mean more than the seconds.",
+        "",
+        "| case | simulated s | wall s | speed (x real time) | speed / MuJoCo rollout of the same model |",
+        "|---|---|---|---|---|",
+    ] + ["| " + " | ".join(r) + " |" for r in rows]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    Path(args.out).write_text(text)
 
 
 if __name__ == "__main__":
