@@ -684,21 +684,21 @@ def _update_tangent(T, Ym, cp, mask):
 
 def _centered(T, c, xi):
     """T A_c exp(xi) A_c^-1: the model-frame motion exp(-xi) about the point c."""
-    E = exp_se3(xi)
-    E[:3, 3] += c - E[:3, :3] @ c  # A_c E A_c^-1 = [R, t + c - R c]
-    return T @ E
+    A = make_pose(None, c)
+    return T @ A @ exp_se3(xi) @ inv_pose(A)
 
 
 def _plane_system(Ym, cp, mask):
     """Normal equations ``(J^T J, J^T s)`` of the point-to-plane step about the centroid ``c``
     of the points (rows ``[(y_i - c) x n_i, n_i]``, residuals ``s_i = <y_i - x_i, n_i>``),
-    and ``c``; one compiled pass over the points when numba is installed (measured to pay:
-    the numpy version is some forty small calls per iteration)."""
+    and ``c``; one compiled pass over the points when numba is installed (the numpy version
+    is some forty small calls per iteration; ``python -m benchmarks.bench_speed_ideas
+    --sections step`` measures the compiled update against it)."""
     if _nb_plane_system is not None:
         global _announced
         if not _announced:
             _announced = True
-            if kernels_cached([_nb_plane_system, _nb_centered_step]) is False:
+            if kernels_cached([_nb_plane_system, _nb_solve]) is False:
                 print("compiling localization kernels, first run only ...", file=sys.stderr, flush=True)
         sel = np.ones(len(Ym), dtype=np.bool_) if isinstance(mask, slice) else mask
         return _nb_plane_system(Ym, cp.foot, cp.normal, sel)
@@ -710,9 +710,8 @@ def _plane_system(Ym, cp, mask):
 
 def _update_hong_tan(T, Ym, cp, mask):
     A, g, c = _plane_system(Ym, cp, mask)
-    if _nb_centered_step is not None:
-        return _nb_centered_step(T, A, g, c), None
-    return _centered(T, c, _solve(A, g)), None
+    xi = _solve(A, g) if _nb_solve is None else _nb_solve(A, g)
+    return _centered(T, c, xi), None
 
 
 def _rot_xyz(t):
@@ -819,7 +818,7 @@ def _compile_plane_system():
     return plane_system
 
 
-def _compile_centered_step():
+def _compile_solve():
     try:
         import numba
     except ImportError:  # pragma: no cover - depends on the environment
@@ -878,8 +877,10 @@ def _compile_centered_step():
         return w, V
 
     @numba.njit(cache=True, nogil=True)
-    def centered_step(T, A, g, c):  # pragma: no cover - compiled
-        """_centered(T, c, _solve(A, g)) in one compiled call (the same formulas)."""
+    def solve(A, g):  # pragma: no cover - compiled
+        """_solve(A, g) in one compiled call: the same scaling, minimum-norm truncation and
+        result to about 1e-14 relative (the centred step itself stays in numpy: a fit that leaves
+        directions free follows its round-off, and the tests pin that path)."""
         d = np.empty(6)
         for k in range(6):
             d[k] = np.sqrt(A[k, k]) if A[k, k] > 0.0 else 1.0
@@ -899,41 +900,11 @@ def _compile_centered_step():
                 for i in range(6):
                     xi[i] += V[i, k] * coef
         xi /= d
-        # exponential map of [omega, v] (se3.exp_se3), then about c: [R, V v + c - R c]
-        W = np.zeros((3, 3))
-        W[0, 1], W[0, 2], W[1, 0], W[1, 2], W[2, 0], W[2, 1] = -xi[2], xi[1], xi[2], -xi[0], -xi[1], xi[0]
-        W2 = np.zeros((3, 3))
-        for i in range(3):
-            for j in range(3):
-                for k in range(3):
-                    W2[i, j] += W[i, k] * W[k, j]
-        theta = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
-        if theta < 1e-9:
-            a, b, cc = 1.0, 0.5, 1.0 / 6.0
-        else:
-            a = np.sin(theta) / theta
-            b = (1.0 - np.cos(theta)) / theta**2
-            cc = (theta - np.sin(theta)) / theta**3
-        E = np.zeros((4, 4))
-        E[3, 3] = 1.0
-        for i in range(3):
-            for j in range(3):
-                E[i, j] = (1.0 if i == j else 0.0) + a * W[i, j] + b * W2[i, j]
-        for i in range(3):
-            t = c[i]
-            for j in range(3):
-                t += ((1.0 if i == j else 0.0) + b * W[i, j] + cc * W2[i, j]) * xi[3 + j] - E[i, j] * c[j]
-            E[i, 3] = t
-        out = np.zeros((4, 4))
-        for i in range(4):
-            for j in range(4):
-                for k in range(4):
-                    out[i, j] += T[i, k] * E[k, j]
-        return out
+        return xi
 
-    return centered_step
+    return solve
 
 
 _nb_plane_system = _compile_plane_system()
-_nb_centered_step = _compile_centered_step()
+_nb_solve = _compile_solve()
 _announced = False

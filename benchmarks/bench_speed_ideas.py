@@ -1,0 +1,108 @@
+"""The ideas of issue 16, each measured by a paired A/B in one process (not a test).
+
+* ``near``: the certified near-face query (``MeshIndex.query_near``) against the hinted tree
+  query (``MeshIndex.query`` with the previous faces as hints), for 1,000 points sampled on the
+  benchmark parts (20 um noise) after a rigid motion of the given size; microseconds a point,
+  and how many points had to search the tree again;
+* ``step``: a whole ``localize`` call with the compiled parts of the pose update (the normal
+  equations and the 6x6 minimum-norm solve) against the numpy path, 5 deg / 10 mm starts, CPU
+  time of the calling thread, median of the paired ratios.
+
+Run from the repository root: ``python -m benchmarks.bench_speed_ideas`` (prints markdown).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import trimesh
+
+import algorithms.registration.local as local
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import exp_se3
+from algorithms.registration import localize
+from benchmarks.bench_localization import random_world_pose, sample_design, start_pose
+from twin.parts import make_workpiece
+
+PARTS = ("hemisphere_punch", "s_surface")
+
+
+def near_vs_tree(rows, reps=7):
+    for name in PARTS:
+        mesh = make_workpiece(name)
+        index = MeshIndex(mesh)
+        p0, _ = trimesh.sample.sample_surface(mesh, 1000, seed=1)
+        p0 = p0[local._morton_order(p0)] + np.random.default_rng(0).normal(0, 20e-6, p0.shape)
+        c = p0.mean(axis=0)
+        rng = np.random.default_rng(1)
+        for step_m in (1e-3, 3e-4, 1e-4, 3e-5, 1e-5):
+            tn, tt, rebuilt = [], [], []
+            for _ in range(reps):
+                xi = rng.normal(0, step_m, 6)
+                xi[:3] /= 0.05  # rotations of about step_m at 50 mm
+                T = exp_se3(xi)
+                p = (p0 - c) @ T[:3, :3].T + T[:3, 3] + c
+                cp0, near = index.query_near(p0)
+                t0 = time.thread_time()
+                cp, near = index.query_near(p, near)
+                t1 = time.thread_time()
+                index.query(p, hint=cp0.face)
+                t2 = time.thread_time()
+                tn.append(t1 - t0)
+                tt.append(t2 - t1)
+                rebuilt.append(near.n_rebuilt)
+            rows.append(f"| {name} | {step_m * 1e3:g} | {np.median(tn) * 1e3:.2f} | {np.median(tt) * 1e3:.2f} | "
+                        f"{np.median(rebuilt):.0f} |")
+
+
+def compiled_vs_numpy(rows, trials=16):
+    kernels = (local._nb_plane_system, local._nb_solve)
+    for name in PARTS:
+        mesh = make_workpiece(name)
+        index = MeshIndex(mesh)
+        c_model = mesh.center_mass if mesh.is_watertight else mesh.centroid
+        for n in (150, 1000):
+            feet, _ = sample_design(mesh, index, name, n, 2024)
+            rng = np.random.default_rng(7)
+            cases = []
+            for _ in range(trials):
+                T_true = random_world_pose(rng)
+                T0 = start_pose(T_true, c_model, 5.0, rng)
+                y = feet @ T_true[:3, :3].T + T_true[:3, 3] + rng.normal(0.0, 5e-6, feet.shape)
+                cases.append((y, T0))
+            localize(cases[0][0], index=index, init=cases[0][1], sigma=5e-6)
+            ta, tb = [], []
+            for y, T0 in cases:
+                local._nb_plane_system, local._nb_solve = None, None
+                t0 = time.thread_time()
+                localize(y, index=index, init=T0, sigma=5e-6)
+                t1 = time.thread_time()
+                local._nb_plane_system, local._nb_solve = kernels
+                localize(y, index=index, init=T0, sigma=5e-6)
+                t2 = time.thread_time()
+                ta.append(t1 - t0)
+                tb.append(t2 - t1)
+            ratio = float(np.median(np.array(tb) / np.array(ta)))
+            rows.append(f"| {name} | {n} | {np.median(ta) * 1e3:.2f} | {np.median(tb) * 1e3:.2f} | {ratio:.2f} |")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sections", nargs="+", default=["near", "step"], choices=["near", "step"])
+    args = ap.parse_args(argv)
+    if "near" in args.sections:
+        rows = ["| part | motion [mm] | near-face query [ms / 1000 points] | hinted tree query [ms] | "
+                "points searched again |", "|---|---|---|---|---|"]
+        near_vs_tree(rows)
+        print("\n".join(rows) + "\n")
+    if "step" in args.sections and local._nb_plane_system is not None:
+        rows = ["| part | N | numpy update [ms / call] | compiled update [ms / call] | paired ratio |",
+                "|---|---|---|---|---|"]
+        compiled_vs_numpy(rows)
+        print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()
