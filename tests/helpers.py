@@ -69,3 +69,11 @@ def assert_pose_close(T_est, T_ref, tol_m: float, tol_rad: float, what: str = "p
         f"{what}: translation error {et:.3e} m (tolerance {tol_m:.1e} m), "
         f"rotation error {er:.3e} rad (tolerance {tol_rad:.1e} rad)"
     )
+
+
+def run_cli(*args):
+    """``python -m twin.cli ARGS`` in a subprocess (stdout, stderr and exit code as a user sees them)."""
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import copy
 import tomllib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -208,6 +208,60 @@ class NoiseSpec:
 
 
 @dataclass(frozen=True)
+class PassSpec:
+    """One pass of a multi-pass scan (``[[scan.passes]]``), defined on the CAD model.
+
+    Scan lines are laid on a plane normal to ``view``; planning rays are cast along ``view``
+    at the nominal CAD model and each line keeps the runs of consecutive hits, split at sharp
+    edges and steps (see :mod:`twin.plan`).
+
+    Attributes:
+        name: label of the pass in plans and reports.
+        beam: "fixed" (the beam along ``view``) or "normal" (along the smoothed surface normal).
+        view: (3,) unit planning-ray direction in the workpiece frame (the beam when fixed).
+        region_m: ((xmin, ymin, zmin), (xmax, ymax, zmax)) box in the workpiece frame [m]
+            (or ((xmin, ymin), (xmax, ymax)): any height): only hits inside it are scanned;
+            None for the whole part.
+        line_axis: (3,) unit direction the lines run along, in the workpiece frame (projected
+            onto the plane normal to ``view``).
+        line_spacing_m, speed_m_s, transit_speed_m_s, standoff_m, retract_m: as in ScanSpec.
+        edge_margin_m: each line ends this far (arc length) before a part edge or step [m].
+        max_lines: keep only the first N lines of the pass.
+    """
+
+    name: str
+    beam: str
+    view: np.ndarray
+    region_m: tuple[tuple[float, ...], tuple[float, ...]] | None
+    line_axis: np.ndarray
+    line_spacing_m: float
+    speed_m_s: float
+    transit_speed_m_s: float
+    standoff_m: float
+    retract_m: float
+    edge_margin_m: float
+    max_lines: int
+
+
+@dataclass(frozen=True)
+class AutoPlanSpec:
+    """Settings of the automatic multi-pass planner (``scan.passes = "auto"``, :mod:`twin.plan`).
+
+    Attributes:
+        tilts_deg: tilts of the candidate views from straight down [deg] (besides straight down).
+        azimuths: number of candidate azimuths per tilt, evenly spaced from the workpiece +x.
+        max_passes: the most passes planned.
+        min_relative_eigenvalue: views are added until the predicted information's smallest
+            relative eigenvalue reaches this.
+    """
+
+    tilts_deg: tuple[float, ...]
+    azimuths: int
+    max_passes: int
+    min_relative_eigenvalue: float
+
+
+@dataclass(frozen=True)
 class ScanSpec:
     """Raster scan plan, defined on the CAD model at the nominal pose.
 
@@ -222,6 +276,10 @@ class ScanSpec:
         direction: (3,) fixed beam direction in the workpiece frame.
         retract_m: lift above the stand-off between lines [m].
         line_axis: "x" or "y": workpiece axis the lines run along.
+        passes: None (one pass from the keys above), or the explicit passes in order.
+        auto: the automatic planner's settings when ``passes = "auto"``, else None.
+        transit_clearance_m: between passes the sensor moves at least this far above the
+            part's top [m].
     """
 
     region_m: tuple[tuple[float, float], tuple[float, float]] | None
@@ -235,6 +293,9 @@ class ScanSpec:
     retract_m: float
     line_axis: str
     max_lines: int
+    passes: tuple[PassSpec, ...] | None = None
+    auto: AutoPlanSpec | None = None
+    transit_clearance_m: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -474,17 +535,113 @@ def _parse_scan(s: _Section, sensor: SensorSpec) -> ScanSpec:
     retract = s.number("retract_m", 0.020, 0.0, 0.5)
     axis = s.choice("line_axis", "x", ("x", "y"))
     max_lines = s.integer("max_lines", 1000, 1, 100000)
+    passes_raw = s._get("passes", None)
+    clearance = s.number("transit_clearance_m", 0.03, 0.0, 1.0)
+    auto_keys = ("auto_tilts_deg", "auto_azimuths", "auto_max_passes", "auto_min_relative_eigenvalue")
+    auto_given = [k for k in auto_keys if k in s.table]
+    auto = _parse_auto(s)
     s.done()
-    lo, hi = sensor.window_m
-    if not (lo <= standoff <= hi):
-        raise TwinError(
-            f"scan.standoff_m = {standoff:g} m is outside the sensor window [{lo:g}, {hi:g}] m"
-        )
+    _check_standoff(standoff, sensor, "scan.standoff_m")
     norm = np.linalg.norm(direction)
     if norm < 1e-9:
         raise TwinError("scan.direction must be a non-zero vector")
-    return ScanSpec(region, margin, spacing, speed, transit, standoff, beam, direction / norm,
-                    retract, axis, max_lines)
+    spec = ScanSpec(region, margin, spacing, speed, transit, standoff, beam, direction / norm,
+                    retract, axis, max_lines, None, None, clearance)
+    if passes_raw is None:
+        if auto_given:
+            raise TwinError(f"scan.{auto_given[0]} applies to scan.passes = \"auto\" only")
+        return spec
+    if passes_raw == "auto":
+        return replace(spec, auto=auto)
+    if auto_given:
+        raise TwinError(f"scan.{auto_given[0]} applies to scan.passes = \"auto\" only")
+    if not isinstance(passes_raw, list) or not passes_raw or not all(isinstance(p, dict) for p in passes_raw):
+        raise TwinError('scan.passes must be "auto" or a non-empty list of [[scan.passes]] tables, '
+                        f"got {passes_raw!r}")
+    passes = tuple(_parse_pass(_Section(p, f"scan.passes[{i}]"), i, spec, sensor)
+                   for i, p in enumerate(passes_raw))
+    return replace(spec, passes=passes)
+
+
+def _check_standoff(standoff: float, sensor: SensorSpec, where: str) -> None:
+    lo, hi = sensor.window_m
+    if not (lo <= standoff <= hi):
+        raise TwinError(f"{where} = {standoff:g} m is outside the sensor window [{lo:g}, {hi:g}] m")
+
+
+def _parse_auto(s: _Section) -> AutoPlanSpec:
+    tilts = s._get("auto_tilts_deg", [30.0, 45.0, 60.0])
+    if (not isinstance(tilts, list) or not tilts or not all(_is_number(v) and np.isfinite(v) for v in tilts)
+            or not all(0.0 < v <= 80.0 for v in tilts)):
+        raise TwinError(f"scan.auto_tilts_deg must be a non-empty list of tilts in (0, 80] deg, got {tilts!r}")
+    azimuths = s.integer("auto_azimuths", 8, 1, 72)
+    max_passes = s.integer("auto_max_passes", 5, 1, 20)
+    min_rel = s.number("auto_min_relative_eigenvalue", 1e-3, 0.0, 1.0, lo_open=True)
+    return AutoPlanSpec(tuple(float(v) for v in tilts), azimuths, max_passes, min_rel)
+
+
+_AXIS_NAMES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def _unit(v: np.ndarray, where: str) -> np.ndarray:
+    norm = float(np.linalg.norm(v))
+    if not norm > 1e-9:
+        raise TwinError(f"{where} must be a non-zero vector, got {v.tolist()}")
+    return v / norm
+
+
+def _parse_pass(s: _Section, i: int, scan: ScanSpec, sensor: SensorSpec) -> PassSpec:
+    where = s.where
+    name = s.string("name", f"pass {i + 1}")
+    beam_raw = s._get("beam", [0.0, 0.0, -1.0])
+    view_raw = s._get("view", None)
+    if beam_raw == "normal":
+        beam = "normal"
+        view = _unit(_vector(view_raw if view_raw is not None else [0.0, 0.0, -1.0], 3, f"{where}.view"),
+                     f"{where}.view")
+    else:
+        if isinstance(beam_raw, str):
+            raise TwinError(f"{where}.beam must be \"normal\" or a direction [x, y, z], got {beam_raw!r}")
+        if view_raw is not None:
+            raise TwinError(f"{where}.view applies to beam = \"normal\" only (a fixed beam is its own view)")
+        beam = "fixed"
+        view = _unit(_vector(beam_raw, 3, f"{where}.beam"), f"{where}.beam")
+    region = _parse_box(s._get("region_m", None), f"{where}.region_m")
+    axis_raw = s._get("line_axis", None)
+    if axis_raw is None:
+        axis = np.array(_AXIS_NAMES["x"] if abs(view[0]) < 0.9 else _AXIS_NAMES["y"])
+    elif isinstance(axis_raw, str):
+        if axis_raw not in _AXIS_NAMES:
+            raise TwinError(f"{where}.line_axis must be x, y, z or a direction [x, y, z], got {axis_raw!r}")
+        axis = np.array(_AXIS_NAMES[axis_raw])
+    else:
+        axis = _unit(_vector(axis_raw, 3, f"{where}.line_axis"), f"{where}.line_axis")
+    if abs(float(axis @ view)) > np.cos(np.radians(10.0)):
+        raise TwinError(f"{where}.line_axis {axis.tolist()} is within 10 deg of the view direction "
+                        f"{np.round(view, 3).tolist()}: the lines need a direction across the beam")
+    spacing = s.number("line_spacing_m", scan.line_spacing_m, 0.0, 1.0, lo_open=True)
+    speed = s.number("speed_m_s", scan.speed_m_s, 0.0, 1.0, lo_open=True)
+    transit = s.number("transit_speed_m_s", scan.transit_speed_m_s, 0.0, 1.0, lo_open=True)
+    standoff = s.number("standoff_m", scan.standoff_m, 0.0, 10.0, lo_open=True)
+    retract = s.number("retract_m", scan.retract_m, 0.0, 0.5)
+    edge = s.number("edge_margin_m", 0.001, 0.0, 0.1)
+    max_lines = s.integer("max_lines", scan.max_lines, 1, 100000)
+    s.done()
+    _check_standoff(standoff, sensor, f"{where}.standoff_m")
+    return PassSpec(name, beam, view, region, axis, spacing, speed, transit, standoff, retract, edge, max_lines)
+
+
+def _parse_box(value: Any, where: str):
+    """A box [[xmin, ymin, zmin], [xmax, ymax, zmax]] (or 2-D corners: z unbounded), or None."""
+    if value is None:
+        return None
+    ok = (isinstance(value, list) and len(value) == 2
+          and all(isinstance(r, list) and len(r) in (2, 3) and len(r) == len(value[0]) for r in value)
+          and all(_is_number(v) and np.isfinite(v) for r in value for v in r))
+    if not ok or not all(a < b for a, b in zip(value[0], value[1], strict=True)):
+        raise TwinError(f"{where} must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] (or [[xmin, ymin], "
+                        f"[xmax, ymax]]) with min < max, got {value!r}")
+    return (tuple(float(v) for v in value[0]), tuple(float(v) for v in value[1]))
 
 
 def default_tool_pose() -> np.ndarray:
