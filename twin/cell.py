@@ -29,6 +29,8 @@ from twin.robot import FLANGE_BODY, GROUP_WORKPIECE, JOINT_NAMES, SCENE_XML, T_W
 from twin.scenario import Scenario
 from twin.sensors import Sensor, make_sensor
 
+TOOL_BALL_SITE = "tool_ball"
+
 
 def quat_wxyz(R: np.ndarray) -> np.ndarray:
     """MuJoCo quaternion (w, x, y, z) of a rotation matrix."""
@@ -125,6 +127,13 @@ def build_spec(realized: Realized, which: str = "true") -> tuple[mujoco.MjSpec, 
     body = spec.body(FLANGE_BODY).add_body(
         name="laser_sensor", pos=T_wrist3_sensor[:3, 3], quat=quat_wxyz(T_wrist3_sensor[:3, :3]))
     sensor.attach(spec, body)
+    # The process tool's ball centre, with the tool's axes: the point the five-axis IK holds
+    # while the tool spins freely about its axis (the tool itself is added for replays only).
+    p = scenario.path
+    T_wrist3_tool = T_WRIST3_FLANGE @ p.T_flange_tool
+    spec.body(FLANGE_BODY).add_site(name=TOOL_BALL_SITE,
+                                    pos=T_wrist3_tool[:3, 3] + p.tip_radius_m * T_wrist3_tool[:3, 2],
+                                    quat=quat_wxyz(T_wrist3_tool[:3, :3]), size=[0.001, 0, 0])
 
     # Workpiece mesh at this cell's pose.
     mesh = realized.workpiece.mesh

@@ -14,6 +14,7 @@ from algorithms.geometry.kinematics import dh_forward
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, rotation_error_rad, transform_points, translation_error_m
 from algorithms.paths.normals import angle_deg, pca_normals
+from algorithms.registration.uncertainty import part_symmetry_directions, pose_error_twist
 from twin.realize import Realized
 from twin.robot import UR5E_DH
 
@@ -101,3 +102,44 @@ def scan_path_errors(points: np.ndarray, normals: np.ndarray, tool_normals: np.n
     n_true = true_normals_base(points, T_true, index)
     return ScanPathErrors(surface_error_m(points, T_true, index), angle_deg(normals, n_true),
                           angle_deg(pca_normals(points, 16), n_true, unsigned=True), angle_deg(tool_normals, n_true))
+
+
+def determined_errors(localization, realized: Realized, covariance=None) -> dict:
+    """The estimate's error against the truth along its determined directions only.
+
+    The error twist ``xi`` (``T_est = T_true exp(xi)``, workpiece frame) is split over the
+    determined and free directions; the determined part is compared with the Cramer-Rao
+    standard deviations of ``covariance`` (default: ``localization.covariance``). Returns lists (rad or m per
+    direction) and the largest error in standard deviations.
+    """
+    D = np.asarray(localization.determined_directions, dtype=np.float64).reshape(-1, 6)
+    F = np.asarray(localization.free_directions, dtype=np.float64).reshape(-1, 6)
+    if len(D) == 0:
+        return {"std": [], "error": [], "sigmas": [], "max_sigmas": None}
+    xi = pose_error_twist(localization.T_world_workpiece, realized.T_base_workpiece_true)
+    coef = np.linalg.lstsq(np.vstack([D, F]).T, xi, rcond=None)[0][: len(D)]
+    C = localization.covariance if covariance is None else covariance
+    std = np.sqrt(np.clip(np.diag(np.asarray(C, dtype=np.float64)), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sig = np.abs(coef) / std
+    return {"std": [float(v) for v in std], "error": [float(v) for v in coef],
+            "sigmas": [round(float(v), 3) for v in sig], "max_sigmas": round(float(np.max(sig)), 3)}
+
+
+def localization_trusted(localization) -> bool:
+    """Whether the loop may act on the estimate: ``ok``, or, from the symmetric localization
+    (document 000, Algorithm 2), ``unobservable``/``ambiguous`` with the fit consistent with
+    the noise: the free directions are a symmetry of what was scanned, and the pose is
+    determined (and used) in the others; the report lists both.
+    """
+    status = localization.status.value
+    if localization.poor_fit_reason:
+        return False
+    return status in ("ok", "unobservable", "ambiguous")
+
+
+def free_directions_part_symmetry(localization, index: MeshIndex) -> list[bool]:
+    """For each free direction: whether it is a symmetry of the whole CAD model (a sphere's
+    rotations) rather than only of the scanned surfaces (a bore's axis on a block)."""
+    F = np.asarray(localization.free_directions, dtype=np.float64).reshape(-1, 6)
+    return [bool(v) for v in part_symmetry_directions(index, F)] if len(F) else []

@@ -57,12 +57,20 @@ class IKSolver:
     """
 
     def __init__(self, model: mujoco.MjModel, site: str, position_tol_m: float, orientation_tol_rad: float,
-                 posture_cost: float = POSTURE_COST, velocity_limit_rad_s: np.ndarray = VELOCITY_LIMIT_RAD_S):
+                 posture_cost: float = POSTURE_COST, velocity_limit_rad_s: np.ndarray = VELOCITY_LIMIT_RAD_S,
+                 free_spin: bool = False):
         self.model = model
+        self.free_spin = free_spin
         self.position_tol_m = position_tol_m
         self.orientation_tol_rad = orientation_tol_rad
         self.configuration = mink.Configuration(model)
-        self.frame_task = mink.FrameTask(site, "site", position_cost=1.0, orientation_cost=1.0, lm_damping=1e-9)
+        # A free spin: no cost on the rotation about the site's own z (mink's error is in the
+        # local frame), and the target is turned to the current spin before every step.
+        orientation_cost = [1.0, 1.0, 0.0] if free_spin else 1.0
+        self.frame_task = mink.FrameTask(site, "site", position_cost=1.0, orientation_cost=orientation_cost,
+                                         lm_damping=1e-9)
+        self._target: np.ndarray | None = None
+        self.site_name = site
         self.posture_task = mink.PostureTask(model, cost=posture_cost)
         self.config_limit = mink.ConfigurationLimit(model)
         self.velocity_limit = mink.VelocityLimit(
@@ -85,8 +93,25 @@ class IKSolver:
         hi = self.model.jnt_range[:6, 1] - 1e-6
         self.configuration.update(np.clip(q, lo, hi))
 
+    def site_pose(self) -> np.ndarray:
+        """(4, 4) world pose of the site at the current configuration."""
+        return self.configuration.get_transform_frame_to_world(self.site_name, "site").as_matrix()
+
+    def _respin_target(self) -> None:
+        """Turn the target about its z to the site's current spin (free spin only)."""
+        R_t = self._target[:3, :3]
+        M = R_t.T @ self.site_pose()[:3, :3]
+        phi = np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
+        c, s = np.cos(phi), np.sin(phi)
+        T = self._target.copy()
+        T[:3, :3] = R_t @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        self.frame_task.set_target(mink.SE3.from_matrix(T))
+
     def errors(self) -> tuple[float, float]:
-        """(position [m], orientation [rad]) error of the site from its target."""
+        """(position [m], orientation [rad]) error of the site from its target (with a free
+        spin: the angle between the site's z and the target's z)."""
+        if self.free_spin:
+            self._respin_target()
         e = self.frame_task.compute_error(self.configuration)
         return float(np.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)), float(np.sqrt(e[3] ** 2 + e[4] ** 2 + e[5] ** 2))
 
@@ -97,7 +122,8 @@ class IKSolver:
         With ``velocity_limited``, each iteration moves at most ``v_max * dt`` per joint.
         Returns (position error [m], orientation error [rad], iterations).
         """
-        self.frame_task.set_target(mink.SE3.from_matrix(T_world_target))
+        self._target = np.asarray(T_world_target, dtype=np.float64)
+        self.frame_task.set_target(mink.SE3.from_matrix(self._target))
         self.posture_task.set_target(self.configuration.q)
         limits = [self.config_limit, self.velocity_limit] if velocity_limited else [self.config_limit]
         pe, oe = self.errors()
@@ -115,9 +141,14 @@ class IKSolver:
         return pe, oe, it
 
     def sigma_min(self, length_m: float) -> float:
-        """Smallest singular value of the site Jacobian, rotation rows scaled by ``length_m`` [m/rad]."""
+        """Smallest singular value of the site Jacobian, rotation rows scaled by ``length_m`` [m/rad]
+        (with a free spin: only the rotations that tilt the site's z count)."""
         mujoco.mj_jacSite(self.model, self.configuration.data, self._jacp, self._jacr, self.site_id)
-        J = np.vstack([self._jacp, length_m * self._jacr])
+        jacr = self._jacr
+        if self.free_spin:
+            R = self.configuration.data.site_xmat[self.site_id].reshape(3, 3)
+            jacr = R[:, :2].T @ jacr
+        J = np.vstack([self._jacp, length_m * jacr])
         return float(np.linalg.svd(J, compute_uv=False)[-1])
 
     def track(self, T_world_targets: np.ndarray, q_start: np.ndarray, dt: float,

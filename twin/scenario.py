@@ -339,6 +339,11 @@ class PathSpec:
         outlier_k: rejection threshold in robust sigmas.
         max_gap_m: a gap wider than this splits a scan line (part boundary) [m].
         empty_lines: "error" (a scan line without valid points is an error) or "drop".
+        region_axis: (3,) axis of the process region's normal cone, workpiece frame.
+        region_cone_deg: the surfaces whose normal lies within this angle of ``region_axis``
+            are processed (default 60: what a ball-end tool reaches from above).
+        region_box_m: ((x, y, z), (x, y, z)) corners of a box the processed points must lie
+            in (workpiece frame), or None.
     """
 
     T_flange_tool: np.ndarray
@@ -367,6 +372,9 @@ class PathSpec:
     outlier_k: float
     max_gap_m: float
     empty_lines: str
+    region_axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    region_cone_deg: float = 60.0
+    region_box_m: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -679,12 +687,22 @@ def _parse_path(s: _Section) -> PathSpec:
     k = s.number("outlier_k", 5.0, 1.0, 100.0)
     gap = s.number("max_gap_m", 0.002, 0.0, 1.0, lo_open=True)
     empty = s.choice("empty_lines", "error", ("error", "drop"))
+    region_axis = s.vector("region_axis", [0.0, 0.0, 1.0], 3)
+    cone = s.number("region_cone_deg", 60.0, 0.0, 90.0, lo_open=True)
+    box = s._get("region_box_m", None)
     s.done()
-    for name, v in (("heading_direction", heading_dir), ("axis_direction", axis_dir)):
+    if box is not None:
+        ok = (isinstance(box, list) and len(box) == 2
+              and all(isinstance(c, list) and len(c) == 3 and all(_is_number(v) for v in c) for c in box))
+        if not ok or not all(box[0][i] < box[1][i] for i in range(3)):
+            raise TwinError(f"path.region_box_m must be [[x, y, z], [x, y, z]] with min < max, got {box!r}")
+        box = (tuple(float(v) for v in box[0]), tuple(float(v) for v in box[1]))
+    for name, v in (("heading_direction", heading_dir), ("axis_direction", axis_dir), ("region_axis", region_axis)):
         if np.linalg.norm(v) < 1e-9:
             raise TwinError(f"path.{name} must be a non-zero vector")
     if np.linalg.norm(T_ft[:3, 3]) <= tip:
         raise TwinError(f"path.tool: the tool tip must lie farther from the flange than tip_radius_m = {tip:g} m")
     return PathSpec(T_ft, tip, shank, holder, holder_len, feed, transit, acc, acc_td, point_spacing, line_spacing,
                     margin, axis_name, retract, heading, heading_dir / np.linalg.norm(heading_dir), axis,
-                    axis_dir / np.linalg.norm(axis_dir), lead, tilt, knots, simplify, window, k, gap, empty)
+                    axis_dir / np.linalg.norm(axis_dir), lead, tilt, knots, simplify, window, k, gap, empty,
+                    region_axis / np.linalg.norm(region_axis), cone, box)

@@ -33,12 +33,13 @@ from algorithms.errors import AlgorithmError
 from algorithms.geometry.arclength import step_lengths
 from algorithms.paths.timing import Trajectory, time_law
 from algorithms.paths.toolpath import ProcessPath, flange_poses
-from twin.cell import Cell
+from twin.cell import TOOL_BALL_SITE, Cell
 from twin.errors import TwinError
 from twin.ik import IKSolver, reachable
 from twin.robot import ACCELERATION_LIMIT_RAD_S2, HOME_Q, VELOCITY_LIMIT_RAD_S
 
-__all__ = ["PathError", "PathIK", "PathProblem", "Trajectory", "plan_joint_trajectory", "solve_path"]
+__all__ = ["PathError", "PathIK", "PathProblem", "Trajectory", "plan_joint_trajectory", "solve_path", "solve_tool_path",
+           "time_law_for"]
 
 POSITION_TOL_M = 1e-6
 ORIENTATION_TOL_RAD = 1e-5
@@ -111,7 +112,8 @@ def _step_dt(T: np.ndarray, speed: np.ndarray) -> np.ndarray:
 
 
 def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None = None,
-               dt: np.ndarray | None = None, on_problem: str = "raise", site: str = "flange") -> PathIK:
+               dt: np.ndarray | None = None, on_problem: str = "raise", site: str = "flange",
+               free_spin: bool = False) -> PathIK:
     """Joint angles for a sequence of flange poses (robot base frame), see the module docstring.
 
     Args:
@@ -121,6 +123,8 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
         dt: (K,) time allotted to reach each pose from the previous one [s] (velocity limit
             of the IK steps); default: 1 mm per 10 ms.
         on_problem: ``"raise"`` (default) or ``"report"`` (return them in ``problems``).
+        site: the site that follows the poses (``"flange"``, or ``twin.cell.TOOL_BALL_SITE``).
+        free_spin: leave the rotation about the site's z free (a tool symmetric about its axis).
 
     Raises:
         PathError: any unreachable, singular or discontinuous pose (``on_problem="raise"``).
@@ -139,7 +143,7 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
     dt = np.asarray(dt, dtype=np.float64)
     T_world = cell.T_world_base @ T
     t0 = time.perf_counter()
-    s = IKSolver(cell.model, site, POSITION_TOL_M, ORIENTATION_TOL_RAD)
+    s = IKSolver(cell.model, site, POSITION_TOL_M, ORIENTATION_TOL_RAD, free_spin=free_spin)
     s.set_q(HOME_Q if q_start is None else q_start)
     q = np.empty((k, 6))
     pe = np.empty(k)
@@ -191,15 +195,42 @@ def _summarise(problems: list, k: int) -> str:
 def plan_joint_trajectory(cell: Cell, path: ProcessPath, T_flange_tool: np.ndarray, feed_m_s: float,
                           transit_speed_m_s: float, acceleration_m_s2: float,
                           q_start: np.ndarray | None = None,
-                          touchdown_acceleration_m_s2: float | None = None) -> tuple[PathIK, Trajectory]:
-    """Flange poses (eq. 13), IK along the path and the time law, in one call.
+                          touchdown_acceleration_m_s2: float | None = None,
+                          free_spin: bool = False) -> tuple[PathIK, Trajectory]:
+    """IK along the path and the time law, in one call.
+
+    With ``free_spin`` (a ball-end tool, symmetric about its axis) the IK holds the ball
+    centre (``twin.cell.TOOL_BALL_SITE``) and the tool axis and leaves the spin about the axis
+    free; otherwise it follows the flange poses of eq. (13).
 
     Raises:
         PathError: unreachable, singular or discontinuous poses (with their indices and positions).
         TwinError: bad tool transform, feed or speeds.
     """
-    for name, v in (("feed rate", feed_m_s), ("transit speed", transit_speed_m_s),
-                    ("path acceleration", acceleration_m_s2)):
+    if not (np.isfinite(acceleration_m_s2) and acceleration_m_s2 > 0):
+        raise TwinError(f"path acceleration must be a positive number, got {acceleration_m_s2!r}")
+    ik = solve_tool_path(cell, path, T_flange_tool, feed_m_s, transit_speed_m_s, q_start, free_spin)
+    if ik.problems:
+        # Say where on the program the first bad pose is (line, move), not only its index.
+        first = ik.problems[0]
+        a, b, kind, line = path.segments[path.segment[first.index]]
+        where = f"process line {line}" if kind == "process" else f"{kind} move (poses {a}..{b})"
+        raise PathError(f"{_summarise(list(ik.problems), len(ik.q))} [{where}]", ik.problems)
+    return ik, time_law_for(path, ik, feed_m_s, transit_speed_m_s, acceleration_m_s2, touchdown_acceleration_m_s2)
+
+
+def time_law_for(path: ProcessPath, ik: PathIK, feed_m_s: float, transit_speed_m_s: float,
+                 acceleration_m_s2: float, touchdown_acceleration_m_s2: float | None = None) -> Trajectory:
+    """The time law of a solved path with the UR5e's joint limits."""
+    return time_law(path, ik.q, feed_m_s, transit_speed_m_s, acceleration_m_s2, VELOCITY_LIMIT_RAD_S,
+                    ACCELERATION_LIMIT_RAD_S2, touchdown_acceleration_m_s2=touchdown_acceleration_m_s2)
+
+
+def solve_tool_path(cell: Cell, path: ProcessPath, T_flange_tool: np.ndarray, feed_m_s: float,
+                    transit_speed_m_s: float, q_start: np.ndarray | None = None,
+                    free_spin: bool = False) -> PathIK:
+    """IK along a process path; every bad pose is returned in ``problems`` (never raised)."""
+    for name, v in (("feed rate", feed_m_s), ("transit speed", transit_speed_m_s)):
         if not (np.isfinite(v) and v > 0):
             raise TwinError(f"{name} must be a positive number, got {v!r}")
     try:
@@ -208,13 +239,13 @@ def plan_joint_trajectory(cell: Cell, path: ProcessPath, T_flange_tool: np.ndarr
         raise TwinError(str(exc)) from None
     speed = np.full(len(T_bf), transit_speed_m_s)
     speed[path.process_mask()] = feed_m_s
-    try:
-        ik = solve_path(cell, T_bf, q_start=q_start, dt=_step_dt(path.T_tool, speed))
-    except PathError as exc:
-        # Say where on the program the first bad pose is (line, move), not only its index.
-        first = exc.problems[0]
-        a, b, kind, line = path.segments[path.segment[first.index]]
-        where = f"process line {line}" if kind == "process" else f"{kind} move (poses {a}..{b})"
-        raise PathError(f"{exc} [{where}]", exc.problems) from None
-    return ik, time_law(path, ik.q, feed_m_s, transit_speed_m_s, acceleration_m_s2, VELOCITY_LIMIT_RAD_S,
-                        ACCELERATION_LIMIT_RAD_S2, touchdown_acceleration_m_s2=touchdown_acceleration_m_s2)
+    dt = _step_dt(path.T_tool, speed)
+    if not free_spin:
+        return solve_path(cell, T_bf, q_start=q_start, dt=dt, on_problem="report")
+    if not np.allclose(T_flange_tool, cell.scenario.path.T_flange_tool, atol=1e-12) or \
+            abs(path.tip_radius_m - cell.scenario.path.tip_radius_m) > 1e-12:
+        raise TwinError("the five-axis IK needs the cell's own tool (scenario [path] tool and tip_radius_m)")
+    T_ball = path.T_tool.copy()
+    T_ball[:, :3, 3] += path.tip_radius_m * T_ball[:, :3, 2]
+    return solve_path(cell, T_ball, q_start=q_start, dt=dt, on_problem="report", site=TOOL_BALL_SITE,
+                      free_spin=True)

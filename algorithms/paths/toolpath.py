@@ -51,8 +51,11 @@ from algorithms.errors import AlgorithmError
 from algorithms.geometry.arclength import ROTATION_LENGTH_M_PER_RAD, cumulative_length
 from algorithms.geometry.raycast import GRID_SHIFT_M, raycast_parallel
 from algorithms.geometry.se3 import as_pose, inv_pose
+from algorithms.paths.regions import ProcessRegion, split_runs
 
 SEGMENT_KINDS = ("approach", "process", "retract", "transit")
+# Consecutive raster hits farther apart than this many point spacings: a step (or a hole).
+STEP_FACTOR = 2.0
 
 
 class ToolPathError(AlgorithmError):
@@ -246,8 +249,24 @@ def _straight(T_a: np.ndarray, T_b: np.ndarray, step_m: float, turn_sign: float 
     return out
 
 
+def _transit(up_a: np.ndarray, up_b: np.ndarray, step_m: float, turn_sign: float, clear, safe_plane) -> np.ndarray:
+    """A move in the air between two lines: straight when ``clear`` accepts it (or no check
+    is given), else up to the safe plane, across it and down."""
+    straight = _straight(up_a, up_b, step_m, turn_sign)
+    if clear is None or safe_plane is None or bool(np.all(clear(straight[:, :3, 3]))):
+        return straight
+    point, normal = (np.asarray(v, dtype=np.float64) for v in safe_plane)
+    high_a, high_b = up_a.copy(), up_b.copy()
+    high_a[:3, 3] += max(0.0, float((point - up_a[:3, 3]) @ normal)) * normal
+    high_b[:3, 3] += max(0.0, float((point - up_b[:3, 3]) @ normal)) * normal
+    legs = [_straight(up_a, high_a, step_m), _straight(high_a, high_b, step_m, turn_sign),
+            _straight(high_b, up_b, step_m)]
+    return np.concatenate([legs[0], legs[1][1:], legs[2][1:]])
+
+
 def assemble_path(lines_T_tool, lines_contact, lines_normal, retract_m: float = 0.02,
-                  transit_step_m: float = 0.002, tip_radius_m: float = 0.0) -> ProcessPath:
+                  transit_step_m: float = 0.002, tip_radius_m: float = 0.0, clear=None,
+                  safe_plane=None) -> ProcessPath:
     """String process lines into one program (see module docstring).
 
     Args:
@@ -258,6 +277,9 @@ def assemble_path(lines_T_tool, lines_contact, lines_normal, retract_m: float = 
         retract_m: lift along the tool axis before and after each line [m].
         transit_step_m: pose spacing of moves in the air [m].
         tip_radius_m: recorded with the path.
+        clear: optional callable ``(n, 3) TCP positions -> (n,) bool``: whether the tool is
+            clear of the part there; a transit it rejects goes over ``safe_plane``.
+        safe_plane: (point (3,), unit normal (3,)) a plane above the part, same frame.
     """
     if len(lines_T_tool) == 0:
         raise ToolPathError("a process path needs at least one line")
@@ -276,7 +298,8 @@ def assemble_path(lines_T_tool, lines_contact, lines_normal, retract_m: float = 
         up_end = T[-1].copy()
         up_end[:3, 3] += retract_m * T[-1, :3, 2]
         if prev_up is not None:
-            pieces.append(("transit", _straight(prev_up, up_start, transit_step_m, turn_sign=(-1.0) ** i), -1))
+            pieces.append(("transit", _transit(prev_up, up_start, transit_step_m, (-1.0) ** i, clear, safe_plane),
+                           -1))
         pieces.append(("approach", _straight(up_start, T[0], transit_step_m), -1))
         pieces.append(("process", T, i))
         pieces.append(("retract", _straight(T[-1], up_end, transit_step_m), -1))
@@ -320,7 +343,8 @@ class ToolSettings:
     zigzag: bool = True
 
 
-def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSettings(), T_frame_ref=None) -> ProcessPath:
+def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSettings(), T_frame_ref=None,
+               clear=None, safe_plane=None) -> ProcessPath:
     """Contact points and normals per line -> a zig-zag :class:`ProcessPath` of tool poses.
 
     Args:
@@ -329,6 +353,7 @@ def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSetting
         settings: tool orientation options.
         T_frame_ref: optional (4, 4) pose of the frame the fixed directions are given in
             (e.g. ``T_base_workpiece``: heading along the part's x); default: the points' frame.
+        clear, safe_plane: collision-checked transits (:func:`assemble_path`).
     """
     R_ref = np.eye(3) if T_frame_ref is None else as_pose(T_frame_ref, "T_frame_ref")[:3, :3]
     hd = R_ref @ _fixed_vector(settings.heading_direction, "heading_direction")
@@ -348,26 +373,31 @@ def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSetting
         Ts.append(T)
         cs.append(c)
         ns.append(n)
-    return assemble_path(Ts, cs, ns, settings.retract_m, settings.transit_step_m, settings.tip_radius_m)
+    return assemble_path(Ts, cs, ns, settings.retract_m, settings.transit_step_m, settings.tip_radius_m,
+                         clear, safe_plane)
 
 
 def cad_raster(mesh, line_spacing_m: float = 0.004, point_spacing_m: float = 0.001, margin_m: float = 0.005,
-               line_axis: str = "x", region=None, normals=None) -> tuple[list, list]:
+               line_axis: str = "x", region=None, normals=None,
+               process_region: ProcessRegion | None = None) -> tuple[list, list]:
     """A raster of contact points on the CAD model, seen from +z (workpiece frame).
 
     Lines run along ``line_axis``, ``line_spacing_m`` apart, points ``point_spacing_m``
     apart, inside the footprint shrunk by ``margin_m`` (or ``region`` ((xmin, ymin),
-    (xmax, ymax))), shifted by GRID_SHIFT_M off round numbers. Each line keeps its longest
-    run of hits.
+    (xmax, ymax))), shifted by GRID_SHIFT_M off round numbers. Each raster line is cut into
+    pieces at holes, steps (consecutive hits farther apart than ``STEP_FACTOR`` point
+    spacings), sharp edges and the border of ``process_region``
+    (:func:`algorithms.paths.regions.split_runs`); every piece becomes a line.
 
     Args:
         mesh: object with ``vertices`` (V, 3) and ``faces`` (F, 3) [m], workpiece frame.
         normals: optional callable ``(face (N,), points (N, 3)) -> (N, 3)`` smooth unit
             normals (e.g. ``MeshIndex.smooth_normals``); default: the face normals.
+        process_region: optional :class:`ProcessRegion` (which surfaces are processed).
 
     Returns:
-        (lines, normals): lists of (n_i, 3) arrays, lines in increasing cross coordinate,
-        all in the +line_axis direction.
+        (lines, normals): lists of (n_i, 3) arrays, pieces in increasing cross coordinate
+        (then along the line), all in the +line_axis direction.
     """
     for name, v in (("line_spacing_m", line_spacing_m), ("point_spacing_m", point_spacing_m)):
         if not (np.isfinite(v) and v > 0):
@@ -396,20 +426,19 @@ def cad_raster(mesh, line_spacing_m: float = 0.004, point_spacing_m: float = 0.0
         idx = np.flatnonzero(hit[j])
         if len(idx) < 2:
             continue
-        runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-        run = max(runs, key=len)
-        if len(run) < 2:
-            continue
-        p = P[j, run]
-        f = face[j, run]
+        p = P[j, idx]
+        f = face[j, idx]
         if normals is None:
             tri = V[F[f]]
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             n /= np.linalg.norm(n, axis=1, keepdims=True)
         else:
             n = np.asarray(normals(f, p), dtype=np.float64)
-        lines.append(p)
-        norms.append(n)
+        # Lines end at holes, steps, sharp edges and the border of the process region.
+        keep = None if process_region is None else process_region.select(p, n)
+        for run in split_runs(p, n, keep, max_gap_m=STEP_FACTOR * point_spacing_m, min_points=2):
+            lines.append(p[run])
+            norms.append(n[run])
     if len(lines) == 0:
         raise ToolPathError("the raster region does not cover the model: no line hits it")
     return lines, norms

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from algorithms.errors import AlgorithmError
-from algorithms.geometry.se3 import inv_pose, log_se3, rotation_error_rad, translation_error_m
+from algorithms.geometry.se3 import exp_se3, inv_pose, log_se3, rotation_error_rad, translation_error_m
 
 __all__ = [
     "OBSERVABILITY_TOL",
@@ -227,3 +227,55 @@ def unit_twists(W) -> np.ndarray:
         nv = float(np.linalg.norm(x[3:]))
         out[i] = x / (nw if nw > 1e-9 * max(nv, 1e-300) else nv)
     return out
+
+
+def part_symmetry_directions(index, twists, step_rad: float = 0.05, step_m: float = 0.005,
+                             tol_fraction: float = 0.1) -> np.ndarray:
+    """(k,) bool: whether each free direction is a symmetry of the whole CAD model.
+
+    The points leave a direction free either because the part is symmetric that way (a
+    sphere turns onto itself) or because they miss the surfaces that would fix it (only the
+    top face of a block was measured). The model's vertices and face centres, moved by a
+    finite step along the twist (``step_rad`` about a rotation, ``step_m`` along a
+    translation), land back on the model within ``tol_fraction`` of the step's largest
+    displacement only in the first case.
+
+    Args:
+        index: MeshIndex of the model (workpiece frame).
+        twists: (k, 6) unit twists ``[omega, v]`` in the workpiece frame.
+    """
+    V, F = index.vertices, index.faces
+    samples = np.vstack([V, V[F].mean(axis=1)])
+    out = []
+    for w in np.asarray(twists, dtype=np.float64).reshape(-1, 6):
+        s = step_rad if np.linalg.norm(w[:3]) > 1e-9 else step_m
+        T = exp_se3(s * w)
+        moved = samples @ T[:3, :3].T + T[:3, 3]
+        shift = float(np.max(np.linalg.norm(moved - samples, axis=1)))
+        out.append(float(index.query(moved).distance.max()) <= tol_fraction * shift)
+    return np.array(out, dtype=bool)
+
+
+def systematic_covariance(points, normals, directions, bias_basis, bias_std) -> np.ndarray:
+    """Covariance of the pose error that a smooth systematic error of the points causes.
+
+    The error of point ``i`` along its normal is ``e_i = sum_k c_k phi_k(i)`` with independent
+    coefficients of standard deviation ``bias_std[k]`` (a Type B evaluation, GUM 4.3: e.g. a
+    sensor's linearity curve, bounded but unknown, expanded over smooth functions of the
+    measured distance). Each basis function moves the least-squares pose by
+    ``g_k = (A^T A)^-1 A^T phi_k`` with ``A`` the information rows along ``directions``, so
+    the covariance is ``sum_k bias_std[k]^2 g_k g_k^T``. Unlike white noise, this does not
+    shrink with the number of points.
+
+    Args:
+        points, normals: (N, 3) model feet and unit normals (workpiece frame).
+        directions: (q, 6) twists the covariance is expressed along.
+        bias_basis: (N, K) the basis functions' values at the points.
+        bias_std: (K,) their coefficients' standard deviations [m].
+    """
+    D = np.asarray(directions, dtype=np.float64).reshape(-1, 6)
+    A = information_rows(points, normals) @ D.T
+    Phi = np.asarray(bias_basis, dtype=np.float64)
+    G = np.linalg.lstsq(A, Phi, rcond=None)[0]          # (q, K)
+    s = np.asarray(bias_std, dtype=np.float64)
+    return (G * s**2) @ G.T

@@ -11,7 +11,7 @@ from typing import NoReturn
 from twin.io.output import check_output_file, check_output_folder
 
 #: Exit statuses of every command (README, "Exit status").
-EXIT_OK, EXIT_BAD_INPUT, EXIT_UNTRUSTED = 0, 2, 3
+EXIT_OK, EXIT_BAD_INPUT, EXIT_UNTRUSTED, EXIT_STAGE_FAILED = 0, 2, 3, 4
 EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM = 141, 130, 143
 
 

@@ -6,7 +6,7 @@ import argparse
 import json
 
 from twin.cli.common import add_output_options, checked_outputs
-from twin.cli.run import run_and_report
+from twin.cli.run import exit_code, run_and_report
 from twin.errors import TwinError
 from twin.io import write_scan
 from twin.io.output import Staged
@@ -39,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     out, rrd = checked_outputs(args, default_rrd_name=None if args.no_rrd else "demo.rrd")
     with Staged(out) as stage:
         result, report = run_and_report(scenario, stage, rrd, command="demo")
-        write_scan(result.scan, stage.folder)
+        if result.scan is not None:
+            write_scan(result.scan, stage.folder)
         stage.commit()
     print(json.dumps(headline(report), indent=2))
-    return 0
+    return exit_code(report)

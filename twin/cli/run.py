@@ -9,7 +9,7 @@ from functools import partial
 from pathlib import Path
 
 from twin import pipeline
-from twin.cli.common import add_output_options, checked_outputs, progress
+from twin.cli.common import EXIT_OK, EXIT_STAGE_FAILED, EXIT_UNTRUSTED, add_output_options, checked_outputs, progress
 from twin.io.output import Staged
 from twin.io.report import headline, run_report, write_json
 from twin.realize import realize
@@ -28,15 +28,24 @@ def add_parser(sub) -> None:
     )
     p.add_argument("scenario", help="scenario TOML file")
     add_output_options(p, "output folder for report.json (created; refused if it exists, unless --force)")
+    p.add_argument("--place-base", action="store_true",
+                   help="first move the robot base on the table to a pose from which the arm reaches every "
+                        "scan and path pose (a search over x, y and yaw around the part), then run from there; "
+                        "the placement is written to DIR/placement.json")
+    p.add_argument("--strict", action="store_true",
+                   help="a path stretch that cannot be processed (unreachable, singular, colliding) fails "
+                        "the run instead of being dropped and listed")
     p.set_defaults(run=run)
 
 
-def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command: str = "run"):
+def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command: str = "run",
+                   strict: bool = False):
     """Run the loop and write ``report.json`` (and the recording) into the staged folder;
-    returns (result, report). The caller commits the stage."""
+    returns (result, report). The caller commits the stage: a run that stopped at a stage
+    still leaves its evidence (the report says ``complete: false``, the failing stage and why)."""
     t_all = time.perf_counter()
     realized = realize(scenario)
-    result = pipeline.run(realized, say=partial(progress, command))
+    result = pipeline.run(realized, say=partial(progress, command), strict=strict)
     report = run_report(result, pipeline.sensor_sigma_m(realized.scenario))
     if rrd is not None:
         from twin.viz import save_run_recording
@@ -51,11 +60,30 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
     return result, report
 
 
+def exit_code(report: dict) -> int:
+    """0 trusted and complete; 3 finished but not trusted; 4 a stage failed (evidence written)."""
+    if not report["complete"]:
+        return EXIT_STAGE_FAILED
+    return EXIT_OK if report["trusted"] else EXIT_UNTRUSTED
+
+
 def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     out, rrd = checked_outputs(args)
+    placement = None
+    if args.place_base:
+        from twin.placement import place_base
+
+        scenario, placement = place_base(scenario)
+        progress("run", f"base placed at {placement['new_base']} (was {placement['old_base']}; "
+                        f"margin {placement['margin']:.2f}, {placement['time_s']:.1f} s)")
     with Staged(out) as stage:
-        _, report = run_and_report(scenario, stage, rrd)
+        if placement is not None:
+            write_json(stage.folder / "placement.json", placement)
+        _, report = run_and_report(scenario, stage, rrd, strict=args.strict)
         stage.commit()
     print(json.dumps(headline(report), indent=2))
-    return 0
+    if not report["complete"]:
+        progress("run", f"stopped at {report['failed_stage']}: {report['failure']} "
+                        f"(partial report in {report['report']})")
+    return exit_code(report)

@@ -44,22 +44,40 @@ def scan_report(scan, realized) -> dict:
 
 
 def localization_report(result) -> dict:
+    """The estimate, its verdict, determined and free directions, the Cramer-Rao standard
+    deviations and the errors against the truth in the determined directions only."""
     loc = result.localization
-    e = evaluate.pose_errors(loc.T_world_workpiece, result.realized)
+    realized = result.realized
+    e = evaluate.pose_errors(loc.T_world_workpiece, realized)
+    d = evaluate.determined_errors(loc, realized, result.pose_covariance)
     return {
         "method": loc.method,
         "converged": bool(loc.converged),
         "status": loc.status.value,
+        "trusted": evaluate.localization_trusted(loc),
         "message": loc.message,
+        "observable": len(loc.free_directions) == 0,
+        "free_directions": [[round(float(v), 6) for v in w] for w in loc.free_directions],
+        "free_directions_part_symmetry": evaluate.free_directions_part_symmetry(loc, realized.workpiece.index),
+        "determined_directions": [[round(float(v), 6) for v in w] for w in loc.determined_directions],
+        "solutions": len(loc.solutions),
+        "poor_fit": loc.poor_fit_reason,
         "iterations": int(loc.iterations),
         "rmse_um": float(loc.rmse_m * UM),
         "sigma_um": float(loc.sigma_m * UM),
         "points": int(len(result.scan.line_points_base)),
         "time_s": round(float(loc.time_s), 4),
-        "rotation_error_deg": float(np.degrees(e.rotation_rad)),
-        "translation_error_mm": float(e.translation_m * MM),
+        "T_base_workpiece_estimate": np.round(loc.T_world_workpiece, 12).tolist(),
+        "determined_std": d["std"],
+        "determined_error": d["error"],
+        "determined_error_sigmas": d["sigmas"],
+        "max_error_sigmas": d["max_sigmas"],
+        "rotation_error_deg": float(np.degrees(e.rotation_rad)) if not len(loc.free_directions) else "free",
+        "translation_error_mm": float(e.translation_m * MM) if not len(loc.free_directions) else "free",
         "nominal_rotation_error_deg": float(np.degrees(e.nominal_rotation_rad)),
         "nominal_translation_error_mm": float(e.nominal_translation_m * MM),
+        "note": "determined_*: along determined_directions (unit twists [omega, v], workpiece frame), "
+                "in rad for rotations and m for translations; free directions are not errors",
     }
 
 
@@ -80,18 +98,27 @@ def ik_report(ik, traj) -> dict:
     }
 
 
+def _run_blocks(run) -> dict:
+    if run is None:
+        return {}
+    return {"dropped": [d.to_dict() for d in run.dropped], "ik": ik_report(run.ik, run.trajectory),
+            "verification": run.log.summary()}
+
+
 def scan_path_report(result, sensor_sigma_m: float) -> dict:
     sp = result.scan_path
-    pts = np.concatenate(sp.fits.lines)
+    pts = np.concatenate(sp.lines)
     e = evaluate.scan_path_errors(pts, np.concatenate(sp.normals), np.concatenate(sp.tool_normals), result.realized)
-    bound = 3 * sensor_sigma_m + sp.fits.max_error_m
-    run = result.run("scan_path")
+    bound = 3 * sensor_sigma_m + sp.fit_max_error_m
     return {
-        "lines": len(sp.cloud.lines),
-        "cloud_points": sp.cloud.n_points,
-        "removed": dict(sp.cloud.removed),
-        "fit_rms_error_um": sp.fits.rms_error_m * UM,
-        "fit_max_error_um": sp.fits.max_error_m * UM,
+        "scan_lines": sp.cloud_lines,
+        "lines": len(sp.lines),
+        "patches": sp.patches,
+        "left_out": list(sp.left_out),
+        "cloud_points": sp.cloud_points,
+        "removed": dict(sp.removed),
+        "fit_rms_error_um": sp.fit_rms_error_m * UM,
+        "fit_max_error_um": sp.fit_max_error_m * UM,
         "contact_points": int(len(pts)),
         "contact_surface_error_max_um": float(np.max(np.abs(e.surface_m)) * UM),
         "contact_surface_error_rms_um": float(np.sqrt(np.mean(e.surface_m**2)) * UM),
@@ -102,8 +129,7 @@ def scan_path_report(result, sensor_sigma_m: float) -> dict:
         "normals_pca_k16_rms_deg": _rms(e.normals_pca_deg),
         "tool_normals_smoothed_rms_deg": _rms(e.tool_normals_deg),
         "time_s": round(sp.time_s, 4),
-        "ik": ik_report(run.ik, run.trajectory),
-        "verification": run.log.summary(),
+        **_run_blocks(result.run("scan_path")),
     }
 
 
@@ -111,7 +137,7 @@ def cad_path_report(result) -> dict:
     realized = result.realized
     T_true, index = realized.T_base_workpiece_true, realized.workpiece.index
     run = result.run("cad_path")
-    cp = run.path
+    cp = transform_path(result.T_base_workpiece_estimate, result.cad_path_workpiece)
     contact = cp.contact[cp.process_mask()]
     err = evaluate.surface_error_m(contact, T_true, index)
     nominal = transform_path(realized.T_base_workpiece_nominal, result.cad_path_workpiece)
@@ -125,42 +151,57 @@ def cad_path_report(result) -> dict:
         "uncompensated_rms_surface_error_mm": float(np.sqrt(np.mean(err_nom**2)) * MM),
         "note": "surface errors: signed distance of the planned contact points to the TRUE surface; "
                 "verification.tip_surface_error_*: of the replayed ball end (adds servo lag)",
-        "ik": ik_report(run.ik, run.trajectory),
-        "verification": run.log.summary(),
+        **_run_blocks(run),
     }
 
 
 def run_report(result, sensor_sigma_m: float) -> dict:
-    """The ``report.json`` of a run (see ``twin run --help``)."""
+    """The ``report.json`` of a run (see ``twin run --help``); a run that stopped at a stage
+    gets what the finished stages made, ``complete: false`` and the failing stage."""
     sc = result.realized.scenario
-    report = {"scenario": sc.source or sc.name, "seed": sc.seed,
-              "scan": scan_report(result.scan, result.realized), "localization": localization_report(result)}
+    report = {"scenario": sc.source or sc.name, "seed": sc.seed, "complete": result.complete}
+    if result.failure is not None:
+        report["failed_stage"], report["failure"] = result.failure
+    if result.scan is not None:
+        report["scan"] = scan_report(result.scan, result.realized)
+        passes = getattr(result.scan.plan, "passes", None)
+        if passes:
+            report["scan"]["passes"] = [p.to_dict() for p in passes]
+    if result.localization is not None:
+        report["localization"] = localization_report(result)
     if result.scan_path is not None:
         report["scan_path"] = scan_path_report(result, sensor_sigma_m)
-    else:
+    elif result.scan_path_skipped is not None:
         report["scan_path"] = {"skipped": result.scan_path_skipped}
-    report["cad_path"] = cad_path_report(result)
-    main = report["scan_path"].get("verification") or report["cad_path"]["verification"]
-    report["path_verification"] = {
-        "path": "scan_path" if "verification" in report["scan_path"] else "cad_path",
-        "max_deviation_mm": main["max_deviation_mm"],
-        "rms_deviation_mm": main["rms_deviation_mm"],
-        "contacts": main["contacts"],
-        "unintended_contacts": main["unintended_contacts"],
-        "joint_limit_hits": main["joint_limit_hits"],
-    }
-    report["max_surface_error_mm"] = report["cad_path"]["max_surface_error_mm"]
+    if result.run("cad_path") is not None:
+        report["cad_path"] = cad_path_report(result)
+    verified = [name for name in ("scan_path", "cad_path") if "verification" in report.get(name, {})]
+    if verified:
+        main = report[verified[0]]["verification"]
+        report["path_verification"] = {
+            "path": verified[0],
+            "max_deviation_mm": main["max_deviation_mm"],
+            "rms_deviation_mm": main["rms_deviation_mm"],
+            "contacts": main["contacts"],
+            "unintended_contacts": sum(report[n]["verification"]["unintended_contacts"] for n in verified),
+            "joint_limit_hits": main["joint_limit_hits"],
+        }
+    if "cad_path" in report:
+        report["max_surface_error_mm"] = report["cad_path"]["max_surface_error_mm"]
+    report["trusted"] = bool(result.complete and report.get("localization", {}).get("trusted", False))
     report["timings_s"] = {k: round(v, 3) for k, v in result.timings_s.items()}
     return report
 
 
 def headline(report: dict) -> dict:
     """The short JSON a command prints."""
-    keys = ("localization", "path_verification", "max_surface_error_mm", "report", "recording", "wall_s")
+    keys = ("complete", "failed_stage", "failure", "trusted", "localization", "path_verification",
+            "max_surface_error_mm", "report", "recording", "wall_s")
     out = {k: report[k] for k in keys if k in report}
     if "localization" in out:
         out["localization"] = {k: out["localization"][k]
-                               for k in ("status", "rotation_error_deg", "translation_error_mm")}
+                               for k in ("status", "observable", "max_error_sigmas", "rotation_error_deg",
+                                         "translation_error_mm")}
     return out
 
 
