@@ -1,28 +1,45 @@
-"""Scan planning: a raster of scan lines over the workpiece, seen on the CAD model at the NOMINAL pose.
+"""Scan planning: scan lines over the workpiece, seen on the CAD model at the NOMINAL pose.
 
-Lines run along the workpiece's x (or y) axis, ``line_spacing_m`` apart, alternating direction.
-Each line is found by casting rays at the nominal CAD model (1 mm apart, along -z of the
-workpiece, or along the fixed beam direction); the sensor sits at the stand-off along the
-(smoothed) surface normal or the fixed direction, its +z on the beam and its +x along the line axis.
-Between lines the sensor retracts, moves over and approaches. Each segment follows a
+One pass (the ``[scan]`` table's own keys): lines run along the workpiece's x (or y) axis,
+``line_spacing_m`` apart, alternating direction. Each line is found by casting rays at the
+nominal CAD model (1 mm apart, along -z of the workpiece, or along the fixed beam direction);
+the sensor sits at the stand-off along the (smoothed) surface normal or the fixed direction,
+its +z on the beam and its +x along the line axis.
+
+Several passes (``[[scan.passes]]``, or ``passes = "auto"``): each pass has a view direction
+(the fixed beam, or the planning direction of a beam along the normal). Its lines lie on a
+plane normal to the view, ``line_spacing_m`` apart, along the pass's line axis; planning rays
+1 mm apart are cast along the view at the nominal CAD model, and a line is each run of
+consecutive hits that lies in the pass's region, is seen within the sensor's incidence limit,
+and crosses no sharp edge (a jump in the face normal) and no step (a jump in the hit point):
+a line never bridges a step. The automatic planner (:func:`plan_auto_passes`) picks views
+from straight down and tilted cones until the predicted points fix all six pose directions
+(:func:`algorithms.registration.uncertainty.observability`) and checks each with the scan's IK.
+
+Between lines the sensor retracts along the beam, moves over and approaches; between passes it
+climbs to a safe height above the part, moves over and comes down. Each segment follows a
 trapezoidal speed profile; poses come out every 1 ms.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import mujoco.batch
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.raycast import GRID_SHIFT_M
 from algorithms.geometry.se3 import transform_points
+from algorithms.registration.uncertainty import OBSERVABILITY_TOL, information_rows, observability
 from twin.cell import Cell
 from twin.errors import TwinError
-from twin.robot import WORKPIECE_GROUPS
+from twin.robot import HOME_Q, WORKPIECE_GROUPS
+from twin.scenario import AutoPlanSpec, PassSpec, ScanSpec
 
 PLAN_STEP_M = 0.001          # ray spacing along a line on the CAD model
 NORMAL_SMOOTHING_M = 0.003   # Gaussian smoothing of the normals along a line (sigma)
@@ -30,6 +47,65 @@ ACCELERATION_M_S2 = 0.5      # trapezoidal profile acceleration of every segment
 # Where the beam follows a curved normal the sensor also turns; the path slows down so that it
 # turns at most this fast (the wrist joints of the UR5e reach pi rad/s; IK needs headroom).
 ANGULAR_SPEED_RAD_S = 0.5
+
+# Multi-pass lines. A line ends where the face normal turns by more than SHARP_EDGE_DEG
+# between neighbouring rays (an edge) or where neighbouring hits lie farther apart than
+# STEP_JUMP_FACTOR times the farthest a surface within the incidence limit can put them (a
+# step); hits seen within INCIDENCE_MARGIN_DEG of the sensor's limit are left out, so that the
+# part's small offset from the nominal pose does not lose them; lines shorter than MIN_LINE_M
+# are dropped (their approach and retract would cost more than they give).
+SHARP_EDGE_DEG = 25.0
+STEP_JUMP_FACTOR = 1.5
+INCIDENCE_MARGIN_DEG = 5.0
+MIN_LINE_M = 0.004
+# Planning rays start this far before the region, back along the view.
+RAY_START_M = 0.05
+# Auto planner: a candidate view's line is new when at least NEW_FRACTION of its points have
+# no point of an earlier pass within one line spacing whose normal is within NEW_NORMAL_DEG.
+NEW_FRACTION = 0.5
+NEW_NORMAL_DEG = 30.0
+# Reachability check of a view: at most this many line ends are solved with the scan's IK.
+REACH_CHECK_POSES = 24
+# A coordinate direction counts as fixed when less than this part of it lies in the weak
+# subspace of the predicted information.
+FIXED_WEAK_FRACTION = 0.5
+COORDINATE_NAMES = ("rx", "ry", "rz", "x", "y", "z")
+
+
+@dataclass(frozen=True)
+class PassInfo:
+    """One pass of a plan, as the report shows it.
+
+    Attributes:
+        name: the pass's name.
+        beam: "fixed" or "normal".
+        beam_wp: (3,) the view direction in the workpiece frame (the beam when fixed; the
+            planning direction when the beam follows the normal).
+        lines: number of scan lines of the pass.
+        first_line: global index of its first scan line.
+        reason: why the pass is in the plan.
+        predicted_min_relative_eigenvalue: smallest relative eigenvalue of the predicted
+            information of this pass and the ones before it (see
+            :func:`algorithms.registration.uncertainty.observability`).
+        fixed: the coordinate directions the passes so far fix ("x", ..., "rz"), predicted.
+    """
+
+    name: str
+    beam: str
+    beam_wp: tuple[float, float, float]
+    lines: int
+    first_line: int
+    reason: str
+    predicted_min_relative_eigenvalue: float
+    fixed: tuple[str, ...]
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name, "beam": self.beam, "beam_wp": [float(v) for v in self.beam_wp],
+            "lines": self.lines, "first_line": self.first_line, "reason": self.reason,
+            "predicted_min_relative_eigenvalue": float(self.predicted_min_relative_eigenvalue),
+            "fixed": list(self.fixed),
+        }
 
 
 @dataclass(frozen=True)
@@ -39,9 +115,13 @@ class ScanPlan:
     Attributes:
         t: (K,) times [s], exactly ``dt`` apart from 0.
         T_world_sensor: (K, 4, 4) planned sensor poses (world).
-        line: (K,) scan-line index, -1 during approach, retract and line changes.
-        line_y_m: (L,) cross-line coordinate of each line in the workpiece frame [m].
+        line: (K,) scan-line index (unique across passes), -1 during approach, retract, line
+            and pass changes.
+        line_y_m: (L,) cross-line coordinate of each line in its pass's plane [m].
         dt: step [s].
+        line_pass: (L,) the pass index of each scan line (``line_pass[line]``; one pass: zeros).
+        passes: what each pass is and why it was planned.
+        notes: what the planner could not do (unreachable views, directions left weak).
     """
 
     t: np.ndarray
@@ -49,10 +129,38 @@ class ScanPlan:
     line: np.ndarray
     line_y_m: np.ndarray
     dt: float
+    line_pass: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    passes: tuple[PassInfo, ...] = ()
+    notes: tuple[str, ...] = ()
 
     @property
     def duration_s(self) -> float:
         return float(self.t[-1]) if len(self.t) else 0.0
+
+
+@dataclass(frozen=True)
+class _Line:
+    """One planned scan line: its sensor poses along a path parameter, with the motion settings."""
+
+    index: int
+    pass_index: int
+    cross_m: float
+    T_world_sensor: np.ndarray
+    s_path: np.ndarray
+    speed_m_s: float
+    transit_speed_m_s: float
+    retract_m: float
+
+
+@dataclass(frozen=True)
+class _Run:
+    """A run of planning hits that makes one line (workpiece frame)."""
+
+    row: int
+    cross_m: float
+    points_wp: np.ndarray
+    normals_wp: np.ndarray
+    smooth_normals_wp: np.ndarray
 
 
 def _frames(z: np.ndarray, tangent: np.ndarray) -> np.ndarray:
@@ -119,17 +227,9 @@ def scan_region(cell: Cell) -> tuple[tuple[float, float], tuple[float, float]]:
     return (float(lo[0] + m), float(lo[1] + m)), (float(hi[0] - m), float(hi[1] - m))
 
 
-def _cast_line(cell: Cell, batch, u: np.ndarray, v: float, axis: str, direction_wp: np.ndarray):
-    """Cast planning rays at the nominal CAD model; returns hit mask, points and normals (workpiece frame)."""
-    top = cell.mesh.bounds[1, 2]
-    if axis == "x":
-        xy = np.column_stack([u, np.full_like(u, v)])
-    else:
-        xy = np.column_stack([np.full_like(u, v), u])
-    start_wp = np.column_stack([xy, np.full(len(u), top)])
-    # The region is a grid on the plane of the part's top (z = max z of the mesh): each ray
-    # passes through its grid point and starts 50 mm higher, back along the beam.
-    start_wp = start_wp - direction_wp * (0.05 / max(-direction_wp[2], 0.2))
+def _cast_wp(cell: Cell, batch, start_wp: np.ndarray, direction_wp: np.ndarray):
+    """Cast rays from ``start_wp`` along ``direction_wp`` (workpiece frame) at the nominal CAD
+    model; returns hit mask, points and face normals (workpiece frame)."""
     T = cell.T_world_workpiece
     start_w = transform_points(T, start_wp)
     dir_w = np.broadcast_to(T[:3, :3] @ direction_wp, start_w.shape).copy()
@@ -141,11 +241,65 @@ def _cast_line(cell: Cell, batch, u: np.ndarray, v: float, axis: str, direction_
     return hit, (p_w - T[:3, 3]) @ R, normal @ R
 
 
+def _cast_line(cell: Cell, batch, u: np.ndarray, v: float, axis: str, direction_wp: np.ndarray):
+    """Planning rays of one single-pass line; returns hit mask, points and normals (workpiece frame)."""
+    top = cell.mesh.bounds[1, 2]
+    if axis == "x":
+        xy = np.column_stack([u, np.full_like(u, v)])
+    else:
+        xy = np.column_stack([np.full_like(u, v), u])
+    start_wp = np.column_stack([xy, np.full(len(u), top)])
+    # The region is a grid on the plane of the part's top (z = max z of the mesh): each ray
+    # passes through its grid point and starts 50 mm higher, back along the beam.
+    start_wp = start_wp - direction_wp * (0.05 / max(-direction_wp[2], 0.2))
+    return _cast_wp(cell, batch, start_wp, direction_wp)
+
+
+def _line_poses(T_world_workpiece: np.ndarray, p: np.ndarray, beam: np.ndarray, axis_wp: np.ndarray,
+                standoff_m: float, speed_m_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor poses (world) along one line and their path parameter.
+
+    Args:
+        p: (n, 3) surface points [m], beam: (n, 3) unit beams, axis_wp: (3,) sensor +x
+            direction (projected off the beam), all in the workpiece frame.
+    """
+    R_wp = _frames(beam, np.broadcast_to(axis_wp, beam.shape))
+    origin_wp = p - standoff_m * beam
+    T_line = np.empty((len(p), 4, 4))
+    T_line[:] = np.eye(4)
+    T_line[:, :3, :3] = T_world_workpiece[:3, :3] @ R_wp
+    T_line[:, :3, 3] = transform_points(T_world_workpiece, origin_wp)
+    # Path parameter: surface arc length, stretched where the sensor must turn faster
+    # than ANGULAR_SPEED_RAD_S at the scan speed.
+    ds = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    dtheta = np.linalg.norm(Rotation.from_matrix(
+        np.einsum("nji,njk->nik", R_wp[:-1], R_wp[1:])).as_rotvec(), axis=1)
+    ds_eff = np.maximum(ds, dtheta * speed_m_s / ANGULAR_SPEED_RAD_S)
+    return T_line, np.concatenate([[0.0], np.cumsum(ds_eff)])
+
+
+def _beam_along(normals: np.ndarray) -> np.ndarray:
+    """Unit beams against the normals smoothed along a line."""
+    n = gaussian_filter1d(normals, NORMAL_SMOOTHING_M / PLAN_STEP_M, axis=0, mode="nearest")
+    return -n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
 def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
-    """Plan the raster scan on the nominal cell (poses in the world frame)."""
+    """Plan the scan on the nominal cell (poses in the world frame): the ``[scan]`` table's one
+    pass, its explicit passes, or passes planned automatically."""
     if cell.which != "nominal":
         raise TwinError("scan planning uses the nominal cell (what the planner believes)")
     spec = cell.scenario.scan
+    if spec.auto is not None:
+        planned = plan_auto_passes(cell, spec, spec.auto)
+        return _plan_passes(cell, planned.passes, dt, planned)
+    if spec.passes is not None:
+        return _plan_passes(cell, spec.passes, dt)
+    return _plan_single_pass(cell, spec, dt)
+
+
+def _plan_single_pass(cell: Cell, spec: ScanSpec, dt: float) -> ScanPlan:
+    """The raster of the ``[scan]`` table's own keys (each line the longest run of hits)."""
     (x0, y0), (x1, y1) = scan_region(cell)
     axis = spec.line_axis
     (u0, u1), (v0, v1) = ((x0, x1), (y0, y1)) if axis == "x" else ((y0, y1), (x0, x1))
@@ -155,8 +309,7 @@ def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
     u = np.arange(u0, u1 - GRID_SHIFT_M, PLAN_STEP_M) + GRID_SHIFT_M
     plan_dir_wp = np.array([0.0, 0.0, -1.0]) if spec.beam == "normal" else spec.direction
     batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
-    T_wp = cell.T_world_workpiece
-    lines = []
+    lines, pts = [], []
     for i, v in enumerate(v_lines):
         hit, p, n = _cast_line(cell, batch, u, float(v), axis, plan_dir_wp)
         if hit.sum() < 2:
@@ -168,57 +321,399 @@ def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
         if len(run) < 2:
             continue
         p, n = p[run], n[run]
+        pts.append(p)
         if len(lines) % 2 == 1:
             p, n = p[::-1], n[::-1]
-        if spec.beam == "normal":
-            n = gaussian_filter1d(n, NORMAL_SMOOTHING_M / PLAN_STEP_M, axis=0, mode="nearest")
-            beam = -n / np.linalg.norm(n, axis=1, keepdims=True)
-        else:
-            beam = np.broadcast_to(spec.direction, p.shape)
+        beam = _beam_along(n) if spec.beam == "normal" else np.broadcast_to(spec.direction, p.shape)
         # Sensor +x along the line axis (not the travel direction), so the wrist does not
         # turn half a revolution at every line change.
         axis_wp = np.array([1.0, 0.0, 0.0]) if axis == "x" else np.array([0.0, 1.0, 0.0])
-        R_wp = _frames(beam, np.broadcast_to(axis_wp, beam.shape))
-        origin_wp = p - spec.standoff_m * beam
-        T_line = np.empty((len(p), 4, 4))
-        T_line[:] = np.eye(4)
-        T_line[:, :3, :3] = T_wp[:3, :3] @ R_wp
-        T_line[:, :3, 3] = transform_points(T_wp, origin_wp)
-        # Path parameter: surface arc length, stretched where the sensor must turn faster
-        # than ANGULAR_SPEED_RAD_S at the scan speed.
-        ds = np.linalg.norm(np.diff(p, axis=0), axis=1)
-        dtheta = np.linalg.norm(Rotation.from_matrix(
-            np.einsum("nji,njk->nik", R_wp[:-1], R_wp[1:])).as_rotvec(), axis=1)
-        ds_eff = np.maximum(ds, dtheta * spec.speed_m_s / ANGULAR_SPEED_RAD_S)
-        s_path = np.concatenate([[0.0], np.cumsum(ds_eff)])
-        lines.append((i, float(v), T_line, s_path))
+        T_line, s_path = _line_poses(cell.T_world_workpiece, p, beam, axis_wp, spec.standoff_m, spec.speed_m_s)
+        lines.append(_Line(i, 0, float(v), T_line, s_path, spec.speed_m_s, spec.transit_speed_m_s,
+                           spec.retract_m))
     if not lines:
         raise TwinError("the scan region does not cover the part: no scan line hits the nominal CAD model")
+    view = tuple(float(c) for c in plan_dir_wp)
+    pts = np.concatenate(pts)
+    rel, fixed = _predicted(pts, _smooth_normals(MeshIndex(cell.mesh), pts), OBSERVABILITY_TOL)
+    info = PassInfo("scan", spec.beam, view, len(lines), lines[0].index,
+                    "the [scan] table's single pass" + (f": covers {', '.join(fixed)}" if fixed else ""),
+                    rel, fixed)
+    plan = _assemble(cell, lines, dt, (info,), ())
+    # One entry per planned line, in order (rows without hits have no entry).
+    return replace(plan, line_y_m=np.array([ln.cross_m for ln in lines]), line_pass=np.zeros(len(lines), np.int32))
 
+
+# --------------------------------------------------------------------------- passes
+
+
+def _pass_axes(p: PassSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, d): line axis, cross-line axis and view of a pass (orthonormal, workpiece frame)."""
+    d = p.view
+    u = p.line_axis - (p.line_axis @ d) * d
+    u /= np.linalg.norm(u)
+    return u, np.cross(d, u), d
+
+
+def _region_box(cell: Cell, p: PassSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The pass's region clipped to the part's bounding box (workpiece frame) [m]."""
+    lo_part, hi_part = cell.mesh.bounds
+    if p.region_m is None:
+        return lo_part.copy(), hi_part.copy()
+    lo = np.array(list(p.region_m[0]) + [lo_part[2]] * (3 - len(p.region_m[0])))
+    hi = np.array(list(p.region_m[1]) + [hi_part[2]] * (3 - len(p.region_m[1])))
+    lo_c, hi_c = np.maximum(lo, lo_part), np.minimum(hi, hi_part)
+    if np.any(lo_c >= hi_c):
+        raise TwinError(
+            f"scan pass {p.name!r}: region_m {[list(p.region_m[0]), list(p.region_m[1])]} lies outside the part "
+            f"(bounds {np.round(lo_part, 4).tolist()} to {np.round(hi_part, 4).tolist()} m, workpiece frame)")
+    return lo_c, hi_c
+
+
+def _split_runs(ok: np.ndarray, p: np.ndarray, n: np.ndarray, step_m: float, max_incidence_rad: float) -> list:
+    """Index runs of consecutive usable hits that cross no sharp edge and no step."""
+    jump_m = STEP_JUMP_FACTOR * step_m / np.cos(max_incidence_rad)
+    gap = np.linalg.norm(np.diff(p, axis=0), axis=1) > jump_m
+    edge = np.einsum("ij,ij->i", n[:-1], n[1:]) < np.cos(np.radians(SHARP_EDGE_DEG))
+    cut = ~ok[:-1] | ~ok[1:] | gap | edge
+    runs, start = [], 0
+    for k in np.flatnonzero(cut):
+        runs.append(np.arange(start, k + 1))
+        start = k + 1
+    runs.append(np.arange(start, len(ok)))
+    return [r for r in runs if ok[r].all()]
+
+
+def _trim(run: np.ndarray, p: np.ndarray, margin_m: float) -> np.ndarray:
+    """Drop the points within ``margin_m`` (arc length) of either end of a run."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p[run], axis=0), axis=1))])
+    keep = (s >= margin_m) & (s <= s[-1] - margin_m)
+    return run[keep]
+
+
+def _smooth_normals(index: MeshIndex, points_wp: np.ndarray) -> np.ndarray:
+    """Normals of the smooth surface under points on the mesh (facets fake no information)."""
+    cp = index.query(points_wp)
+    return index.smooth_normals(cp.face, cp.foot)
+
+
+def pass_runs(cell: Cell, batch, p: PassSpec, index: MeshIndex) -> list[_Run]:
+    """The lines of one pass on the nominal CAD model, in raster order (before direction
+    alternation), each with its planning points, face normals and smooth-surface normals
+    (workpiece frame)."""
+    u_ax, v_ax, d = _pass_axes(p)
+    lo, hi = _region_box(cell, p)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    cu, cv, cd = corners @ u_ax, corners @ v_ax, corners @ d
+    u = np.arange(cu.min(), cu.max() - GRID_SHIFT_M, PLAN_STEP_M) + GRID_SHIFT_M
+    v_rows = np.arange(cv.min(), cv.max() - GRID_SHIFT_M, p.line_spacing_m) + GRID_SHIFT_M
+    if len(u) < 2 or len(v_rows) == 0:
+        raise TwinError(f"scan pass {p.name!r}: its region is thinner than one line spacing seen along its view")
+    uu, vv = np.meshgrid(u, v_rows)
+    start = uu.ravel()[:, None] * u_ax + vv.ravel()[:, None] * v_ax + (cd.min() - RAY_START_M) * d
+    hit, pts, nrm = _cast_wp(cell, batch, start, d)
+    max_inc = np.radians(cell.scenario.sensor.max_incidence_deg - INCIDENCE_MARGIN_DEG)
+    inside = np.all((pts >= lo - 1e-9) & (pts <= hi + 1e-9), axis=1)
+    seen = -(nrm @ d) >= np.cos(max_inc)
+    ok = (hit & inside & seen).reshape(uu.shape)
+    pts, nrm = pts.reshape(*uu.shape, 3), nrm.reshape(*uu.shape, 3)
+    runs = []
+    for row in range(len(v_rows)):
+        for r in _split_runs(ok[row], pts[row], nrm[row], PLAN_STEP_M, max_inc):
+            r = _trim(r, pts[row], p.edge_margin_m)
+            if len(r) < 3 or np.linalg.norm(pts[row, r[-1]] - pts[row, r[0]]) < MIN_LINE_M:
+                continue
+            runs.append((row, r))
+    if not runs:
+        return []
+    smooth = np.split(_smooth_normals(index, np.concatenate([pts[row, r] for row, r in runs])),
+                      np.cumsum([len(r) for _, r in runs])[:-1])
+    return [_Run(row, float(v_rows[row]), pts[row, r], nrm[row, r], sm)
+            for (row, r), sm in zip(runs, smooth, strict=True)]
+
+
+def _pass_lines(cell: Cell, p: PassSpec, pass_index: int, runs: list[_Run], first_index: int) -> list[_Line]:
+    """Sensor poses of a pass's runs: rows alternate direction, each run is one line."""
+    u_ax, _, d = _pass_axes(p)
+    rows = sorted({r.row for r in runs})
+    out = []
+    for k, row in enumerate(rows):
+        in_row = [r for r in runs if r.row == row]
+        if k % 2 == 1:
+            in_row = [_Run(r.row, r.cross_m, r.points_wp[::-1], r.normals_wp[::-1], r.smooth_normals_wp[::-1])
+                      for r in in_row[::-1]]
+        for r in in_row:
+            if len(out) >= p.max_lines:
+                return out
+            beam = _beam_along(r.normals_wp) if p.beam == "normal" else np.broadcast_to(d, r.points_wp.shape)
+            T_line, s_path = _line_poses(cell.T_world_workpiece, r.points_wp, beam, u_ax, p.standoff_m,
+                                         p.speed_m_s)
+            out.append(_Line(first_index + len(out), pass_index, r.cross_m, T_line, s_path, p.speed_m_s,
+                             p.transit_speed_m_s, p.retract_m))
+    return out
+
+
+def _plan_passes(cell: Cell, passes: tuple[PassSpec, ...], dt: float, planned: AutoPlan | None = None) -> ScanPlan:
+    """Lines and motion of a list of passes (``planned``: the auto planner's lines and records)."""
+    batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
+    index = MeshIndex(cell.mesh)
+    lines: list[_Line] = []
+    made, pts, nrm = [], [], []
+    for i, p in enumerate(passes):
+        runs = pass_runs(cell, batch, p, index) if planned is None else planned.runs[i]
+        if not runs:
+            raise TwinError(
+                f"scan pass {p.name!r}: no planning ray hits the part in its region within the sensor's "
+                f"incidence limit (view {np.round(p.view, 3).tolist()}, workpiece frame)")
+        new = _pass_lines(cell, p, i, runs, len(lines))
+        pts.extend(r.points_wp for r in runs)
+        nrm.extend(r.smooth_normals_wp for r in runs)
+        rel, fixed = _predicted(np.concatenate(pts), np.concatenate(nrm), OBSERVABILITY_TOL)
+        made.append(PassInfo(p.name, p.beam, tuple(float(c) for c in p.view), len(new), len(lines),
+                             "explicit pass of the scenario" + (f" (passes so far fix {', '.join(fixed)})"
+                                                                if fixed else ""), rel, fixed))
+        lines.extend(new)
+    if planned is None:
+        return _assemble(cell, lines, dt, tuple(made), ())
+    # The auto planner's records, with the line counts as planned here.
+    infos = tuple(PassInfo(a.name, a.beam, a.beam_wp, b.lines, b.first_line, a.reason,
+                           a.predicted_min_relative_eigenvalue, a.fixed)
+                  for a, b in zip(planned.infos, made, strict=True))
+    return _assemble(cell, lines, dt, infos, planned.notes)
+
+
+# --------------------------------------------------------------------------- motion
+
+
+def _part_top_world_m(cell: Cell) -> float:
+    """Highest point of the nominal part in the world [m]."""
+    return float(transform_points(cell.T_world_workpiece, np.asarray(cell.mesh.vertices))[:, 2].max())
+
+
+def _climb(T: np.ndarray, height_m: float) -> np.ndarray:
+    """``T`` moved up to ``height_m``: back along its beam when it looks down by 30 deg or more,
+    else straight up (world)."""
+    out = T.copy()
+    rise = height_m - T[2, 3]
+    if rise <= 0:
+        return out
+    beam = T[:3, 2]
+    if beam[2] <= -0.5:
+        out[:3, 3] -= beam * (rise / -beam[2])
+    else:
+        out[2, 3] = height_m
+    return out
+
+
+def _assemble(cell: Cell, lines: list[_Line], dt: float, infos: tuple[PassInfo, ...],
+              notes: tuple[str, ...]) -> ScanPlan:
+    """Approach, scan, retract every line; climb above the part between passes."""
+    safe_z = _part_top_world_m(cell) + cell.scenario.scan.transit_clearance_m
     poses, labels = [], []
-    prev = None
-    for i, _v, T_line, s_path in lines:
+    prev, prev_pass = None, None
+    for ln in lines:
+        T_line = ln.T_world_sensor
         start, end = T_line[0], T_line[-1]
         above_start = start.copy()
-        above_start[:3, 3] -= spec.retract_m * start[:3, 2]
+        above_start[:3, 3] -= ln.retract_m * start[:3, 2]
         if prev is None:
             seg = [above_start[None]]
+        elif ln.pass_index != prev_pass:
+            height = max(safe_z, prev[2, 3], above_start[2, 3])
+            up, down = _climb(prev, height), _climb(above_start, height)
+            seg = [_straight(prev, up, ln.transit_speed_m_s, dt)[1:],
+                   _straight(up, down, ln.transit_speed_m_s, dt)[1:],
+                   _straight(down, above_start, ln.transit_speed_m_s, dt)[1:]]
         else:
-            seg = [_straight(prev, above_start, spec.transit_speed_m_s, dt)[1:]]
-        seg.append(_straight(above_start, start, spec.transit_speed_m_s, dt)[1:])
+            seg = [_straight(prev, above_start, ln.transit_speed_m_s, dt)[1:]]
+        seg.append(_straight(above_start, start, ln.transit_speed_m_s, dt)[1:])
         for s_ in seg:
             poses.append(s_)
             labels.append(np.full(len(s_), -1))
-        scan = _segment(T_line, s_path, spec.speed_m_s, dt)[1:]
+        scan = _segment(T_line, ln.s_path, ln.speed_m_s, dt)[1:]
         poses.append(scan)
-        labels.append(np.full(len(scan), i))
+        labels.append(np.full(len(scan), ln.index))
         retract = end.copy()
-        retract[:3, 3] -= spec.retract_m * end[:3, 2]
-        r = _straight(end, retract, spec.transit_speed_m_s, dt)[1:]
+        retract[:3, 3] -= ln.retract_m * end[:3, 2]
+        r = _straight(end, retract, ln.transit_speed_m_s, dt)[1:]
         poses.append(r)
         labels.append(np.full(len(r), -1))
-        prev = retract
+        prev, prev_pass = retract, ln.pass_index
     T_all = np.concatenate(poses)
     line = np.concatenate(labels).astype(np.int32)
     t = np.arange(len(T_all)) * dt
-    return ScanPlan(t, T_all, line, np.array([ln[1] for ln in lines]), dt)
+    line_y = np.array([ln.cross_m for ln in lines])
+    line_pass = np.array([ln.pass_index for ln in lines], dtype=np.int32)
+    return ScanPlan(t, T_all, line, line_y, dt, line_pass, infos, notes)
+
+
+# --------------------------------------------------------------------------- prediction
+
+
+def _scaled_information(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(6, 6) information of ``[omega, v]`` about the points' centroid, rotations scaled by the
+    characteristic length: the matrix :func:`observability` analyses."""
+    d = points - points.mean(axis=0)
+    L = float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) or 1.0
+    H = information_rows(d, normals)
+    H[:, :3] /= L
+    return np.einsum("ij,ik->jk", H, H) / len(points)
+
+
+def _predicted(points: np.ndarray, normals: np.ndarray, tol: float) -> tuple[float, tuple[str, ...]]:
+    """Smallest relative eigenvalue of the predicted information and the coordinate directions
+    (about the centroid) it fixes at relative eigenvalue ``tol``."""
+    if len(points) < 6:
+        return 0.0, ()
+    rel_min = float(observability(points, normals, tol).relative_eigenvalues[0])
+    w, V = np.linalg.eigh(_scaled_information(points, normals))
+    rel = np.clip(w, 0.0, None) / max(w[-1], 1e-300)
+    weak = V[:, rel < tol]
+    order = (3, 4, 5, 0, 1, 2)  # x, y, z, rx, ry, rz
+    fixed = tuple(COORDINATE_NAMES[k] for k in order if np.linalg.norm(weak[k]) < FIXED_WEAK_FRACTION)
+    return rel_min, fixed
+
+
+# --------------------------------------------------------------------------- automatic planner
+
+
+@dataclass(frozen=True)
+class AutoPlan:
+    """The automatic planner's choice: passes, their lines (runs) and why each was chosen."""
+
+    passes: tuple[PassSpec, ...]
+    runs: tuple[list[_Run], ...]
+    infos: tuple[PassInfo, ...]
+    notes: tuple[str, ...]
+
+
+_AZIMUTH_LABELS = {0: "+x", 45: "+x+y", 90: "+y", 135: "-x+y", 180: "-x", 225: "-x-y", 270: "-y", 315: "+x-y"}
+
+
+def candidate_views(spec: ScanSpec, auto: AutoPlanSpec) -> list[PassSpec]:
+    """Straight down, then each tilt at evenly spaced azimuths, as fixed-beam passes over the
+    whole part (workpiece frame). A tilted view's lines run level, across its azimuth, so that
+    they follow the edges of the faces it looks at."""
+    top_axis = (1.0, 0.0, 0.0) if spec.line_axis == "x" else (0.0, 1.0, 0.0)
+    views = [("top view", np.array([0.0, 0.0, -1.0]), np.array(top_axis))]
+    for tilt in auto.tilts_deg:
+        t = np.radians(tilt)
+        for k in range(auto.azimuths):
+            deg = 360.0 * k / auto.azimuths
+            a = np.radians(deg)
+            label = _AZIMUTH_LABELS.get(int(round(deg)), f"azimuth {deg:g} deg") \
+                if abs(deg - round(deg)) < 1e-9 else f"azimuth {deg:g} deg"
+            view = np.array([-np.sin(t) * np.cos(a), -np.sin(t) * np.sin(a), -np.cos(t)])
+            views.append((f"tilted {tilt:g} deg from {label}", view, np.array([-np.sin(a), np.cos(a), 0.0])))
+    return [PassSpec(name, "fixed", view, None, axis, spec.line_spacing_m, spec.speed_m_s, spec.transit_speed_m_s,
+                     spec.standoff_m, spec.retract_m, 0.001, spec.max_lines) for name, view, axis in views]
+
+
+def _new_runs(runs: list[_Run], tree: cKDTree, normals: np.ndarray, radius_m: float) -> list[_Run]:
+    """The runs that mostly see surface no earlier pass saw (a point is seen when an earlier
+    point lies within ``radius_m`` with a normal within NEW_NORMAL_DEG)."""
+    out = []
+    cos_max = np.cos(np.radians(NEW_NORMAL_DEG))
+    for r in runs:
+        dist, idx = tree.query(r.points_wp, k=8, distance_upper_bound=radius_m)
+        near = np.isfinite(dist)
+        idx = np.where(near, idx, 0)
+        similar = near & (np.einsum("nkj,nj->nk", normals[idx], r.smooth_normals_wp) >= cos_max)
+        if np.mean(~similar.any(axis=1)) >= NEW_FRACTION:
+            out.append(r)
+    return out
+
+
+def _unreachable(cell: Cell, p: PassSpec, runs: list[_Run]) -> str | None:
+    """None when the scan's IK reaches the ends of the view's lines on the nominal cell, else why not."""
+    from twin.ik import IKSolver, reachable
+
+    lines = _pass_lines(cell, p, 0, runs, 0)
+    T = []
+    for ln in lines:
+        above = ln.T_world_sensor[0].copy()
+        above[:3, 3] -= ln.retract_m * above[:3, 2]
+        T.extend([above, ln.T_world_sensor[0], ln.T_world_sensor[-1]])
+    pick = np.unique(np.linspace(0, len(T) - 1, min(len(T), REACH_CHECK_POSES)).round().astype(int))
+    solver = IKSolver(cell.model, cell.sensor.site, 1e-6, 1e-5)
+    solver.set_q(HOME_Q)
+    for i in pick:
+        pe, oe, _ = solver.solve(T[i], dt=0.05, max_iterations=500, velocity_limited=False)
+        if not reachable(pe, oe):
+            x, y, z = T[i][:3, 3]
+            return (f"the arm cannot reach its sensor pose at world ({x:.3f}, {y:.3f}, {z:.3f}) m "
+                    f"({pe * 1e3:.2f} mm / {np.degrees(oe):.2f} deg off)")
+    return None
+
+
+def plan_auto_passes(cell: Cell, spec: ScanSpec, auto: AutoPlanSpec) -> AutoPlan:
+    """Pick views greedily until the predicted points fix all six pose directions.
+
+    The top view comes first (it covers what a process from above works on). Then, each round,
+    every remaining candidate view keeps the lines that see new surface, and the one whose
+    points raise the union's smallest relative eigenvalue the most is added, if the arm
+    reaches it (else it is skipped and noted), until that eigenvalue reaches
+    ``auto.min_relative_eigenvalue``, no view adds anything, or ``auto.max_passes`` are planned.
+    """
+    batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
+    index = MeshIndex(cell.mesh)
+    cands = []
+    for p in candidate_views(spec, auto):
+        runs = pass_runs(cell, batch, p, index)
+        if runs:
+            cands.append((p, runs))
+    if not cands:
+        raise TwinError("scan.passes = \"auto\": no candidate view sees the part within the sensor's incidence limit")
+    target = auto.min_relative_eigenvalue
+    passes, chosen_runs, infos, notes = [], [], [], []
+    P, N = np.empty((0, 3)), np.empty((0, 3))
+    rel_now, fixed_now = 0.0, ()
+    while len(passes) < auto.max_passes and rel_now < target and cands:
+        scored = []
+        tree = cKDTree(P) if len(P) else None
+        for p, runs in cands:
+            if passes and p.name == "top view":
+                continue
+            if not passes and cands[0][0].name == "top view" and p.name != "top view":
+                continue
+            new = runs if tree is None else _new_runs(runs, tree, N, spec.line_spacing_m)
+            if not new:
+                continue
+            rel, fixed = _predicted(np.concatenate([P] + [r.points_wp for r in new]),
+                                    np.concatenate([N] + [r.smooth_normals_wp for r in new]), target)
+            scored.append((rel, p, new, fixed))
+        scored.sort(key=lambda s: -s[0])
+        pick = None
+        for rel, p, new, fixed in scored:
+            if passes and rel <= rel_now * (1.0 + 1e-6):
+                break
+            why = _unreachable(cell, p, new)
+            if why is None:
+                pick = (rel, p, new, fixed)
+                break
+            notes.append(f"{p.name}: skipped, {why}")
+            cands = [c for c in cands if c[0] is not p]
+        if pick is None:
+            break
+        rel, p, new, fixed = pick
+        cands = [c for c in cands if c[0] is not p]
+        gained = [f for f in fixed if f not in fixed_now]
+        if not passes:
+            reason = f"{p.name}: covers the part from above" + (f"; fixes {', '.join(gained)}" if gained else "")
+        elif gained:
+            reason = f"{p.name}: fixes {', '.join(gained)}"
+        else:
+            reason = f"{p.name}: raises the smallest relative eigenvalue from {rel_now:.2g} to {rel:.2g}"
+        infos.append(PassInfo(p.name, p.beam, tuple(float(c) for c in p.view), 0, 0, reason, rel, fixed))
+        passes.append(p)
+        chosen_runs.append(new)
+        P = np.concatenate([P] + [r.points_wp for r in new])
+        N = np.concatenate([N] + [r.smooth_normals_wp for r in new])
+        rel_now, fixed_now = rel, fixed
+    if not passes:
+        raise TwinError("scan.passes = \"auto\": the arm reaches no candidate view (" + "; ".join(notes) + ")")
+    if rel_now < target:
+        weak = [c for c in ("x", "y", "z", "rx", "ry", "rz") if c not in fixed_now]
+        notes.append(f"the planned views reach a smallest relative eigenvalue of {rel_now:.2g}, below the target "
+                     f"{target:g}" + (f"; {', '.join(weak)} stay weak" if weak else ""))
+    return AutoPlan(tuple(passes), tuple(chosen_runs), tuple(infos), tuple(notes))
