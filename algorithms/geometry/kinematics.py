@@ -113,3 +113,142 @@ def reconstruct_line_points(q, d, beam_dirs_sensor, dh: DHTable, T_flange_sensor
     T = dh_forward(q, dh) @ as_pose(T_flange_sensor, "T_flange_sensor")
     local = d[:, :, None] * u[None, :, :]
     return np.einsum("nij,nbj->nbi", T[:, :3, :3], local) + T[:, None, :3, 3]
+
+
+#: Branch bits of :func:`ur_inverse`: branch ``b`` takes the shoulder solution ``b >> 2 & 1``,
+#: the wrist solution ``b >> 1 & 1`` and the elbow solution ``b & 1`` (0: the ``+`` root).
+UR_BRANCHES = 8
+
+
+@dataclass(frozen=True)
+class URInverse:
+    """The eight closed-form solutions of a UR-geometry arm for N flange poses.
+
+    Attributes:
+        q: (N, 8, 6) joint angles [rad] in (-pi, pi], one row per branch (see ``UR_BRANCHES``);
+            NaN where the branch has no solution.
+        valid: (N, 8) bool, the branch has a solution.
+        wrist_sin: (N, 8) |sin q5|: 0 at the wrist singularity (axes 4 and 6 aligned).
+        elbow_sin: (N, 8) |sin q3|: 0 with the arm stretched or folded.
+        shoulder_m: (N,) distance of the wrist centre from the shoulder-singular cylinder
+            [m]: 0 where the wrist centre lies on the cylinder of radius d4 about the base z
+            axis (the two shoulder solutions meet).
+    """
+
+    q: np.ndarray
+    valid: np.ndarray
+    wrist_sin: np.ndarray
+    elbow_sin: np.ndarray
+    shoulder_m: np.ndarray
+
+
+def _check_ur_geometry(dh: DHTable) -> None:
+    a, d, alpha = np.asarray(dh.a), np.asarray(dh.d), np.asarray(dh.alpha)
+    ok = (len(a) == 6 and a[0] == 0 and a[3] == 0 and a[4] == 0 and a[5] == 0 and d[1] == 0 and d[2] == 0
+          and np.allclose(alpha, (np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0), atol=1e-12)
+          and np.all(np.asarray(dh.theta_offset) == 0))
+    if not ok:
+        raise AlgorithmError("ur_inverse needs the UR geometry: a = (0, a2, a3, 0, 0, 0), d2 = d3 = 0, "
+                             "alpha = (pi/2, 0, 0, pi/2, -pi/2, 0), no joint offsets")
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Angles wrapped to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - angle, 2 * np.pi)
+
+
+def ur_inverse(T_base_flange, dh: DHTable, branches=None) -> URInverse:
+    """Closed-form inverse kinematics of a UR-geometry arm (three parallel middle axes, a
+    spherical-like wrist offset by d4, d5, d6): all eight solutions of every pose.
+
+    q1 from the wrist centre ``p05 = p - d6 z6`` (its coordinate along z1 must equal d4);
+    q5 and q6 from the flange orientation seen in frame 1 (``R16 = Rz(q2+q3+q4) Ry(-q5)
+    Rz(q6)``); q2 and q3 from the planar two-link problem for the origin of frame 3;
+    q4 from what is left. Where the wrist is singular (sin q5 = 0) q6 is set to 0 (any q6
+    with the matching q4 is a solution).
+
+    Args:
+        T_base_flange: (N, 4, 4) or (4, 4) flange poses (DH frame 6) in the base frame.
+        dh: the arm's DH table (UR geometry; checked).
+        branches: the branches to solve (default all eight); the others come back invalid.
+
+    Returns:
+        URInverse with (N, ...) arrays (N = 1 for a single pose).
+    """
+    _check_ur_geometry(dh)
+    wanted = set(range(UR_BRANCHES)) if branches is None else {int(b) for b in branches}
+    if not wanted <= set(range(UR_BRANCHES)):
+        raise AlgorithmError(f"branches must lie in 0..{UR_BRANCHES - 1}, got {sorted(wanted)}")
+    T = np.asarray(T_base_flange, dtype=np.float64)
+    if T.shape[-2:] != (4, 4):
+        raise AlgorithmError(f"T_base_flange must be (N, 4, 4) or (4, 4), got {T.shape}")
+    T = T.reshape(-1, 4, 4)
+    n = len(T)
+    a2, a3 = dh.a[1], dh.a[2]
+    d1, d4, d5, d6 = dh.d[0], dh.d[3], dh.d[4], dh.d[5]
+    R, p = T[:, :3, :3], T[:, :3, 3]
+    p05 = p - d6 * R[:, :, 2]
+    rho = np.hypot(p05[:, 0], p05[:, 1])
+    shoulder_ok = rho >= d4
+    shoulder_m = np.sqrt(np.maximum(rho**2 - d4**2, 0.0))
+    phi = np.arccos(np.clip(d4 / np.maximum(rho, 1e-300), -1.0, 1.0))
+    psi = np.arctan2(p05[:, 1], p05[:, 0])
+
+    q = np.full((n, UR_BRANCHES, 6), np.nan)
+    valid = np.zeros((n, UR_BRANCHES), dtype=bool)
+    wrist_sin = np.zeros((n, UR_BRANCHES))
+    elbow_sin = np.zeros((n, UR_BRANCHES))
+    for i1, s1_sign in enumerate((1.0, -1.0)):
+        if not any(b >> 2 == i1 for b in wanted):
+            continue
+        q1 = psi + np.pi / 2 + s1_sign * phi
+        c1, s1 = np.cos(q1), np.sin(q1)
+        # R01 = Rz(q1) Rx(pi/2): its columns x1, y1, z1 in the base frame.
+        x1 = np.column_stack([c1, s1, np.zeros(n)])
+        y1 = np.column_stack([np.zeros(n), np.zeros(n), np.ones(n)])
+        z1 = np.column_stack([s1, -c1, np.zeros(n)])
+        R01 = np.stack([x1, y1, z1], axis=2)
+        R16 = np.einsum("nji,njk->nik", R01, R)
+        p16 = np.einsum("nji,nj->ni", R01, p - np.array([0.0, 0.0, d1]))
+        c5 = np.clip(R16[:, 2, 2], -1.0, 1.0)
+        for i5, s5_sign in enumerate((1.0, -1.0)):
+            if not any(b >> 1 == 2 * i1 + i5 for b in wanted):
+                continue
+            q5 = s5_sign * np.arccos(c5)
+            s5 = np.sin(q5)
+            singular = np.abs(s5) < 1e-12
+            safe = np.where(singular, 1.0, s5)
+            q6 = np.where(singular, 0.0, np.arctan2(-R16[:, 2, 1] / safe, R16[:, 2, 0] / safe))
+            # q234 from R16 = Rz(q234) Ry(-q5) Rz(q6): Rz(q234) = R16 Rz(-q6) Ry(q5).
+            c6, s6 = np.cos(q6), np.sin(q6)
+            M = R16 @ np.stack([np.stack([c6, s6, np.zeros(n)], 1), np.stack([-s6, c6, np.zeros(n)], 1),
+                                np.stack([np.zeros(n), np.zeros(n), np.ones(n)], 1)], 1)
+            c5_, s5_ = np.cos(q5), np.sin(q5)
+            Ry = np.stack([np.stack([c5_, np.zeros(n), s5_], 1), np.stack([np.zeros(n), np.ones(n), np.zeros(n)], 1),
+                           np.stack([-s5_, np.zeros(n), c5_], 1)], 1)
+            Rz234 = M @ Ry
+            q234 = np.arctan2(Rz234[:, 1, 0], Rz234[:, 0, 0])
+            # Origin of frame 3 in frame 1: the flange position less the wrist offsets d5, d6
+            # and d4 (along z1), all known now.
+            s234, c234 = np.sin(q234), np.cos(q234)
+            z5_1 = np.column_stack([-c234 * s5_, -s234 * s5_, c5_])  # Rz(q234) Ry(-q5) e_z
+            z4_1 = np.column_stack([s234, -c234, np.zeros(n)])     # Rz(q234) Rx(pi/2) e_z
+            p14 = p16 - d6 * z5_1 - d5 * z4_1                       # z6 = z5 (alpha6 = 0)
+            x3, y3 = p14[:, 0], p14[:, 1]   # frame 3's origin = frame 4's origin less d4 along z1
+            r2 = x3**2 + y3**2
+            c3 = (r2 - a2**2 - a3**2) / (2 * a2 * a3)
+            elbow_ok = np.abs(c3) <= 1.0
+            for i3, s3_sign in enumerate((1.0, -1.0)):
+                b = 4 * i1 + 2 * i5 + i3
+                if b not in wanted:
+                    continue
+                q3 = s3_sign * np.arccos(np.clip(c3, -1.0, 1.0))
+                q2 = np.arctan2(y3, x3) - np.arctan2(a3 * np.sin(q3), a2 + a3 * np.cos(q3))
+                q4 = q234 - q2 - q3
+                ok = shoulder_ok & elbow_ok
+                sol = np.column_stack([q1, q2, q3, q4, q5, q6])
+                q[:, b] = np.where(ok[:, None], _wrap(sol), np.nan)
+                valid[:, b] = ok
+                wrist_sin[:, b] = np.abs(s5)
+                elbow_sin[:, b] = np.abs(np.sin(q3))
+    return URInverse(q, valid, wrist_sin, elbow_sin, shoulder_m)
