@@ -406,7 +406,10 @@ def pass_runs(cell: Cell, batch, p: PassSpec, index: MeshIndex) -> list[_Run]:
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     cu, cv, cd = corners @ u_ax, corners @ v_ax, corners @ d
     u = np.arange(cu.min(), cu.max() - GRID_SHIFT_M, PLAN_STEP_M) + GRID_SHIFT_M
-    v_rows = np.arange(cv.min(), cv.max() - GRID_SHIFT_M, p.line_spacing_m) + GRID_SHIFT_M
+    # Rows centred across the region, half a spacing or more in from its sides (a row on the
+    # very edge of the part would miss it at the true pose).
+    n_rows = int(np.floor((cv.max() - cv.min()) / p.line_spacing_m))
+    v_rows = 0.5 * (cv.min() + cv.max()) + (np.arange(n_rows) - (n_rows - 1) / 2) * p.line_spacing_m + GRID_SHIFT_M
     if len(u) < 2 or len(v_rows) == 0:
         raise TwinError(f"scan pass {p.name!r}: its region is thinner than one line spacing seen along its view")
     uu, vv = np.meshgrid(u, v_rows)
