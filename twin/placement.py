@@ -63,6 +63,8 @@ BATCH_BASES = 64
 MOVE_COST_PER_M = 0.1
 YAW_COST_PER_RAD = 0.01
 SAME_BASE_M = 1e-3
+#: Distance [m] of the planning base from the part centre when an automatic plan must be redone.
+PLANNING_DISTANCE_M = 0.45
 SAME_BASE_RAD = np.radians(0.1)
 
 
@@ -203,23 +205,29 @@ def inv_poses(T: np.ndarray) -> np.ndarray:
 
 
 def reach_targets(scenario: Scenario, realized=None) -> ReachTargets:
-    """The flange poses of the scenario's scan plan and CAD path, in the world frame."""
-    from twin.cell import build_cell
+    """The flange poses of the scenario's scan plan and CAD path, in the world frame.
+
+    A fixed plan is in the world frame and does not depend on the base. An automatic plan
+    (``scan.passes = "auto"``) skips the views the arm cannot reach from the base; when it
+    skips some or fails, it is planned again from a base at ``PLANNING_DISTANCE_M`` in front
+    of the part (on the side of the scenario's base, facing the part), and the plan with more
+    passes is kept.
+    """
     from twin.pipeline import cad_path
-    from twin.plan import plan_scan
     from twin.realize import realize
 
     if realized is None:
         realized = realize(scenario)
-    nominal = build_cell(realized, "nominal")
-    plan = plan_scan(nominal)
+    T_wp = scenario.workpiece.T_world_workpiece_nominal
+    xy = (realized.workpiece.mesh.vertices @ T_wp[:3, :3].T + T_wp[:3, 3])[:, :2]
+    hull = xy[ConvexHull(xy).vertices]
+    plan = _plan_for_reach(realized, hull.mean(axis=0))
     keep = np.zeros(len(plan.t), dtype=bool)
     keep[::SCAN_STRIDE] = True
     keep[-1] = True
     change = np.flatnonzero(np.diff(plan.line) != 0)
     keep[change] = keep[np.minimum(change + 1, len(keep) - 1)] = True
     T_scan = plan.T_world_sensor[keep] @ inv_pose(scenario.sensor.T_flange_sensor)
-    T_wp = scenario.workpiece.T_world_workpiece_nominal
     parts, sources, notes = [T_scan], [np.full(len(T_scan), "scan")], []
     try:
         path = transform_path(T_wp, cad_path(realized))
@@ -228,9 +236,37 @@ def reach_targets(scenario: Scenario, realized=None) -> ReachTargets:
         sources.append(np.full(len(T_path), "path"))
     except (TwinError, AlgorithmError) as exc:
         notes.append(f"the CAD path was left out ({exc})")
-    xy = (realized.workpiece.mesh.vertices @ T_wp[:3, :3].T + T_wp[:3, 3])[:, :2]
-    hull = xy[ConvexHull(xy).vertices]
     return ReachTargets(np.concatenate(parts), np.concatenate(sources), T_wp.copy(), hull, tuple(notes))
+
+
+def _plan_for_reach(realized, center: np.ndarray):
+    """The scan plan on the nominal cell; for an automatic plan that skipped views or failed,
+    the plan from a base in front of the part when it has more passes (see reach_targets)."""
+    from twin.cell import build_cell
+    from twin.plan import plan_scan
+
+    scenario = realized.scenario
+    try:
+        plan, error = plan_scan(build_cell(realized, "nominal")), None
+    except TwinError as exc:
+        plan, error = None, exc
+    if plan is not None and not plan.notes:
+        return plan
+    to_base = scenario.T_world_base[:2, 3] - center
+    norm = float(np.linalg.norm(to_base))
+    u = to_base / norm if norm > 1e-6 else np.array([-1.0, 0.0])
+    xy = center + PLANNING_DISTANCE_M * u
+    T = base_pose(xy[0], xy[1], float(np.arctan2(-u[1], -u[0])))
+    moved = dataclasses.replace(realized, scenario=with_base(scenario, T))
+    try:
+        other = plan_scan(build_cell(moved, "nominal"))
+    except TwinError:
+        other = None
+    if other is not None and (plan is None or len(other.passes) > len(plan.passes)):
+        return other
+    if plan is None:
+        raise error
+    return plan
 
 
 def _distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
