@@ -139,6 +139,17 @@ def test_auto_scan_of_through_hole_localizes_in_six_directions(auto_plan):
     assert np.all(np.abs(m) <= POSE_SIGMAS * np.sqrt(np.diag(C))), (m / np.sqrt(np.diag(C)))
 
 
+def test_auto_planner_skips_views_the_arm_cannot_reach():
+    far = {"xyz": [0.88, 0.10, 0.0]}                       # near the end of the UR5e's reach
+    sc = scenario("through_hole", scan={"line_spacing_m": COARSE_SPACING_M},
+                  workpiece={"true_pose": far, "nominal_pose": far})
+    _, cell = _nominal(sc)
+    plan = plan_scan(cell)
+    assert any(n.startswith("top view: skipped, the arm cannot reach") for n in plan.notes)
+    assert plan.passes[0].name != "top view" and "the first view the arm reaches" in plan.passes[0].reason
+    assert plan.passes[-1].predicted_min_relative_eigenvalue >= sc.scan.auto.min_relative_eigenvalue
+
+
 @pytest.mark.parametrize("pass_table, message", [
     ({"beam": [0.0, 0.0, 0.0]}, "scan.passes[0].beam must be a non-zero vector"),
     ({"beam": [0.0, float("nan"), -1.0]}, "scan.passes[0].beam must be finite"),

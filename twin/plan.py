@@ -64,8 +64,10 @@ RAY_START_M = 0.05
 # no point of an earlier pass within one line spacing whose normal is within NEW_NORMAL_DEG.
 NEW_FRACTION = 0.5
 NEW_NORMAL_DEG = 30.0
-# Reachability check of a view: at most this many line ends are solved with the scan's IK.
-REACH_CHECK_POSES = 24
+# Reachability check of a view: the scan's IK follows its moves in steps of at most these.
+REACH_STEP_M = 0.01
+REACH_STEP_RAD = 0.1
+REACH_ITERATIONS = 200
 # A coordinate direction counts as fixed when less than this part of it lies in the weak
 # subspace of the predicted information.
 FIXED_WEAK_FRACTION = 0.5
@@ -627,26 +629,65 @@ def _new_runs(runs: list[_Run], tree: cKDTree, normals: np.ndarray, radius_m: fl
     return out
 
 
-def _unreachable(cell: Cell, p: PassSpec, runs: list[_Run]) -> str | None:
-    """None when the scan's IK reaches the ends of the view's lines on the nominal cell, else why not."""
-    from twin.ik import IKSolver, reachable
+@dataclass
+class _ReachState:
+    """Where the reachability check of the chosen passes left the arm (nominal cell)."""
 
-    lines = _pass_lines(cell, p, 0, runs, 0)
-    T = []
-    for ln in lines:
+    solver: object
+    T_world_sensor: np.ndarray | None = None
+
+
+def _densify(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
+    """Poses from ``T_a`` (excluded) to ``T_b`` at most REACH_STEP_M / REACH_STEP_RAD apart."""
+    length = float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3]))
+    ang = float(np.linalg.norm(Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).as_rotvec()))
+    n = max(1, int(np.ceil(max(length / REACH_STEP_M, ang / REACH_STEP_RAD))))
+    return _interp_poses(np.stack([T_a, T_b]), np.array([0.0, 1.0]), np.arange(1, n + 1) / n)
+
+
+def _unreachable(cell: Cell, p: PassSpec, runs: list[_Run], state: _ReachState) -> tuple[str | None, object]:
+    """Follow the view's moves with the scan's IK on the nominal cell, from where the passes
+    before it left the arm: the transit over the part, then every line's approach, ends and
+    retract (in steps of REACH_STEP_M / REACH_STEP_RAD, each warm-started from the last).
+
+    Returns (None, the solver's joints at the end) when every key pose is reached, else
+    (why not, None).
+    """
+    from twin.ik import reachable
+
+    solver = state.solver
+    q_before = solver.q
+    keys = []
+    for ln in _pass_lines(cell, p, 0, runs, 0):
         above = ln.T_world_sensor[0].copy()
         above[:3, 3] -= ln.retract_m * above[:3, 2]
-        T.extend([above, ln.T_world_sensor[0], ln.T_world_sensor[-1]])
-    pick = np.unique(np.linspace(0, len(T) - 1, min(len(T), REACH_CHECK_POSES)).round().astype(int))
-    solver = IKSolver(cell.model, cell.sensor.site, 1e-6, 1e-5)
-    solver.set_q(HOME_Q)
-    for i in pick:
-        pe, oe, _ = solver.solve(T[i], dt=0.05, max_iterations=500, velocity_limited=False)
-        if not reachable(pe, oe):
-            x, y, z = T[i][:3, 3]
+        retract = ln.T_world_sensor[-1].copy()
+        retract[:3, 3] -= ln.retract_m * retract[:3, 2]
+        keys.extend([above, ln.T_world_sensor[0], ln.T_world_sensor[-1], retract])
+    if state.T_world_sensor is None:
+        # The first pose of the scan is solved from the home configuration, as the scan does.
+        solver.set_q(HOME_Q)
+        path = [(keys[0], True)]
+        pe, oe, _ = solver.solve(keys[0], dt=0.05, max_iterations=1000, velocity_limited=False)
+        prev = keys[0]
+    else:
+        prev = state.T_world_sensor
+        height = max(_part_top_world_m(cell) + cell.scenario.scan.transit_clearance_m, prev[2, 3], keys[0][2, 3])
+        up, down = _climb(prev, height), _climb(keys[0], height)
+        path = [(up, False), (down, False)]
+    path.extend((T, True) for T in keys)
+    for T_key, is_key in path:
+        for T in _densify(prev, T_key):
+            pe, oe, _ = solver.solve(T, dt=0.05, max_iterations=REACH_ITERATIONS, velocity_limited=False)
+        prev = T_key
+        if is_key and not reachable(pe, oe):
+            solver.set_q(q_before)
+            x, y, z = T_key[:3, 3]
             return (f"the arm cannot reach its sensor pose at world ({x:.3f}, {y:.3f}, {z:.3f}) m "
-                    f"({pe * 1e3:.2f} mm / {np.degrees(oe):.2f} deg off)")
-    return None
+                    f"({pe * 1e3:.2f} mm / {np.degrees(oe):.2f} deg off)"), None
+    q_after = solver.q
+    solver.set_q(q_before)
+    return None, (q_after, keys[-1])
 
 
 def plan_auto_passes(cell: Cell, spec: ScanSpec, auto: AutoPlanSpec) -> AutoPlan:
@@ -655,7 +696,8 @@ def plan_auto_passes(cell: Cell, spec: ScanSpec, auto: AutoPlanSpec) -> AutoPlan
     The top view comes first (it covers what a process from above works on). Then, each round,
     every remaining candidate view keeps the lines that see new surface, and the one whose
     points raise the union's smallest relative eigenvalue the most is added, if the arm
-    reaches it (else it is skipped and noted), until that eigenvalue reaches
+    reaches it from where the passes before left it (else it is skipped and noted; an
+    unreachable top view leaves the first place to the best view the arm reaches), until that eigenvalue reaches
     ``auto.min_relative_eigenvalue``, no view adds anything, or ``auto.max_passes`` are planned.
     """
     batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
@@ -667,6 +709,9 @@ def plan_auto_passes(cell: Cell, spec: ScanSpec, auto: AutoPlanSpec) -> AutoPlan
             cands.append((p, runs))
     if not cands:
         raise TwinError("scan.passes = \"auto\": no candidate view sees the part within the sensor's incidence limit")
+    from twin.ik import IKSolver
+
+    reach = _ReachState(IKSolver(cell.model, cell.sensor.site, 1e-6, 1e-5))
     target = auto.min_relative_eigenvalue
     passes, chosen_runs, infos, notes = [], [], [], []
     P, N = np.empty((0, 3)), np.empty((0, 3))
@@ -675,24 +720,23 @@ def plan_auto_passes(cell: Cell, spec: ScanSpec, auto: AutoPlanSpec) -> AutoPlan
         scored = []
         tree = cKDTree(P) if len(P) else None
         for p, runs in cands:
-            if passes and p.name == "top view":
-                continue
-            if not passes and cands[0][0].name == "top view" and p.name != "top view":
-                continue
             new = runs if tree is None else _new_runs(runs, tree, N, spec.line_spacing_m)
             if not new:
                 continue
             rel, fixed = _predicted(np.concatenate([P] + [r.points_wp for r in new]),
                                     np.concatenate([N] + [r.smooth_normals_wp for r in new]), target)
             scored.append((rel, p, new, fixed))
-        scored.sort(key=lambda s: -s[0])
+        # The top view first (while it is a candidate), then the best raise.
+        scored.sort(key=lambda s: (s[1].name != "top view", -s[0]))
         pick = None
         for rel, p, new, fixed in scored:
             if passes and rel <= rel_now * (1.0 + 1e-6):
                 break
-            why = _unreachable(cell, p, new)
+            why, end = _unreachable(cell, p, new, reach)
             if why is None:
                 pick = (rel, p, new, fixed)
+                reach.solver.set_q(end[0])
+                reach.T_world_sensor = end[1]
                 break
             notes.append(f"{p.name}: skipped, {why}")
             cands = [c for c in cands if c[0] is not p]
@@ -702,7 +746,8 @@ def plan_auto_passes(cell: Cell, spec: ScanSpec, auto: AutoPlanSpec) -> AutoPlan
         cands = [c for c in cands if c[0] is not p]
         gained = [f for f in fixed if f not in fixed_now]
         if not passes:
-            reason = f"{p.name}: covers the part from above" + (f"; fixes {', '.join(gained)}" if gained else "")
+            first = "covers the part from above" if p.name == "top view" else "the first view the arm reaches"
+            reason = f"{p.name}: {first}" + (f"; fixes {', '.join(gained)}" if gained else "")
         elif gained:
             reason = f"{p.name}: fixes {', '.join(gained)}"
         else:
