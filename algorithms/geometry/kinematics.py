@@ -1,4 +1,5 @@
-"""Serial-arm forward kinematics (Denavit-Hartenberg) and document 004's point mapping.
+"""Serial-arm forward kinematics (Denavit-Hartenberg), the closed-form inverse kinematics of
+UR-geometry arms, and document 004's point mapping.
 
 Pure numpy, vectorised over samples, so it runs on joint logs from a real robot.
 """
