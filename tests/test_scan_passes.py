@@ -150,6 +150,16 @@ def test_auto_planner_skips_views_the_arm_cannot_reach():
     assert plan.passes[-1].predicted_min_relative_eigenvalue >= sc.scan.auto.min_relative_eigenvalue
 
 
+def test_an_unreachable_line_names_its_pass():
+    from twin.scan import scan_scenario
+
+    raw = raw_scenario("through_hole")
+    raw["scan"]["passes"] = [{**TOP, "max_lines": 2}, {**SIDE, "max_lines": 2}]
+    raw["workpiece"]["true_pose"] = raw["workpiece"]["nominal_pose"] = {"xyz": [0.9, 0.0, 0.0]}
+    with pytest.raises(TwinError, match=r"scan line \d+ \(pass 'top'\) is unreachable"):
+        scan_scenario(parse_scenario(raw))
+
+
 @pytest.mark.parametrize("pass_table, message", [
     ({"beam": [0.0, 0.0, 0.0]}, "scan.passes[0].beam must be a non-zero vector"),
     ({"beam": [0.0, float("nan"), -1.0]}, "scan.passes[0].beam must be finite"),

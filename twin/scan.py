@@ -125,16 +125,25 @@ def _check_reachable(plan: ScanPlan, i: int, pos_err: float, rot_err: float) -> 
         return
     line = int(plan.line[i])
     if line >= 0:
-        where = f"scan line {line}"
+        where = f"scan line {line}{_pass_label(plan, line)}"
     else:
         later = plan.line[i:][plan.line[i:] >= 0]
-        where = f"the move before scan line {int(later[0])}" if len(later) else "the final retract"
+        where = (f"the move before scan line {int(later[0])}{_pass_label(plan, int(later[0]))}" if len(later)
+                 else "the final retract")
     p = plan.T_world_sensor[i, :3, 3]
     raise TwinError(
         f"{where} is unreachable: at t = {plan.t[i]:.3f} s the sensor pose at world "
         f"({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) m stays {pos_err * 1e3:.2f} mm / "
-        f"{np.degrees(rot_err):.2f} deg off (move the part or the base, or shrink scan.region_m)"
+        f"{np.degrees(rot_err):.2f} deg off (move the part or the base, or shrink scan.region_m, or the "
+        f"pass's region_m)"
     )
+
+
+def _pass_label(plan: ScanPlan, line: int) -> str:
+    """`` (pass 'NAME')`` for a line of a scan of several passes, else nothing."""
+    if len(plan.passes) < 2 or line >= len(plan.line_pass):
+        return ""
+    return f" (pass {plan.passes[int(plan.line_pass[line])].name!r})"
 
 
 def run_scan(realized: Realized, nominal: Cell, true_cell: Cell) -> Scan:
