@@ -22,6 +22,7 @@ from twin.scenario import parse_scenario
 BEAM_ALIGNED_RAD = 1e-9      # a fixed-beam pass: every sensor z on the beam
 POSE_SIGMAS = 3.0            # bar: pose error in each determined direction within 3 sigma
 COARSE_SPACING_M = 0.008     # through_hole scanned with every other line (keeps the test short)
+HOUSING_CLEARANCE_M = 0.01   # the sensor housing's least distance from the part along a plan
 ON_PLAN_M = 1e-5             # a spot between 1 mm planning points on a curved wall: the chord
 
 TOP = {"name": "top", "beam": [0.0, 0.0, -1.0], "line_axis": "x"}
@@ -96,6 +97,24 @@ def test_lines_split_at_edges_and_steps(two_pass_plan):
     # the top; one crossing the hole gives more.
     assert max(len(v) for v in rows.values()) >= 3
     assert all(len(v) >= 2 for v in rows.values())
+
+
+def test_pass_change_climbs_above_the_part_and_the_sensor_stays_clear(two_pass_plan):
+    realized, cell, plan = two_pass_plan
+    # Between the passes the sensor climbs above the part's top plus the clearance.
+    end0 = np.flatnonzero(plan.line == plan.passes[1].first_line - 1)[-1]
+    start1 = np.flatnonzero(plan.line == plan.passes[1].first_line)[0]
+    top_w = (realized.workpiece.mesh.vertices @ cell.T_world_workpiece[:3, :3].T + cell.T_world_workpiece[:3, 3])[:, 2]
+    climb = plan.T_world_sensor[end0:start1, 2, 3].max()
+    assert climb >= top_w.max() + cell.scenario.scan.transit_clearance_m - 1e-9
+    # The sensor housing (a box on the sensor body) keeps clear of the part all along the plan.
+    g = cell.model.geom("laser_housing")
+    corners = g.pos + g.size * np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 0, 1)])
+    T = plan.T_world_sensor[::10]
+    pts_w = np.einsum("kij,nj->kni", T[:, :3, :3], corners) + T[:, None, :3, 3]
+    T_wp_world = inv_pose(cell.T_world_workpiece)
+    pts_wp = pts_w.reshape(-1, 3) @ T_wp_world[:3, :3].T + T_wp_world[:3, 3]
+    assert realized.workpiece.index.query(pts_wp).distance.min() > HOUSING_CLEARANCE_M
 
 
 @pytest.fixture(scope="module")
