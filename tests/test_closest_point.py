@@ -158,3 +158,18 @@ def test_bad_input_is_refused():
     with pytest.raises(AlgorithmError, match="NaN"):
         idx.query(np.array([[0.0, np.inf, 0.0]]))
     assert idx.query(np.zeros((0, 3))).foot.shape == (0, 3)
+
+
+@pytest.mark.parametrize("make", [lambda: trimesh.creation.box((0.1, 0.08, 0.05)),
+                                  lambda: trimesh.creation.icosphere(3, 0.05),
+                                  lambda: trimesh.creation.annulus(0.02, 0.05, 0.03)])
+def test_signed_distance_is_negative_exactly_inside(make):
+    mesh = make()
+    index = MeshIndex(mesh)
+    P = np.random.default_rng(3).uniform(-0.12, 0.12, (5000, 3))
+    # near the corners and edges too: vertices pushed out along random directions
+    V = np.asarray(mesh.vertices)
+    P = np.vstack([P, V[np.arange(2000) % len(V)] + np.random.default_rng(4).normal(0, 0.004, (2000, 3))])
+    sd = index.signed_distance(P)
+    assert np.array_equal(sd < 0, mesh.contains(P))
+    assert np.allclose(np.abs(sd), index.query(P).distance)

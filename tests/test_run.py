@@ -123,10 +123,6 @@ def write(tmp_path, edit):
     (lambda t: t + "\n[path]\ntool = { matrix = [[1, 0.1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.1], [0, 0, 0, 1]] }\n",
      "path.tool.matrix rotation is not orthonormal"),
     (lambda t: t + "\n[path]\nfeed = 0.03\n", "unknown key(s) path.feed"),
-    (lambda t: t.replace("max_lines = 2", "max_lines = 1"),
-     "needs at least 2 lines with valid points, got 1 (scan line 0)"),
-    (lambda t: t + "\n[path]\ntool = { xyz = [0.0, 0.0, 0.7], rpy_deg = [180.0, 0.0, 0.0] }\n",
-     "unreachable pose(s)"),
 ])
 def test_bad_input_is_one_clear_line_and_no_report(tmp_path, edit, message):
     out = tmp_path / "out"
@@ -136,3 +132,19 @@ def test_bad_input_is_one_clear_line_and_no_report(tmp_path, edit, message):
     assert len(errors) == 1 and message in errors[0], r.stderr
     assert "Traceback" not in r.stderr
     assert not (out / "report.json").exists()
+
+
+@pytest.mark.parametrize("edit, stage, message", [
+    (lambda t: t.replace("max_lines = 2", "max_lines = 1"), "scan_path",
+     "needs at least 2 lines with valid points, got 1 (scan line 0)"),
+    (lambda t: t + "\n[path]\ntool = { xyz = [0.0, 0.0, 0.7], rpy_deg = [180.0, 0.0, 0.0] }\n", "scan_path",
+     "unreachable"),
+])
+def test_a_stage_that_fails_leaves_a_partial_report(tmp_path, edit, stage, message):
+    out = tmp_path / "out"
+    r = run_cli("run", str(write(tmp_path, edit)), "--out", str(out))
+    assert r.returncode == 4, r.stdout + r.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["complete"] is False and report["failed_stage"] == stage
+    assert message in report["failure"] and "Traceback" not in r.stderr
+    assert "scan" in report and "localization" in report and "cad_path" not in report

@@ -140,3 +140,36 @@ def test_sigma_estimate_and_bad_input():
         U.observability(p[:5], n[:5])
     with pytest.raises(AlgorithmError, match=r"\(N, 3\)"):
         U.information_rows(p, n[:, :2])
+
+
+def test_part_symmetry_tells_a_sphere_from_a_block():
+    sphere = MeshIndex(trimesh.creation.icosphere(4, 0.05))
+    block = MeshIndex(trimesh.creation.box((0.1, 0.08, 0.05)))
+    rotations = np.hstack([np.eye(3), np.zeros((3, 3))])
+    assert U.part_symmetry_directions(sphere, rotations).all()
+    # the block turns onto itself about no axis by a small step, nor slides
+    assert not U.part_symmetry_directions(block, rotations).any()
+    assert not U.part_symmetry_directions(block, np.hstack([np.zeros((3, 3)), np.eye(3)])).any()
+    # ... but points of its top face stay on it when turned about z or slid in x, y
+    top = np.column_stack([np.random.default_rng(0).uniform(-0.02, 0.02, (50, 2)), np.full(50, 0.025)])
+    slide_xy = np.array([[0, 0, 0, 1.0, 0, 0], [0, 0, 0, 0, 1.0, 0], [0, 0, 1.0, 0, 0, 0]])
+    assert U.invariant_points(block, top, slide_xy).all()
+    # a turn about x lifts or sinks the points away from y = 0 (near it, it slides them)
+    far = np.abs(top[:, 1]) > 0.01
+    assert not U.invariant_points(block, top[far], rotations[:1]).any()
+
+
+def test_a_constant_bias_along_the_normals_moves_the_pose_as_predicted():
+    # Points on the six faces of a box; a bias b along every normal moves the least-squares
+    # pose by b * g; the systematic covariance of a constant basis is b^2 g g^T.
+    box = trimesh.creation.box((0.1, 0.08, 0.05))
+    pts, face = trimesh.sample.sample_surface_even(box, 600, seed=1)
+    nrm = box.face_normals[face]
+    D = np.eye(6)
+    C = U.systematic_covariance(pts, nrm, D, np.ones((len(pts), 1)), [2e-6])
+    A = U.information_rows(pts, nrm)
+    shift = np.linalg.lstsq(A, np.full(len(pts), 2e-6), rcond=None)[0]
+    assert np.allclose(C, np.outer(shift, shift), atol=1e-20)
+    # it does not shrink with more points: the same bias on twice the points
+    C2 = U.systematic_covariance(np.vstack([pts, pts]), np.vstack([nrm, nrm]), D, np.ones((2 * len(pts), 1)), [2e-6])
+    assert np.allclose(C2, C, rtol=1e-9, atol=1e-24)

@@ -14,7 +14,7 @@ from algorithms.geometry.kinematics import dh_forward
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, rotation_error_rad, transform_points, translation_error_m
 from algorithms.paths.normals import angle_deg, pca_normals
-from algorithms.registration.uncertainty import part_symmetry_directions, pose_error_twist
+from algorithms.registration.uncertainty import information_rows, part_symmetry_directions, pose_error_twist
 from twin.realize import Realized
 from twin.robot import UR5E_DH
 
@@ -143,3 +143,16 @@ def free_directions_part_symmetry(localization, index: MeshIndex) -> list[bool]:
     rotations) rather than only of the scanned surfaces (a bore's axis on a block)."""
     F = np.asarray(localization.free_directions, dtype=np.float64).reshape(-1, 6)
     return [bool(v) for v in part_symmetry_directions(index, F)] if len(F) else []
+
+
+def contact_std_m(path_workpiece, localization, covariance) -> float:
+    """The largest standard deviation, along its normal, of a CAD path contact point moved by
+    the estimate: the pose covariance (along the determined directions) propagated."""
+    D = np.asarray(localization.determined_directions, dtype=np.float64).reshape(-1, 6)
+    if len(D) == 0:
+        return 0.0
+    mask = path_workpiece.process_mask()
+    p, n = path_workpiece.contact[mask], path_workpiece.normal[mask]
+    A = information_rows(p, n) @ D.T
+    C = np.asarray(localization.covariance if covariance is None else covariance, dtype=np.float64)
+    return float(np.sqrt(np.max(np.einsum("ij,jk,ik->i", A, C, A))))

@@ -20,6 +20,8 @@ from twin.robot import JOINT_NAMES, VELOCITY_LIMIT_RAD_S
 # A pose still this far off after the iteration cap is unreachable (or singular).
 UNREACHABLE_POSITION_M = 1e-4
 UNREACHABLE_ORIENTATION_RAD = 1e-3
+# Free spin: the weight of the spin about the tool axis against 1 for the tilt of the axis.
+SPIN_COST = 1e-2
 # PostureTask cost 1e-6 leaves a nanometre-level bias (1e-3 gave 6 um, measured with mink 1.3).
 POSTURE_COST = 1e-6
 
@@ -64,9 +66,10 @@ class IKSolver:
         self.position_tol_m = position_tol_m
         self.orientation_tol_rad = orientation_tol_rad
         self.configuration = mink.Configuration(model)
-        # A free spin: no cost on the rotation about the site's own z (mink's error is in the
-        # local frame), and the target is turned to the current spin before every step.
-        orientation_cost = [1.0, 1.0, 0.0] if free_spin else 1.0
+        # A free spin: a small cost on the rotation about the site's own z (mink's error is in
+        # the local frame): the spin follows the target's loosely (the arm keeps its posture
+        # instead of drifting about the tool axis) and gives way where the other joints need it.
+        orientation_cost = [1.0, 1.0, SPIN_COST] if free_spin else 1.0
         self.frame_task = mink.FrameTask(site, "site", position_cost=1.0, orientation_cost=orientation_cost,
                                          lm_damping=1e-9)
         self._target: np.ndarray | None = None
@@ -93,26 +96,23 @@ class IKSolver:
         hi = self.model.jnt_range[:6, 1] - 1e-6
         self.configuration.update(np.clip(q, lo, hi))
 
+    def set_spin_free(self, free: bool) -> None:
+        """Free (a small cost) or hold the rotation about the site's z from the next solve on."""
+        self.free_spin = free
+        self.frame_task.set_orientation_cost([1.0, 1.0, SPIN_COST] if free else 1.0)
+
     def site_pose(self) -> np.ndarray:
         """(4, 4) world pose of the site at the current configuration."""
         return self.configuration.get_transform_frame_to_world(self.site_name, "site").as_matrix()
 
-    def _respin_target(self) -> None:
-        """Turn the target about its z to the site's current spin (free spin only)."""
-        R_t = self._target[:3, :3]
-        M = R_t.T @ self.site_pose()[:3, :3]
-        phi = np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
-        c, s = np.cos(phi), np.sin(phi)
-        T = self._target.copy()
-        T[:3, :3] = R_t @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        self.frame_task.set_target(mink.SE3.from_matrix(T))
-
     def errors(self) -> tuple[float, float]:
         """(position [m], orientation [rad]) error of the site from its target (with a free
         spin: the angle between the site's z and the target's z)."""
-        if self.free_spin:
-            self._respin_target()
         e = self.frame_task.compute_error(self.configuration)
+        if self.free_spin:
+            z = self.site_pose()[:3, 2]
+            tilt = float(np.arctan2(np.linalg.norm(np.cross(z, self._target[:3, 2])), z @ self._target[:3, 2]))
+            return float(np.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)), tilt
         return float(np.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)), float(np.sqrt(e[3] ** 2 + e[4] ** 2 + e[5] ** 2))
 
     def solve(self, T_world_target: np.ndarray, dt: float, max_iterations: int,

@@ -48,7 +48,7 @@ from algorithms.paths.spline import fit_lines
 from algorithms.paths.timing import Trajectory
 from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, cad_raster, transform_path
 from algorithms.registration.symmetric import localize_symmetric
-from algorithms.registration.uncertainty import systematic_covariance
+from algorithms.registration.uncertainty import invariant_points, systematic_covariance
 from twin.cell import Cell, build_cell
 from twin.errors import TwinError
 from twin.realize import Realized
@@ -59,9 +59,12 @@ from twin.trajectory import PathIK, PathProblem, solve_tool_path, time_law_for
 
 RECORDING_GAP_S = 1.0      # sim_time between the scan and each replay in the recording
 DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose
-MAX_DROP_ROUNDS = 4        # solve, drop, rebuild: at most this many times
-CLEARANCE_M = 0.0005       # the shank and holder keep this far from the part
+MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
+# The shank and holder keep this far from the part: more than the replay's collision shape
+# (a 1 mm height field, twin.replay.HFIELD_RES_M) stands out from the exact walls.
+CLEARANCE_M = 0.0015
 CLEARANCE_STEP_M = 0.002   # spacing of the clearance checks along the tool
+BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not enter the part in the air
 MIN_PIECE_KNOT_SPANS = 2   # a scan-line piece shorter than this many B-spline knot spans is left out
 
 
@@ -246,10 +249,9 @@ def _beam_toward_sensor(scan: Scan, line_ids) -> np.ndarray:
 def _line_groups(scan: Scan) -> list[np.ndarray]:
     """Scan-line labels grouped by pass (lines of one pass run the same way)."""
     labels = np.unique(scan.line[scan.line >= 0])
-    line_pass = getattr(scan.plan, "line_pass", None)
-    if line_pass is None:
+    lp = np.asarray(scan.plan.line_pass)
+    if len(labels) == 0 or len(lp) <= labels.max():
         return [labels]
-    lp = np.asarray(line_pass)
     return [labels[lp[labels] == k] for k in np.unique(lp[labels])]
 
 
@@ -346,7 +348,8 @@ def cad_path(realized: Realized) -> ProcessPath:
 # ------------------------------------------------------------------ solving with drops
 def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: np.ndarray,
                        index: MeshIndex) -> list[PathProblem]:
-    """Poses whose shank or holder comes within CLEARANCE_M of the part (at the estimate).
+    """Poses whose shank or holder comes within CLEARANCE_M of the part (at the estimate),
+    or whose ball enters the part on a move in the air.
 
     The tool axis runs from the ball centre back to the flange; it is sampled every
     CLEARANCE_STEP_M beyond the ball, each sample with the radius of what is there.
@@ -361,10 +364,15 @@ def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: 
     T = T_wb @ path.T_tool
     centre = T[:, :3, 3] + p.tip_radius_m * T[:, :3, 2]
     samples = centre[:, None, :] + s[None, :, None] * T[:, None, :3, 2]
-    d = index.query(samples.reshape(-1, 3)).distance.reshape(len(T), len(s))
+    d = index.signed_distance(samples.reshape(-1, 3)).reshape(len(T), len(s))
     short = d - radius[None, :]
     bad = np.flatnonzero(np.min(short, axis=1) < CLEARANCE_M)
     out = []
+    # the ball itself on moves in the air (approach, retract, transit): never into the part
+    ball = index.signed_distance(centre) - p.tip_radius_m
+    for i in np.flatnonzero(~path.process_mask() & (ball < -BALL_TOLERANCE_M)):
+        out.append(PathProblem(int(i), "collision", tuple(path.T_tool[i, :3, 3]),
+                               f"the ball goes {-ball[i] * 1e3:.2f} mm into the part on a move in the air"))
     for i in bad:
         j = int(np.argmin(short[i]))
         out.append(PathProblem(int(i), "collision", tuple(path.T_tool[i, :3, 3]),
@@ -388,7 +396,7 @@ def _transit_check(scenario: Scenario, index: MeshIndex, T_base_workpiece: np.nd
     def clear(tcp: np.ndarray) -> np.ndarray:
         # TCP -> ball centre: the tool axis in the air is close to "up" on every transit
         centre = transform_points(T_wp_frame, tcp + p.tip_radius_m * up)
-        return index.query(centre).distance >= p.tip_radius_m + 0.5 * p.retract_m
+        return index.signed_distance(centre) >= p.tip_radius_m + 0.5 * p.retract_m
 
     return clear, (safe_point, up)
 
@@ -470,6 +478,17 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
             raise StageFailed(name, f"no stretch of the path can be processed; first problem: {problems[0].describe()}")
     raise StageFailed(name, f"bad poses remain after {MAX_DROP_ROUNDS} rounds of dropping; "
                             f"first: {problems[0].describe()}")
+
+
+def determined_part(lines_wp, normals_wp, localization, index: MeshIndex) -> tuple[list, list]:
+    """The CAD path's points whose position the estimate fixes: with free directions (a bore
+    whose rotation about its axis the scan leaves free), only the points that stay on the
+    part when moved along them (:func:`algorithms.registration.uncertainty.invariant_points`)."""
+    F = np.asarray(localization.free_directions, dtype=np.float64).reshape(-1, 6)
+    if len(F) == 0:
+        return list(lines_wp), list(normals_wp)
+    keep = [invariant_points(index, ln, F) for ln in lines_wp]
+    return _split_kept(lines_wp, normals_wp, keep)
 
 
 def _replay(name: str, path: ProcessPath, ik: PathIK, dropped, replay_cell: Cell, realized: Realized,
@@ -571,7 +590,10 @@ def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, 
 
     t0 = time.perf_counter()
     try:
-        lines_wp, normals_wp = cad_path_lines(realized)
+        lines_wp, normals_wp = determined_part(*cad_path_lines(realized), loc, index)
+        if not lines_wp:
+            raise StageFailed("cad_path", "no CAD path point is determined by the scan: the free directions "
+                                          "move every point of the process region off the part")
         state["cad"] = build_path(lines_wp, normals_wp, settings)
     except AlgorithmError as exc:
         raise StageFailed("cad_path", str(exc)) from None

@@ -349,10 +349,7 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
     centre_b = tcp_b + r * zax_b
     T_base_wp = T_bw @ cell.T_world_workpiece
     c_wp = transform_points(inv_pose(T_base_wp), centre_b)
-    cp = index.query(c_wp)
-    sign = np.sign(np.einsum("ij,ij->i", c_wp - cp.foot, cp.normal))
-    sign[sign == 0] = 1.0
-    tip_surface = sign * cp.distance - r
+    tip_surface = index.signed_distance(c_wp) - r
     centre_w = transform_points(cell.T_world_base, centre_b)
     table_clear = centre_w[:, 2] - r
 

@@ -27,16 +27,19 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.arclength import step_lengths
+from algorithms.geometry.kinematics import ur_inverse
+from algorithms.geometry.se3 import inv_pose
 from algorithms.paths.timing import Trajectory, time_law
 from algorithms.paths.toolpath import ProcessPath, flange_poses
 from twin.cell import TOOL_BALL_SITE, Cell
 from twin.errors import TwinError
 from twin.ik import IKSolver, reachable
-from twin.robot import ACCELERATION_LIMIT_RAD_S2, HOME_Q, VELOCITY_LIMIT_RAD_S
+from twin.robot import ACCELERATION_LIMIT_RAD_S2, HOME_Q, UR5E_DH, VELOCITY_LIMIT_RAD_S
 
 __all__ = ["PathError", "PathIK", "PathProblem", "Trajectory", "plan_joint_trajectory", "solve_path", "solve_tool_path",
            "time_law_for"]
@@ -152,7 +155,12 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
     its = np.empty(k, dtype=np.int64)
     for i in range(k):
         if i == 0:
-            pe[i], oe[i], its[i] = s.solve(T_world[0], 0.05, FIRST_POSE_ITERATIONS, velocity_limited=False)
+            # The first pose from the start guess with its full frame (the spin too): the arm
+            # lands on the start guess's branch; the spin is freed from the next pose on.
+            s.set_spin_free(False)
+            pe[i], oe[i], its[i] = _first_pose(s, cell, site, T_world[0], HOME_Q if q_start is None else q_start)
+            s.set_spin_free(free_spin)
+            pe[i], oe[i] = s.errors()
             first_time = time.perf_counter() - t0
         else:
             if i >= 2:
@@ -179,6 +187,38 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
     if problems and on_problem == "raise":
         raise PathError(_summarise(problems, k), tuple(problems))
     return result
+
+
+def _first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
+                q_start: np.ndarray) -> tuple[float, float, int]:
+    """Solve the first pose from ``q_start``; if that ends off target (stuck at a joint limit,
+    or the start lies on another branch), from each closed-form solution of the pose (the
+    UR geometry's eight branches), nearest ``q_start`` first. Returns (position error,
+    orientation error, iterations) of the solution kept."""
+    s.set_q(q_start)
+    pe, oe, its = s.solve(T_world_target, 0.05, FIRST_POSE_ITERATIONS, velocity_limited=False)
+    if reachable(pe, oe):
+        return pe, oe, its
+    best = (pe, oe, its, s.q)
+    data = mujoco.MjData(cell.model)
+    mujoco.mj_kinematics(cell.model, data)
+    T_world_flange, T_world_site = (np.eye(4), np.eye(4))
+    for T, name in ((T_world_flange, "flange"), (T_world_site, site)):
+        T[:3, :3] = data.site(name).xmat.reshape(3, 3)
+        T[:3, 3] = data.site(name).xpos
+    T_flange_site = inv_pose(T_world_flange) @ T_world_site
+    T_base_flange = inv_pose(cell.T_world_base) @ T_world_target @ inv_pose(T_flange_site)
+    sol = ur_inverse(T_base_flange, UR5E_DH)
+    seeds = sol.q[0][sol.valid[0]]
+    for q in seeds[np.argsort(np.linalg.norm(seeds - q_start, axis=1))]:
+        s.set_q(q)
+        pe, oe, its = s.solve(T_world_target, 0.05, FIRST_POSE_ITERATIONS, velocity_limited=False)
+        if reachable(pe, oe):
+            return pe, oe, its
+        if pe < best[0]:
+            best = (pe, oe, its, s.q)
+    s.set_q(best[3])
+    return best[0], best[1], best[2]
 
 
 def _summarise(problems: list, k: int) -> str:

@@ -376,6 +376,7 @@ class MeshIndex:
         # nearest faces (see query_near)
         self.face_size = float(np.median(np.linalg.norm(ab, axis=1))) if len(ab) else 0.0
         self._smooth: np.ndarray | None = None
+        self._pseudo: tuple | None = None
 
     # ------------------------------------------------------------------ queries
     def query(self, points, hint=None) -> ClosestPoints:
@@ -613,6 +614,68 @@ class MeshIndex:
         good = norm > 1e-12
         out = np.where(good[:, None], n / np.where(good, norm, 1.0)[:, None], self.face_normals[face])
         return out
+
+    def signed_distance(self, points) -> np.ndarray:
+        """(N,) distance to the surface [m], negative inside the (closed) model.
+
+        The sign is that of ``(point - foot) . pseudonormal`` with the angle-weighted
+        pseudonormal of the feature the foot lies on (Baerentzen and Aanaes, 2005): the face
+        normal inside a face, the sum of the two face normals on an edge, the angle-weighted
+        vertex normal at a vertex. Unlike the normal of whichever face the foot was found on,
+        this is correct near edges and corners.
+        """
+        q = np.asarray(points, dtype=np.float64)
+        cp = self.query(q)
+        if self._pseudo is None:
+            self._pseudo = _pseudonormals(self.vertices, self.faces, self.face_normals)
+        corner_pn, edge_pn = self._pseudo
+        g = self._data[cp.face]
+        ap = cp.foot - g[:, 0:3]
+        d1 = np.einsum("ij,ij->i", g[:, 3:6], ap)
+        d2 = np.einsum("ij,ij->i", g[:, 6:9], ap)
+        abab, acac, abac = g[:, 9], g[:, 10], g[:, 11]
+        det = abab * acac - abac * abac
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = (acac * d1 - abac * d2) / det
+            w = (abab * d2 - abac * d1) / det
+        v = np.where(np.isfinite(v), v, 0.0)
+        w = np.where(np.isfinite(w), w, 0.0)
+        bary = np.column_stack([1.0 - v - w, v, w])
+        on_zero = bary <= _FEATURE_TOL
+        n = self.face_normals[cp.face].copy()
+        zeros = on_zero.sum(axis=1)
+        edge = zeros == 1               # the foot is on the edge opposite the zero corner
+        n[edge] = edge_pn[cp.face[edge], np.argmax(on_zero[edge], axis=1)]
+        vert = zeros >= 2               # at the corner whose coordinate is not zero
+        n[vert] = corner_pn[cp.face[vert], np.argmin(on_zero[vert], axis=1)]
+        sign = np.einsum("ij,ij->i", q - cp.foot, n)
+        return np.where(sign < 0.0, -cp.distance, cp.distance)
+
+
+_FEATURE_TOL = 1e-9   # a barycentric coordinate this small puts the foot on an edge or corner
+
+
+def _pseudonormals(vertices, faces, face_normals):
+    """Angle-weighted vertex pseudonormals per (face, corner) and edge pseudonormals per
+    (face, edge opposite the corner): (F, 3, 3) each, unnormalised directions."""
+    corner = _corner_normals(vertices, faces, face_normals, crease_deg=180.0)
+    F = len(faces)
+    # the edge opposite corner c of face f joins corners c+1 and c+2
+    a = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
+    b = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
+    key = np.minimum(a, b).astype(np.int64) * (len(vertices) + 1) + np.maximum(a, b)
+    owner = np.tile(np.arange(F), 3)
+    slot = np.repeat(np.arange(3), F)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    edge = face_normals[owner].copy()
+    same_next = np.flatnonzero(ks[1:] == ks[:-1])
+    i, j = order[same_next], order[same_next + 1]
+    edge[i] += face_normals[owner[j]]
+    edge[j] += face_normals[owner[i]]
+    edge_pn = np.empty((F, 3, 3))
+    edge_pn[owner, slot] = edge
+    return corner, edge_pn
 
 
 def _subdivision_centroids(tri: np.ndarray, m: np.ndarray):

@@ -229,31 +229,42 @@ def unit_twists(W) -> np.ndarray:
     return out
 
 
-def part_symmetry_directions(index, twists, step_rad: float = 0.05, step_m: float = 0.005,
-                             tol_fraction: float = 0.1) -> np.ndarray:
+def invariant_points(index, points, twists, step_rad: float = 0.05, step_m: float = 0.005,
+                     tol_fraction: float = 0.1) -> np.ndarray:
+    """(N,) bool: the model points that stay on the model when moved along every twist.
+
+    Each point is moved by a finite step along each twist (``step_rad`` about a rotation,
+    ``step_m`` along a translation) and must land within ``tol_fraction`` of its own
+    displacement of the model (a tessellated curved surface is off by its chord error).
+
+    Args:
+        index: MeshIndex of the model (workpiece frame).
+        points: (N, 3) points on the model [m].
+        twists: (k, 6) unit twists ``[omega, v]`` in the workpiece frame.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    keep = np.ones(len(P), dtype=bool)
+    for w in np.asarray(twists, dtype=np.float64).reshape(-1, 6):
+        s = step_rad if np.linalg.norm(w[:3]) > 1e-9 else step_m
+        T = exp_se3(s * w)
+        moved = P @ T[:3, :3].T + T[:3, 3]
+        shift = np.linalg.norm(moved - P, axis=1)
+        keep &= index.query(moved).distance <= tol_fraction * shift + 1e-9
+    return keep
+
+
+def part_symmetry_directions(index, twists, **kw) -> np.ndarray:
     """(k,) bool: whether each free direction is a symmetry of the whole CAD model.
 
     The points leave a direction free either because the part is symmetric that way (a
     sphere turns onto itself) or because they miss the surfaces that would fix it (only the
-    top face of a block was measured). The model's vertices and face centres, moved by a
-    finite step along the twist (``step_rad`` about a rotation, ``step_m`` along a
-    translation), land back on the model within ``tol_fraction`` of the step's largest
-    displacement only in the first case.
-
-    Args:
-        index: MeshIndex of the model (workpiece frame).
-        twists: (k, 6) unit twists ``[omega, v]`` in the workpiece frame.
+    top face of a block was measured): only in the first case do the model's vertices and
+    face centres stay on the model when moved along it (:func:`invariant_points`).
     """
     V, F = index.vertices, index.faces
     samples = np.vstack([V, V[F].mean(axis=1)])
-    out = []
-    for w in np.asarray(twists, dtype=np.float64).reshape(-1, 6):
-        s = step_rad if np.linalg.norm(w[:3]) > 1e-9 else step_m
-        T = exp_se3(s * w)
-        moved = samples @ T[:3, :3].T + T[:3, 3]
-        shift = float(np.max(np.linalg.norm(moved - samples, axis=1)))
-        out.append(float(index.query(moved).distance.max()) <= tol_fraction * shift)
-    return np.array(out, dtype=bool)
+    return np.array([bool(np.all(invariant_points(index, samples, w, **kw)))
+                     for w in np.asarray(twists, dtype=np.float64).reshape(-1, 6)], dtype=bool)
 
 
 def systematic_covariance(points, normals, directions, bias_basis, bias_std) -> np.ndarray:

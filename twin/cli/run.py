@@ -10,6 +10,7 @@ from pathlib import Path
 
 from twin import pipeline
 from twin.cli.common import EXIT_OK, EXIT_STAGE_FAILED, EXIT_UNTRUSTED, add_output_options, checked_outputs, progress
+from twin.errors import TwinError
 from twin.io.output import Staged
 from twin.io.report import headline, run_report, write_json
 from twin.realize import realize
@@ -31,7 +32,7 @@ def add_parser(sub) -> None:
     p.add_argument("--place-base", action="store_true",
                    help="first move the robot base on the table to a pose from which the arm reaches every "
                         "scan and path pose (a search over x, y and yaw around the part), then run from there; "
-                        "the placement is written to DIR/placement.json")
+                        "the placement is written to the report (placement)")
     p.add_argument("--strict", action="store_true",
                    help="a path stretch that cannot be processed (unreachable, singular, colliding) fails "
                         "the run instead of being dropped and listed")
@@ -39,7 +40,7 @@ def add_parser(sub) -> None:
 
 
 def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command: str = "run",
-                   strict: bool = False):
+                   strict: bool = False, placement: dict | None = None):
     """Run the loop and write ``report.json`` (and the recording) into the staged folder;
     returns (result, report). The caller commits the stage: a run that stopped at a stage
     still leaves its evidence (the report says ``complete: false``, the failing stage and why)."""
@@ -47,6 +48,17 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
     realized = realize(scenario)
     result = pipeline.run(realized, say=partial(progress, command), strict=strict)
     report = run_report(result, pipeline.sensor_sigma_m(realized.scenario))
+    if placement is not None:
+        report["placement"] = placement
+    if result.failure is not None and "unreachable" in result.failure[1]:
+        from twin.placement import describe_unreachable_fix, reach_targets
+
+        try:
+            fix = describe_unreachable_fix(scenario, reach_targets(scenario, realized))
+        except TwinError as exc:
+            fix = f"no base on the table reaches every pose ({exc})"
+        if fix:
+            report["failure"] += f"; {fix}"
     if rrd is not None:
         from twin.viz import save_run_recording
 
@@ -78,9 +90,7 @@ def run(args: argparse.Namespace) -> int:
         progress("run", f"base placed at {placement['new_base']} (was {placement['old_base']}; "
                         f"margin {placement['margin']:.2f}, {placement['time_s']:.1f} s)")
     with Staged(out) as stage:
-        if placement is not None:
-            write_json(stage.folder / "placement.json", placement)
-        _, report = run_and_report(scenario, stage, rrd, strict=args.strict)
+        _, report = run_and_report(scenario, stage, rrd, strict=args.strict, placement=placement)
         stage.commit()
     print(json.dumps(headline(report), indent=2))
     if not report["complete"]:

@@ -15,6 +15,9 @@ from twin import evaluate
 from twin.sensors.base import STATUS_NAMES
 
 MM, UM = 1e3, 1e6
+# Added to the CAD path's 3-sigma surface bound: round-off of the ray casts and of the
+# tessellation (the truth and the CAD model are the same mesh in the twin).
+SURFACE_BOUND_FLOOR_M = 1e-6
 
 
 def _rms(x: np.ndarray) -> float:
@@ -142,14 +145,19 @@ def cad_path_report(result) -> dict:
     err = evaluate.surface_error_m(contact, T_true, index)
     nominal = transform_path(realized.T_base_workpiece_nominal, result.cad_path_workpiece)
     err_nom = evaluate.surface_error_m(nominal.contact[nominal.process_mask()], T_true, index)
+    bound = 3.0 * evaluate.contact_std_m(result.cad_path_workpiece, result.localization, result.pose_covariance) \
+        + SURFACE_BOUND_FLOOR_M
     return {
         "lines": cp.n_lines,
         "contact_points": int(len(contact)),
         "max_surface_error_mm": float(np.max(np.abs(err)) * MM),
+        "surface_error_bound_mm": float(bound * MM),
         "rms_surface_error_mm": float(np.sqrt(np.mean(err**2)) * MM),
         "uncompensated_max_surface_error_mm": float(np.max(np.abs(err_nom)) * MM),
         "uncompensated_rms_surface_error_mm": float(np.sqrt(np.mean(err_nom**2)) * MM),
         "note": "surface errors: signed distance of the planned contact points to the TRUE surface; "
+                "surface_error_bound_mm: 3 x the largest standard deviation of a contact point along its "
+                "normal that the pose covariance gives, plus 1 nm; "
                 "verification.tip_surface_error_*: of the replayed ball end (adds servo lag)",
         **_run_blocks(run),
     }
