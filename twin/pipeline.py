@@ -32,10 +32,12 @@ and with the process tool (the replays).
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
 
 from algorithms.errors import AlgorithmError
@@ -58,11 +60,13 @@ from twin.scenario import Scenario
 from twin.trajectory import PathIK, PathProblem, solve_tool_path, time_law_for
 
 RECORDING_GAP_S = 1.0      # sim_time between the scan and each replay in the recording
-DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose
+DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose (first round)
 MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
 # The shank and holder keep this far from the part: more than the replay's collision shape
-# (a 1 mm height field, twin.replay.HFIELD_RES_M) stands out from the exact walls.
-CLEARANCE_M = 0.0015
+# (a 1 mm height field, twin.replay.HFIELD_RES_M) stands out from the exact walls, up to
+# a cell's diagonal.
+CLEARANCE_M = 0.002
+TABLE_CLEARANCE_M = 0.002  # the arm's links keep this far above the table
 CLEARANCE_STEP_M = 0.002   # spacing of the clearance checks along the tool
 BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not enter the part in the air
 MIN_PIECE_KNOT_SPANS = 2   # a scan-line piece shorter than this many B-spline knot spans is left out
@@ -381,6 +385,32 @@ def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: 
     return out
 
 
+def table_problems(nominal: Cell, path: ProcessPath, q: np.ndarray) -> list[PathProblem]:
+    """Poses at which a link of the arm comes within TABLE_CLEARANCE_M of the table (MuJoCo's
+    collision detection on the nominal cell, with a margin on the table plane)."""
+    model = copy.copy(nominal.model)
+    table = model.geom("table").id
+    model.geom_margin[table] = TABLE_CLEARANCE_M
+    data = mujoco.MjData(model)
+    adr = nominal.qpos_adr
+    # the base and the shoulder's turret stand on the table whatever the joints
+    standing = {model.geom(g).id for g in range(model.ngeom)
+                if model.body(model.geom_bodyid[g]).name in ("base", "shoulder_pan_link")}
+    out = []
+    for i in range(len(q)):
+        data.qpos[adr] = q[i]
+        mujoco.mj_fwdPosition(model, data)
+        c = data.contact[: data.ncon]
+        other_geom = np.where(c.geom1 == table, c.geom2, c.geom1)
+        hit = ((c.geom1 == table) | (c.geom2 == table)) & ~np.isin(other_geom, list(standing))
+        if np.any(hit & (c.dist < TABLE_CLEARANCE_M)):
+            k = int(np.flatnonzero(hit)[np.argmin(c.dist[hit])])
+            other = int(other_geom[k])
+            out.append(PathProblem(i, "collision", tuple(path.T_tool[i, :3, 3]),
+                                   f"the arm's {model.geom(other).name} comes {c.dist[k] * 1e3:.1f} mm from the table"))
+    return out
+
+
 def _transit_check(scenario: Scenario, index: MeshIndex, T_base_workpiece: np.ndarray,
                    T_base_frame: np.ndarray | None):
     """The clearance test of transits and the safe plane above the part, in the frame the
@@ -401,8 +431,9 @@ def _transit_check(scenario: Scenario, index: MeshIndex, T_base_workpiece: np.nd
     return clear, (safe_point, up)
 
 
-def _drop_masks(path: ProcessPath, problems, lines) -> tuple[list[np.ndarray], list[Dropped]]:
-    """Keep-masks over the original lines' points after dropping the stretches of ``problems``."""
+def _drop_masks(path: ProcessPath, problems, lines, margin: int) -> tuple[list[np.ndarray], list[Dropped]]:
+    """Keep-masks over the lines' points after dropping ``margin`` points on each side of
+    every pose in ``problems``."""
     keep = [np.ones(len(ln), dtype=bool) for ln in lines]
     seg_of_line = {seg[3]: seg for seg in path.segments if seg[2] == "process"}
     reasons: dict[tuple[int, int], str] = {}
@@ -423,10 +454,10 @@ def _drop_masks(path: ProcessPath, problems, lines) -> tuple[list[np.ndarray], l
         a_line = seg_of_line[line]
         n = a_line[1] - a_line[0] + 1
         j_orig = (n - 1 - j) if line % 2 == 1 else j   # odd lines run reversed (zig-zag)
-        lo, hi = max(0, j_orig - DROP_MARGIN_POINTS), min(n, j_orig + DROP_MARGIN_POINTS + 1)
+        lo, hi = max(0, j_orig - margin), min(n, j_orig + margin + 1)
         keep[line][lo:hi] = False
         reasons.setdefault((line, j_orig), f"{prob.kind}: {prob.detail}")
-    dropped = [Dropped(line, DROP_MARGIN_POINTS * 2 + 1, tuple(lines[line][j]), why)
+    dropped = [Dropped(line, margin * 2 + 1, tuple(lines[line][j]), why)
                for (line, j), why in sorted(reasons.items())]
     return keep, dropped
 
@@ -460,18 +491,20 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
     dropped: list[Dropped] = []
     lines, normals = list(lines), list(normals)
     clear, safe_plane = _transit_check(sc, index, T_base_workpiece, T_base_frame)
-    for _ in range(MAX_DROP_ROUNDS):
+    for round_ in range(MAX_DROP_ROUNDS):
         path = build_path(lines, normals, settings, T_frame_ref=T_frame_ref, clear=clear, safe_plane=safe_plane)
         if T_base_frame is not None:
             path = transform_path(T_base_frame, path)
         problems = clearance_problems(path, sc, T_base_workpiece, index)
         ik = solve_tool_path(nominal, path, p.T_flange_tool, p.feed_m_s, p.transit_speed_m_s, free_spin=True)
+        problems += table_problems(nominal, path, ik.q)
         problems = sorted(list(problems) + list(ik.problems), key=lambda q: q.index)
         if not problems:
             return path, ik, dropped
         if strict:
             raise StageFailed(name, f"{len(problems)} bad pose(s) (--strict); first: {problems[0].describe()}")
-        keep, more = _drop_masks(path, problems, lines)
+        # the margin doubles each round: a stretch still bad after a drop is wider than thought
+        keep, more = _drop_masks(path, problems, lines, DROP_MARGIN_POINTS * 2**round_)
         dropped += more
         lines, normals = _split_kept(lines, normals, keep)
         if not lines:

@@ -51,6 +51,10 @@ FIRST_POSE_ITERATIONS = 2000
 JACOBIAN_LENGTH_M = 0.1
 SINGULAR_SIGMA = 2e-3   # m/rad: 1 rad/s of joint speed moves the flange < 2 mm/s somewhere
 JUMP_RAD = 0.2
+# Joint accelerations of a process path are held to this fraction of the arm's limits: the
+# servos lag in proportion to the acceleration, and a five-axis path that turns the tool
+# about a small radius (a sphere, a punch's flank) would otherwise lag by 0.5 mm and more.
+PATH_ACCELERATION_FRACTION = 0.5
 
 
 class PathError(TwinError):
@@ -263,7 +267,8 @@ def time_law_for(path: ProcessPath, ik: PathIK, feed_m_s: float, transit_speed_m
                  acceleration_m_s2: float, touchdown_acceleration_m_s2: float | None = None) -> Trajectory:
     """The time law of a solved path with the UR5e's joint limits."""
     return time_law(path, ik.q, feed_m_s, transit_speed_m_s, acceleration_m_s2, VELOCITY_LIMIT_RAD_S,
-                    ACCELERATION_LIMIT_RAD_S2, touchdown_acceleration_m_s2=touchdown_acceleration_m_s2)
+                    PATH_ACCELERATION_FRACTION * ACCELERATION_LIMIT_RAD_S2,
+                    touchdown_acceleration_m_s2=touchdown_acceleration_m_s2)
 
 
 def solve_tool_path(cell: Cell, path: ProcessPath, T_flange_tool: np.ndarray, feed_m_s: float,

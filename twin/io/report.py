@@ -172,9 +172,9 @@ def run_report(result, sensor_sigma_m: float) -> dict:
         report["failed_stage"], report["failure"] = result.failure
     if result.scan is not None:
         report["scan"] = scan_report(result.scan, result.realized)
-        passes = getattr(result.scan.plan, "passes", None)
-        if passes:
-            report["scan"]["passes"] = [p.to_dict() for p in passes]
+        plan = result.scan.plan
+        report["scan"]["passes"] = [p.to_dict() for p in plan.passes]
+        report["scan"]["plan_notes"] = list(plan.notes)
     if result.localization is not None:
         report["localization"] = localization_report(result)
     if result.scan_path is not None:
