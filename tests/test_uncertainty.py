@@ -173,3 +173,13 @@ def test_a_constant_bias_along_the_normals_moves_the_pose_as_predicted():
     # it does not shrink with more points: the same bias on twice the points
     C2 = U.systematic_covariance(np.vstack([pts, pts]), np.vstack([nrm, nrm]), D, np.ones((2 * len(pts), 1)), [2e-6])
     assert np.allclose(C2, C, rtol=1e-9, atol=1e-24)
+
+
+def test_an_estimate_moves_along_its_free_directions_to_the_reference_only():
+    T_ref = make_pose(p=[0.45, 0.12, 0.0])
+    free = np.array([0.0, 0.0, 1.0, 0.006, -0.012, 0.0])       # a turn about a vertical axis
+    determined = np.array([1e-4, 0.0, 0.0, 0.0, 0.0, 2e-5])
+    T = T_ref @ exp_se3(0.35 * free) @ exp_se3(determined)
+    xi = U.log_se3(U.inv_pose(T_ref) @ U.nearest_along_free(T, [free], T_ref))
+    assert abs(xi[2]) < 1e-9 and np.allclose(xi[[0, 5]], determined[[0, 5]], rtol=0.1)
+    assert np.array_equal(U.nearest_along_free(T, np.zeros((0, 6)), T_ref), T)

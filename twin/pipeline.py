@@ -33,6 +33,7 @@ and with the process tool (the replays).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -50,7 +51,7 @@ from algorithms.paths.spline import fit_lines
 from algorithms.paths.timing import Trajectory
 from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, cad_raster, transform_path
 from algorithms.registration.symmetric import localize_symmetric
-from algorithms.registration.uncertainty import invariant_points, systematic_covariance
+from algorithms.registration.uncertainty import invariant_points, nearest_along_free, systematic_covariance
 from twin.cell import Cell, build_cell
 from twin.errors import TwinError
 from twin.realize import Realized
@@ -545,6 +546,7 @@ def run(realized: Realized, say: Callable[[str], None] = lambda msg: None, stric
     A failing stage ends the run with ``failure`` set; bad input found before the loop
     starts (cells that do not compile) raises :class:`TwinError`.
     """
+    check_process_region(realized)
     timings: dict = {}
     t0 = time.perf_counter()
     nominal = build_cell(realized, "nominal")
@@ -564,6 +566,17 @@ def run(realized: Realized, say: Callable[[str], None] = lambda msg: None, stric
         failure = (stage, str(exc))
     return RunResult(realized, state["scan"], state["localization"], state["scan_path"], state["skipped"],
                      state["cad"], tuple(state["runs"]), replay_cell, timings, failure, state["covariance"])
+
+
+def check_process_region(realized: Realized) -> None:
+    """Bad input, before anything runs: a process region that selects no face of the part."""
+    mesh = realized.workpiece.mesh
+    centres = np.asarray(mesh.triangles_center)
+    if not process_region(realized.scenario).select(centres, np.asarray(mesh.face_normals)).any():
+        p = realized.scenario.path
+        raise TwinError(f"the process region (path.region_axis {np.round(p.region_axis, 3).tolist()}, "
+                        f"region_cone_deg {p.region_cone_deg:g}, region_box_m {p.region_box_m}) selects no face "
+                        "of the part")
 
 
 def _current_stage(state: dict) -> str:
@@ -590,6 +603,10 @@ def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, 
     loc = localize_symmetric(scan.line_points_base, realized.workpiece.mesh, symmetric="auto",
                              init=realized.T_base_workpiece_nominal, sigma=sensor_sigma_m(scenario), index=index)
     timings["localize_s"] = time.perf_counter() - t0
+    if len(loc.free_directions):
+        # along its free directions the estimate keeps the nominal pose (the points cannot move it)
+        loc = dataclasses.replace(loc, T_world_workpiece=nearest_along_free(
+            loc.T_world_workpiece, loc.free_directions, realized.T_base_workpiece_nominal))
     state["localization"] = loc
     state["covariance"] = pose_covariance(scan, loc, index)
     T_est = loc.T_world_workpiece

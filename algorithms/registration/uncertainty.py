@@ -290,3 +290,27 @@ def systematic_covariance(points, normals, directions, bias_basis, bias_std) -> 
     G = np.linalg.lstsq(A, Phi, rcond=None)[0]          # (q, K)
     s = np.asarray(bias_std, dtype=np.float64)
     return (G * s**2) @ G.T
+
+
+def nearest_along_free(T_world_workpiece, free_directions, T_reference, iterations: int = 3) -> np.ndarray:
+    """The pose reached from ``T_world_workpiece`` along its free directions that is nearest
+    ``T_reference`` (e.g. the nominal pose).
+
+    The points do not tell apart poses that differ along free directions (a bore turned about
+    its axis fits the same), so the estimate may sit anywhere along them; the prior (where the
+    part was meant to be) is the honest choice there, and the determined directions are not
+    touched. Each iteration writes the remaining error twist ``log(T^-1 T_ref)`` (workpiece
+    frame) over the free and the other directions and moves along the free part.
+    """
+    T = np.asarray(T_world_workpiece, dtype=np.float64).copy()
+    F = np.asarray(free_directions, dtype=np.float64).reshape(-1, 6)
+    if len(F) == 0:
+        return T
+    # a basis of the complement of the free twists, so the split is a proper decomposition
+    _, _, Vt = np.linalg.svd(F)
+    basis = np.vstack([F, Vt[len(F):]])
+    for _ in range(iterations):
+        xi = log_se3(inv_pose(T) @ np.asarray(T_reference, dtype=np.float64))
+        coef = np.linalg.solve(basis.T, xi)
+        T = T @ exp_se3(F.T @ coef[: len(F)])
+    return T
