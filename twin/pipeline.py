@@ -16,9 +16,10 @@ joints, replay in the true cell. Returns a frozen :class:`RunResult`; writes no 
    way, moved by the localization estimate;
 5. each path: five-axis mink IK on the nominal cell (the ball centre and the tool axis held,
    the spin about the axis free), the tool's shank and holder checked against the part at
-   the estimate; a stretch that is unreachable, singular, discontinuous or colliding is
-   dropped and listed (the line is split there, with a retract, a transit and a re-approach),
-   or with ``strict`` the run fails there; then the time law at the feed and the replay in
+   the estimate, the arm against the table; a stretch that is unreachable, singular,
+   discontinuous or colliding is dropped and listed (the line is split there, with a
+   retract, a transit and a re-approach), or with ``strict`` the run fails there
+   (:mod:`twin.segments`); then the time law at the feed and the replay in
    the true cell with the tool at 1 ms: deviation, contacts and joint limits.
 
 A stage that fails (an unreachable scan, a path with nothing left, ``strict``) does not
@@ -32,13 +33,11 @@ and with the process tool (the replays).
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import mujoco
 import numpy as np
 
 from algorithms.errors import AlgorithmError
@@ -58,33 +57,11 @@ from twin.realize import Realized
 from twin.replay import ReplayLog, build_replay_cell, replay
 from twin.scan import Scan, run_scan
 from twin.scenario import Scenario
-from twin.trajectory import PathIK, PathProblem, solve_tool_path, time_law_for
+from twin.segments import StageFailed, solve_with_drops, split_kept
+from twin.trajectory import PathIK, time_law_for
 
 RECORDING_GAP_S = 1.0      # sim_time between the scan and each replay in the recording
-DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose (first round)
-MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
-# The shank and holder keep this far from the part: more than the replay's collision shape
-# (a 1 mm height field, twin.replay.HFIELD_RES_M) stands out from the exact walls, up to
-# a cell's diagonal.
-CLEARANCE_M = 0.002
-TABLE_CLEARANCE_M = 0.002  # the arm's links keep this far above the table
-CLEARANCE_STEP_M = 0.002   # spacing of the clearance checks along the tool
-BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not enter the part in the air
 MIN_PIECE_KNOT_SPANS = 2   # a scan-line piece shorter than this many B-spline knot spans is left out
-
-
-@dataclass(frozen=True)
-class Dropped:
-    """A stretch of a process path left out: ``points`` contact points around ``position_m``."""
-
-    line: int
-    points: int
-    position_m: tuple
-    reason: str
-
-    def to_dict(self) -> dict:
-        return {"line": self.line, "points": self.points, "position_m": [round(float(v), 6) for v in self.position_m],
-                "reason": self.reason}
 
 
 @dataclass(frozen=True)
@@ -178,15 +155,6 @@ class RunResult:
         return next((r for r in self.runs if r.name == name), None)
 
 
-class StageFailed(TwinError):
-    """A stage of the loop could not finish; the run keeps what the earlier stages made."""
-
-    def __init__(self, stage: str, reason: str):
-        super().__init__(f"{stage}: {reason}")
-        self.stage = stage
-        self.reason = reason
-
-
 def cloud_params(scenario: Scenario) -> CloudParams:
     p = scenario.path
     return CloudParams(outlier_window_m=p.outlier_window_m, outlier_k=p.outlier_k, max_gap_m=p.max_gap_m,
@@ -219,9 +187,11 @@ def sensor_sigma_m(scenario: Scenario) -> float:
 def pose_covariance(scan: Scan, localization, index: MeshIndex) -> np.ndarray:
     """The estimate's covariance along its determined directions: the Cramer-Rao term of the
     random errors (repeatability and quantisation) plus the sensor's linearity curve as a
-    systematic error (Legendre polynomials of degree 0-3 in the measured distance across the
-    window, each coefficient with the band's uniform standard deviation ``linearity / sqrt 3``;
-    :func:`algorithms.registration.uncertainty.systematic_covariance`)."""
+    systematic error: Legendre polynomials of degree 0-3 in the measured distance across the
+    window, each coefficient with the standard deviation ``linearity_m`` (the curve is known
+    only by its +/- band, and one smooth shape can carry the whole band: the IL-065's
+    sin-shaped curve has degree-1 and degree-3 coefficients of 0.95 and 1.16 times the band);
+    :func:`algorithms.registration.uncertainty.systematic_covariance`."""
     sc = scan.scenario
     D = np.asarray(localization.determined_directions, dtype=np.float64).reshape(-1, 6)
     C = np.asarray(localization.covariance, dtype=np.float64)
@@ -229,8 +199,9 @@ def pose_covariance(scan: Scan, localization, index: MeshIndex) -> np.ndarray:
         return C
     s, n = sc.sensor, sc.noise
     sigma_all = sensor_sigma_m(sc)
-    lin = s.linearity_m / np.sqrt(3) if n.linearity else 0.0
-    C = C * max(sigma_all**2 - lin**2, 0.0) / sigma_all**2
+    lin = s.linearity_m if n.linearity else 0.0
+    # the random part of sigma_all: without the linearity band's share (linearity / sqrt 3)
+    C = C * max(sigma_all**2 - lin**2 / 3.0, 0.0) / sigma_all**2
     if lin == 0.0:
         return C
     mask = scan.valid & (scan.line >= 0)[:, None]
@@ -350,170 +321,6 @@ def cad_path(realized: Realized) -> ProcessPath:
     return build_path(lines, normals, tool_settings(realized.scenario))
 
 
-# ------------------------------------------------------------------ solving with drops
-def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: np.ndarray,
-                       index: MeshIndex) -> list[PathProblem]:
-    """Poses whose shank or holder comes within CLEARANCE_M of the part (at the estimate),
-    or whose ball enters the part on a move in the air.
-
-    The tool axis runs from the ball centre back to the flange; it is sampled every
-    CLEARANCE_STEP_M beyond the ball, each sample with the radius of what is there.
-    """
-    p = scenario.path
-    reach = float(np.linalg.norm(p.T_flange_tool[:3, 3])) - p.tip_radius_m
-    s = np.arange(p.tip_radius_m + CLEARANCE_STEP_M, reach, CLEARANCE_STEP_M)
-    if len(s) == 0:
-        return []
-    radius = np.where(s > reach - p.holder_length_m, max(p.holder_radius_m, p.shank_radius_m), p.shank_radius_m)
-    T_wb = inv_pose(T_base_workpiece)
-    T = T_wb @ path.T_tool
-    centre = T[:, :3, 3] + p.tip_radius_m * T[:, :3, 2]
-    samples = centre[:, None, :] + s[None, :, None] * T[:, None, :3, 2]
-    d = index.signed_distance(samples.reshape(-1, 3)).reshape(len(T), len(s))
-    short = d - radius[None, :]
-    bad = np.flatnonzero(np.min(short, axis=1) < CLEARANCE_M)
-    out = []
-    # the ball itself on moves in the air (approach, retract, transit): never into the part
-    ball = index.signed_distance(centre) - p.tip_radius_m
-    for i in np.flatnonzero(~path.process_mask() & (ball < -BALL_TOLERANCE_M)):
-        out.append(PathProblem(int(i), "collision", tuple(path.T_tool[i, :3, 3]),
-                               f"the ball goes {-ball[i] * 1e3:.2f} mm into the part on a move in the air"))
-    for i in bad:
-        j = int(np.argmin(short[i]))
-        out.append(PathProblem(int(i), "collision", tuple(path.T_tool[i, :3, 3]),
-                               f"the tool {s[j] * 1e3:.0f} mm up its axis comes {short[i, j] * 1e3:.2f} mm "
-                               "from the part"))
-    return out
-
-
-def table_problems(nominal: Cell, path: ProcessPath, q: np.ndarray) -> list[PathProblem]:
-    """Poses at which a link of the arm comes within TABLE_CLEARANCE_M of the table (MuJoCo's
-    collision detection on the nominal cell, with a margin on the table plane)."""
-    model = copy.copy(nominal.model)
-    table = model.geom("table").id
-    model.geom_margin[table] = TABLE_CLEARANCE_M
-    data = mujoco.MjData(model)
-    adr = nominal.qpos_adr
-    # the base and the shoulder's turret stand on the table whatever the joints
-    standing = {model.geom(g).id for g in range(model.ngeom)
-                if model.body(model.geom_bodyid[g]).name in ("base", "shoulder_pan_link")}
-    out = []
-    for i in range(len(q)):
-        data.qpos[adr] = q[i]
-        mujoco.mj_fwdPosition(model, data)
-        c = data.contact[: data.ncon]
-        other_geom = np.where(c.geom1 == table, c.geom2, c.geom1)
-        hit = ((c.geom1 == table) | (c.geom2 == table)) & ~np.isin(other_geom, list(standing))
-        if np.any(hit & (c.dist < TABLE_CLEARANCE_M)):
-            k = int(np.flatnonzero(hit)[np.argmin(c.dist[hit])])
-            other = int(other_geom[k])
-            out.append(PathProblem(i, "collision", tuple(path.T_tool[i, :3, 3]),
-                                   f"the arm's {model.geom(other).name} comes {c.dist[k] * 1e3:.1f} mm from the table"))
-    return out
-
-
-def _transit_check(scenario: Scenario, index: MeshIndex, T_base_workpiece: np.ndarray,
-                   T_base_frame: np.ndarray | None):
-    """The clearance test of transits and the safe plane above the part, in the frame the
-    lines are given in (the workpiece frame when ``T_base_frame`` is the estimate, else the
-    base frame): a transit is clear when the ball stays ``retract_m / 2`` above the part."""
-    p = scenario.path
-    T_frame_wp = inv_pose(T_base_frame) @ T_base_workpiece if T_base_frame is not None else T_base_workpiece
-    T_wp_frame = inv_pose(T_frame_wp)
-    top = float(index.vertices[:, 2].max())
-    safe_point = transform_points(T_frame_wp, np.array([[0.0, 0.0, top + p.retract_m]]))[0]
-    up = T_frame_wp[:3, :3] @ np.array([0.0, 0.0, 1.0])
-
-    def clear(tcp: np.ndarray) -> np.ndarray:
-        # TCP -> ball centre: the tool axis in the air is close to "up" on every transit
-        centre = transform_points(T_wp_frame, tcp + p.tip_radius_m * up)
-        return index.signed_distance(centre) >= p.tip_radius_m + 0.5 * p.retract_m
-
-    return clear, (safe_point, up)
-
-
-def _drop_masks(path: ProcessPath, problems, lines, margin: int) -> tuple[list[np.ndarray], list[Dropped]]:
-    """Keep-masks over the lines' points after dropping ``margin`` points on each side of
-    every pose in ``problems``."""
-    keep = [np.ones(len(ln), dtype=bool) for ln in lines]
-    seg_of_line = {seg[3]: seg for seg in path.segments if seg[2] == "process"}
-    reasons: dict[tuple[int, int], str] = {}
-    for prob in problems:
-        a, b, kind, line = path.segments[path.segment[prob.index]]
-        if kind == "process":
-            j = prob.index - a
-        else:
-            # A move in the air: the end of the line it leaves, or the start of the one it reaches.
-            nxt = [s for s in path.segments if s[2] == "process" and s[0] >= b]
-            prv = [s for s in path.segments if s[2] == "process" and s[1] <= a]
-            if kind == "retract" and prv:
-                line, j = prv[-1][3], prv[-1][1] - prv[-1][0]
-            elif nxt:
-                line, j = nxt[0][3], 0
-            else:
-                continue
-        a_line = seg_of_line[line]
-        n = a_line[1] - a_line[0] + 1
-        j_orig = (n - 1 - j) if line % 2 == 1 else j   # odd lines run reversed (zig-zag)
-        lo, hi = max(0, j_orig - margin), min(n, j_orig + margin + 1)
-        keep[line][lo:hi] = False
-        reasons.setdefault((line, j_orig), f"{prob.kind}: {prob.detail}")
-    dropped = [Dropped(line, margin * 2 + 1, tuple(lines[line][j]), why)
-               for (line, j), why in sorted(reasons.items())]
-    return keep, dropped
-
-
-def _split_kept(lines, normals, keep) -> tuple[list, list]:
-    out_l, out_n = [], []
-    for ln, nm, k in zip(lines, normals, keep, strict=True):
-        idx = np.flatnonzero(k)
-        if len(idx) < 2:
-            continue
-        for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
-            if len(run) >= 2:
-                out_l.append(ln[run])
-                out_n.append(nm[run])
-    return out_l, out_n
-
-
-def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_ref, nominal: Cell,
-                     T_base_workpiece: np.ndarray, index: MeshIndex, strict: bool,
-                     T_base_frame: np.ndarray | None = None) -> tuple[ProcessPath, PathIK, list[Dropped]]:
-    """Build the path, check the tool's clearance, solve the five-axis IK; drop every bad
-    stretch and rebuild, until nothing is bad (module docstring, step 5).
-
-    ``lines``/``normals`` are in the frame ``T_base_frame`` maps to the base (None: the base).
-
-    Raises:
-        StageFailed: ``strict`` and a stretch is bad, or nothing is left.
-    """
-    sc = nominal.scenario
-    p = sc.path
-    dropped: list[Dropped] = []
-    lines, normals = list(lines), list(normals)
-    clear, safe_plane = _transit_check(sc, index, T_base_workpiece, T_base_frame)
-    for round_ in range(MAX_DROP_ROUNDS):
-        path = build_path(lines, normals, settings, T_frame_ref=T_frame_ref, clear=clear, safe_plane=safe_plane)
-        if T_base_frame is not None:
-            path = transform_path(T_base_frame, path)
-        problems = clearance_problems(path, sc, T_base_workpiece, index)
-        ik = solve_tool_path(nominal, path, p.T_flange_tool, p.feed_m_s, p.transit_speed_m_s, free_spin=True)
-        problems += table_problems(nominal, path, ik.q)
-        problems = sorted(list(problems) + list(ik.problems), key=lambda q: q.index)
-        if not problems:
-            return path, ik, dropped
-        if strict:
-            raise StageFailed(name, f"{len(problems)} bad pose(s) (--strict); first: {problems[0].describe()}")
-        # the margin doubles each round: a stretch still bad after a drop is wider than thought
-        keep, more = _drop_masks(path, problems, lines, DROP_MARGIN_POINTS * 2**round_)
-        dropped += more
-        lines, normals = _split_kept(lines, normals, keep)
-        if not lines:
-            raise StageFailed(name, f"no stretch of the path can be processed; first problem: {problems[0].describe()}")
-    raise StageFailed(name, f"bad poses remain after {MAX_DROP_ROUNDS} rounds of dropping; "
-                            f"first: {problems[0].describe()}")
-
-
 def determined_part(lines_wp, normals_wp, localization, index: MeshIndex) -> tuple[list, list]:
     """The CAD path's points whose position the estimate fixes: with free directions (a bore
     whose rotation about its axis the scan leaves free), only the points that stay on the
@@ -522,7 +329,7 @@ def determined_part(lines_wp, normals_wp, localization, index: MeshIndex) -> tup
     if len(F) == 0:
         return list(lines_wp), list(normals_wp)
     keep = [invariant_points(index, ln, F) for ln in lines_wp]
-    return _split_kept(lines_wp, normals_wp, keep)
+    return split_kept(lines_wp, normals_wp, keep)
 
 
 def _replay(name: str, path: ProcessPath, ik: PathIK, dropped, replay_cell: Cell, realized: Realized,

@@ -51,6 +51,10 @@ FIRST_POSE_ITERATIONS = 2000
 JACOBIAN_LENGTH_M = 0.1
 SINGULAR_SIGMA = 2e-3   # m/rad: 1 rad/s of joint speed moves the flange < 2 mm/s somewhere
 JUMP_RAD = 0.2
+# The first pose's solution must keep these bodies' origins this high above the table (the
+# links' radii): a closed-form branch with the elbow under the table is not a start.
+ARM_BODIES_OFF_THE_TABLE = ("elbow_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
+FIRST_POSE_TABLE_CLEARANCE_M = 0.06
 # Joint accelerations of a process path are held to this fraction of the arm's limits: the
 # servos lag in proportion to the acceleration, and a five-axis path that turns the tool
 # about a small radius (a sphere, a punch's flank) would otherwise lag by 0.5 mm and more.
@@ -193,18 +197,26 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
     return result
 
 
+def _above_table(cell: Cell, data: mujoco.MjData, q: np.ndarray) -> bool:
+    """Whether the elbow, the wrist and the flange stay FIRST_POSE_TABLE_CLEARANCE_M above the table."""
+    data.qpos[cell.qpos_adr] = q
+    mujoco.mj_kinematics(cell.model, data)
+    z = [data.body(name).xpos[2] for name in ARM_BODIES_OFF_THE_TABLE]
+    return bool(min(z) >= FIRST_POSE_TABLE_CLEARANCE_M)
+
+
 def _first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
                 q_start: np.ndarray) -> tuple[float, float, int]:
     """Solve the first pose from ``q_start``; if that ends off target (stuck at a joint limit,
-    or the start lies on another branch), from each closed-form solution of the pose (the
-    UR geometry's eight branches), nearest ``q_start`` first. Returns (position error,
+    or the start lies on another branch) or with the arm in the table, from each closed-form
+    solution of the pose (the UR geometry's eight branches), nearest ``q_start`` first. Returns (position error,
     orientation error, iterations) of the solution kept."""
+    data = mujoco.MjData(cell.model)
     s.set_q(q_start)
     pe, oe, its = s.solve(T_world_target, 0.05, FIRST_POSE_ITERATIONS, velocity_limited=False)
-    if reachable(pe, oe):
+    if reachable(pe, oe) and _above_table(cell, data, s.q):
         return pe, oe, its
     best = (pe, oe, its, s.q)
-    data = mujoco.MjData(cell.model)
     mujoco.mj_kinematics(cell.model, data)
     T_world_flange, T_world_site = (np.eye(4), np.eye(4))
     for T, name in ((T_world_flange, "flange"), (T_world_site, site)):
@@ -217,7 +229,7 @@ def _first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
     for q in seeds[np.argsort(np.linalg.norm(seeds - q_start, axis=1))]:
         s.set_q(q)
         pe, oe, its = s.solve(T_world_target, 0.05, FIRST_POSE_ITERATIONS, velocity_limited=False)
-        if reachable(pe, oe):
+        if reachable(pe, oe) and _above_table(cell, data, s.q):
             return pe, oe, its
         if pe < best[0]:
             best = (pe, oe, its, s.q)

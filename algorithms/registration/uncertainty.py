@@ -233,8 +233,9 @@ def invariant_points(index, points, twists, step_rad: float = 0.05, step_m: floa
                      tol_fraction: float = 0.1) -> np.ndarray:
     """(N,) bool: the model points that stay on the model when moved along every twist.
 
-    Each point is moved by a finite step along each twist (``step_rad`` about a rotation,
-    ``step_m`` along a translation) and must land within ``tol_fraction`` of its own
+    Each point is moved by a finite step both ways along each twist (``step_rad`` about a
+    rotation, ``step_m`` along a translation: the prior uncertainty along a free direction,
+    which the points cannot reduce) and must land within ``tol_fraction`` of its own
     displacement of the model (a tessellated curved surface is off by its chord error).
 
     Args:
@@ -246,10 +247,11 @@ def invariant_points(index, points, twists, step_rad: float = 0.05, step_m: floa
     keep = np.ones(len(P), dtype=bool)
     for w in np.asarray(twists, dtype=np.float64).reshape(-1, 6):
         s = step_rad if np.linalg.norm(w[:3]) > 1e-9 else step_m
-        T = exp_se3(s * w)
-        moved = P @ T[:3, :3].T + T[:3, 3]
-        shift = np.linalg.norm(moved - P, axis=1)
-        keep &= index.query(moved).distance <= tol_fraction * shift + 1e-9
+        for sign in (1.0, -1.0):
+            T = exp_se3(sign * s * w)
+            moved = P @ T[:3, :3].T + T[:3, 3]
+            shift = np.linalg.norm(moved - P, axis=1)
+            keep &= index.query(moved).distance <= tol_fraction * shift + 1e-9
     return keep
 
 
