@@ -187,6 +187,13 @@ def split_kept(lines, normals, keep) -> tuple[list, list]:
     return out_l, out_n
 
 
+def _count_kinds(problems) -> str:
+    kinds: dict[str, int] = {}
+    for p in problems:
+        kinds[p.kind] = kinds.get(p.kind, 0) + 1
+    return ", ".join(f"{n} {kind}" for kind, n in sorted(kinds.items()))
+
+
 def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_ref, nominal: Cell,
                      T_base_workpiece: np.ndarray, index: MeshIndex, strict: bool,
                      T_base_frame: np.ndarray | None = None) -> tuple[ProcessPath, PathIK, list[Dropped]]:
@@ -214,13 +221,15 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
         if not problems:
             return path, ik, dropped
         if strict:
-            raise StageFailed(name, f"{len(problems)} bad pose(s) (--strict); first: {problems[0].describe()}")
+            raise StageFailed(name, f"{len(problems)} bad pose(s) (--strict: {_count_kinds(problems)}); "
+                                    f"first: {problems[0].describe()}")
         # the margin doubles each round: a stretch still bad after a drop is wider than thought
         keep, more = _drop_masks(path, problems, lines, DROP_MARGIN_POINTS * 2**round_)
         dropped += more
         lines, normals = split_kept(lines, normals, keep)
         if not lines:
-            raise StageFailed(name, f"no stretch of the path can be processed; first problem: {problems[0].describe()}")
+            raise StageFailed(name, f"no stretch of the path can be processed ({_count_kinds(problems)}); "
+                                    f"first: {problems[0].describe()}")
     raise StageFailed(name, f"bad poses remain after {MAX_DROP_ROUNDS} rounds of dropping; "
                             f"first: {problems[0].describe()}")
 
