@@ -116,13 +116,14 @@ def test_strict_run_fails_at_the_first_bad_stretch(tmp_path):
     # raster lines; by default those stretches are dropped and listed, with --strict the run
     # stops there and leaves the evidence.
     scen = _write_short(ROOT / "scenarios" / "bore_and_face.toml", tmp_path)
-    out = tmp_path / "out"
-    r = run_cli("run", str(scen), "--out", str(out), "--strict")
+    out, rrd = tmp_path / "out", tmp_path / "strict.rrd"
+    r = run_cli("run", str(scen), "--out", str(out), "--strict", "--rrd", str(rrd))
     assert r.returncode == EXIT_STAGE_FAILED, r.stderr
     report = json.loads((out / "report.json").read_text())
     assert report["complete"] is False and report["failed_stage"] in ("scan_path", "cad_path")
     assert "--strict" in report["failure"] and "collision" in report["failure"]
     assert "localization" in report and "scan" in report
+    assert rrd.is_file() and rrd.stat().st_size > 0
 
 
 # ------------------------------------------------------------------ regions and pieces

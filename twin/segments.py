@@ -13,10 +13,8 @@ stage instead (:class:`StageFailed`).
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
 from algorithms.geometry.mesh_index import MeshIndex
@@ -25,7 +23,7 @@ from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, tra
 from twin.cell import Cell
 from twin.errors import TwinError
 from twin.scenario import Scenario
-from twin.trajectory import PathIK, PathProblem, solve_tool_path
+from twin.trajectory import TABLE_CLEARANCE_M, PathIK, PathProblem, TableCheck, solve_tool_path
 
 DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose (first round)
 MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
@@ -33,7 +31,6 @@ MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
 # (a 1 mm height field, twin.replay.HFIELD_RES_M) stands out from the exact walls, up to
 # a cell's diagonal.
 CLEARANCE_M = 0.002
-TABLE_CLEARANCE_M = 0.002  # the arm's links keep this far above the table
 CLEARANCE_STEP_M = 0.002   # spacing of the clearance checks along the tool
 BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not enter the part in the air
 
@@ -98,28 +95,14 @@ def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: 
 
 
 def table_problems(nominal: Cell, path: ProcessPath, q: np.ndarray) -> list[PathProblem]:
-    """Poses at which a link of the arm comes within TABLE_CLEARANCE_M of the table (MuJoCo's
-    collision detection on the nominal cell, with a margin on the table plane)."""
-    model = copy.copy(nominal.model)
-    table = model.geom("table").id
-    model.geom_margin[table] = TABLE_CLEARANCE_M
-    data = mujoco.MjData(model)
-    adr = nominal.qpos_adr
-    # the base and the shoulder's turret stand on the table whatever the joints
-    standing = {model.geom(g).id for g in range(model.ngeom)
-                if model.body(model.geom_bodyid[g]).name in ("base", "shoulder_pan_link")}
+    """Poses at which a link of the arm comes within TABLE_CLEARANCE_M of the table."""
+    check = TableCheck(nominal, TABLE_CLEARANCE_M)
     out = []
     for i in range(len(q)):
-        data.qpos[adr] = q[i]
-        mujoco.mj_fwdPosition(model, data)
-        c = data.contact[: data.ncon]
-        other_geom = np.where(c.geom1 == table, c.geom2, c.geom1)
-        hit = ((c.geom1 == table) | (c.geom2 == table)) & ~np.isin(other_geom, list(standing))
-        if np.any(hit & (c.dist < TABLE_CLEARANCE_M)):
-            k = int(np.flatnonzero(hit)[np.argmin(c.dist[hit])])
-            other = int(other_geom[k])
+        hit = check.nearest(q[i])
+        if hit is not None:
             out.append(PathProblem(i, "collision", tuple(path.T_tool[i, :3, 3]),
-                                   f"the arm's {model.geom(other).name} comes {c.dist[k] * 1e3:.1f} mm from the table"))
+                                   f"the arm's {hit[0]} comes {hit[1] * 1e3:.1f} mm from the table"))
     return out
 
 

@@ -24,6 +24,7 @@ The time law is :func:`algorithms.paths.timing.time_law`.
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass
 
@@ -51,10 +52,7 @@ FIRST_POSE_ITERATIONS = 2000
 JACOBIAN_LENGTH_M = 0.1
 SINGULAR_SIGMA = 2e-3   # m/rad: 1 rad/s of joint speed moves the flange < 2 mm/s somewhere
 JUMP_RAD = 0.2
-# The first pose's solution must keep these bodies' origins this high above the table (the
-# links' radii): a closed-form branch with the elbow under the table is not a start.
-ARM_BODIES_OFF_THE_TABLE = ("elbow_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
-FIRST_POSE_TABLE_CLEARANCE_M = 0.06
+TABLE_CLEARANCE_M = 0.002   # the arm's links keep this far above the table
 # Joint accelerations of a process path are held to this fraction of the arm's limits: the
 # servos lag in proportion to the acceleration, and a five-axis path that turns the tool
 # about a small radius (a sphere, a punch's flank) would otherwise lag by 0.5 mm and more.
@@ -154,7 +152,7 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
     dt = np.asarray(dt, dtype=np.float64)
     T_world = cell.T_world_base @ T
     t0 = time.perf_counter()
-    s = IKSolver(cell.model, site, POSITION_TOL_M, ORIENTATION_TOL_RAD, free_spin=free_spin)
+    s = IKSolver(cell.model, site, POSITION_TOL_M, ORIENTATION_TOL_RAD, free_spin=free_spin, avoid_table=free_spin)
     s.set_q(HOME_Q if q_start is None else q_start)
     q = np.empty((k, 6))
     pe = np.empty(k)
@@ -174,7 +172,7 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
             if i >= 2:
                 # First-order predictor: on a smooth path one QP step then usually suffices.
                 s.predict(2.0 * q[i - 1] - q[i - 2])
-            pe[i], oe[i], its[i] = s.solve(T_world[i], float(dt[i]), MAX_ITERATIONS)
+            pe[i], oe[i], its[i] = s.solve(T_world[i], float(dt[i]), MAX_ITERATIONS, stop_when_stalled=True)
         q[i] = s.q
         sig[i] = s.sigma_min(JACOBIAN_LENGTH_M)
     elapsed = time.perf_counter() - t0
@@ -197,12 +195,33 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
     return result
 
 
-def _above_table(cell: Cell, data: mujoco.MjData, q: np.ndarray) -> bool:
-    """Whether the elbow, the wrist and the flange stay FIRST_POSE_TABLE_CLEARANCE_M above the table."""
-    data.qpos[cell.qpos_adr] = q
-    mujoco.mj_kinematics(cell.model, data)
-    z = [data.body(name).xpos[2] for name in ARM_BODIES_OFF_THE_TABLE]
-    return bool(min(z) >= FIRST_POSE_TABLE_CLEARANCE_M)
+class TableCheck:
+    """Whether the arm's links keep a clearance from the table at a joint configuration:
+    MuJoCo's collision detection on a copy of the nominal model with a margin on the table
+    plane (the base and the shoulder turret, which stand on the table, are left out)."""
+
+    def __init__(self, cell: Cell, clearance_m: float):
+        self.model = copy.copy(cell.model)
+        self.table = self.model.geom("table").id
+        self.model.geom_margin[self.table] = clearance_m
+        self.clearance_m = clearance_m
+        self.data = mujoco.MjData(self.model)
+        self.adr = cell.qpos_adr
+        self.standing = np.array([g for g in range(self.model.ngeom)
+                                  if self.model.body(self.model.geom_bodyid[g]).name in ("base", "shoulder_pan_link")])
+
+    def nearest(self, q: np.ndarray) -> tuple[str, float] | None:
+        """(geom name, distance [m]) of the link nearest the table within the clearance, or None."""
+        self.data.qpos[self.adr] = q
+        mujoco.mj_fwdPosition(self.model, self.data)
+        c = self.data.contact[: self.data.ncon]
+        other = np.where(c.geom1 == self.table, c.geom2, c.geom1)
+        hit = ((c.geom1 == self.table) | (c.geom2 == self.table)) & ~np.isin(other, self.standing) \
+            & (c.dist < self.clearance_m)
+        if not hit.any():
+            return None
+        k = int(np.flatnonzero(hit)[np.argmin(c.dist[hit])])
+        return self.model.geom(int(other[k])).name, float(c.dist[k])
 
 
 def _first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
@@ -211,12 +230,13 @@ def _first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
     or the start lies on another branch) or with the arm in the table, from each closed-form
     solution of the pose (the UR geometry's eight branches), nearest ``q_start`` first. Returns (position error,
     orientation error, iterations) of the solution kept."""
-    data = mujoco.MjData(cell.model)
+    table = TableCheck(cell, TABLE_CLEARANCE_M)
     s.set_q(q_start)
     pe, oe, its = s.solve(T_world_target, 0.05, FIRST_POSE_ITERATIONS, velocity_limited=False)
-    if reachable(pe, oe) and _above_table(cell, data, s.q):
+    if reachable(pe, oe) and table.nearest(s.q) is None:
         return pe, oe, its
     best = (pe, oe, its, s.q)
+    data = mujoco.MjData(cell.model)
     mujoco.mj_kinematics(cell.model, data)
     T_world_flange, T_world_site = (np.eye(4), np.eye(4))
     for T, name in ((T_world_flange, "flange"), (T_world_site, site)):
@@ -229,7 +249,7 @@ def _first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
     for q in seeds[np.argsort(np.linalg.norm(seeds - q_start, axis=1))]:
         s.set_q(q)
         pe, oe, its = s.solve(T_world_target, 0.05, FIRST_POSE_ITERATIONS, velocity_limited=False)
-        if reachable(pe, oe) and _above_table(cell, data, s.q):
+        if reachable(pe, oe) and table.nearest(s.q) is None:
             return pe, oe, its
         if pe < best[0]:
             best = (pe, oe, its, s.q)
