@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -332,18 +333,25 @@ def determined_part(lines_wp, normals_wp, localization, index: MeshIndex) -> tup
     return split_kept(lines_wp, normals_wp, keep)
 
 
-def _replay(name: str, path: ProcessPath, ik: PathIK, dropped, replay_cell: Cell, realized: Realized,
-            t_offset_s: float, normals_points: np.ndarray, normals: np.ndarray,
-            say: Callable[[str], None]) -> PathRun:
+def _timed(name: str, path: ProcessPath, ik: PathIK, dropped, realized: Realized,
+           say: Callable[[str], None]) -> Trajectory:
     p = realized.scenario.path
     traj = time_law_for(path, ik, p.feed_m_s, p.transit_speed_m_s, p.acceleration_m_s2,
                         p.touchdown_acceleration_m_s2)
     note = f", {len(dropped)} stretch(es) dropped" if dropped else ""
     say(f"{name}: {len(path.T_tool)} poses, IK {ik.time_per_pose_ms:.3f} ms/pose, "
         f"{traj.duration_s:.1f} s of motion{note}")
+    return traj
+
+
+def _replayed(name: str, path: ProcessPath, ik: PathIK, traj: Trajectory, dropped, replay_cell: Cell,
+              realized: Realized, t_offset_s: float, timings: dict, say: Callable[[str], None]) -> PathRun:
+    t0 = time.perf_counter()
     log = replay(replay_cell, traj, path, realized.workpiece.index)
+    timings[f"{name}_replay_s"] = time.perf_counter() - t0
     say(f"{name}: replayed, {len(log.unintended_contacts)} unintended contact(s)")
-    return PathRun(name, path, ik, traj, log, t_offset_s, normals_points, normals, tuple(dropped))
+    mask = path.process_mask()
+    return PathRun(name, path, ik, traj, log, t_offset_s, path.contact[mask], path.normal[mask], tuple(dropped))
 
 
 # ------------------------------------------------------------------ the loop
@@ -361,16 +369,19 @@ def run(realized: Realized, say: Callable[[str], None] = lambda msg: None, stric
     replay_cell = build_replay_cell(realized)
     timings["build_cells_s"] = time.perf_counter() - t0
     state = {"scan": None, "localization": None, "covariance": None, "scan_path": None, "skipped": None,
-             "cad": None, "runs": []}
-    stage = "scan"
-    try:
-        _run(realized, nominal, true_cell, replay_cell, say, strict, timings, state)
-        failure = None
-    except StageFailed as exc:
-        failure = (exc.stage, exc.reason)
-    except (TwinError, AlgorithmError) as exc:
-        stage = _current_stage(state)
-        failure = (stage, str(exc))
+             "cad": None, "runs": [], "pending": None}
+    failure = None
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        try:
+            try:
+                _run(realized, nominal, true_cell, replay_cell, say, strict, timings, state, pool)
+            finally:
+                # a replay still running in the background belongs to the evidence
+                _collect(state["pending"], state)
+        except StageFailed as exc:
+            failure = (exc.stage, exc.reason)
+        except (TwinError, AlgorithmError) as exc:
+            failure = (_current_stage(state), str(exc))
     return RunResult(realized, state["scan"], state["localization"], state["scan_path"], state["skipped"],
                      state["cad"], tuple(state["runs"]), replay_cell, timings, failure, state["covariance"])
 
@@ -397,7 +408,7 @@ def _current_stage(state: dict) -> str:
 
 
 def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, say, strict: bool,
-         timings: dict, state: dict) -> None:
+         timings: dict, state: dict, pool: ThreadPoolExecutor) -> None:
     scenario = realized.scenario
     index = realized.workpiece.index
     t0 = time.perf_counter()
@@ -435,13 +446,12 @@ def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, 
         path, ik, dropped = solve_with_drops("scan_path", sp.lines, sp.tool_normals, settings, T_est, nominal,
                                              T_est, index, strict)
         timings["scan_path_ik_s"] = time.perf_counter() - t0
-        mask = path.process_mask()
-        t0 = time.perf_counter()
-        r = _replay("scan_path", path, ik, dropped, replay_cell, realized, t_offset, path.contact[mask],
-                    path.normal[mask], say)
-        timings["scan_path_replay_s"] = time.perf_counter() - t0
-        state["runs"].append(r)
-        t_offset += r.trajectory.duration_s + RECORDING_GAP_S
+        traj = _timed("scan_path", path, ik, dropped, realized, say)
+        # The scan path's replay (MuJoCo's rollout, outside the GIL) runs on the second core
+        # while the CAD path is planned; it is collected before the CAD path is replayed.
+        state["pending"] = pool.submit(_replayed, "scan_path", path, ik, traj, dropped, replay_cell, realized, t_offset,
+                              timings, say)
+        t_offset += traj.duration_s + RECORDING_GAP_S
     else:
         state["skipped"] = "the scan-derived path needs one beam per sample (sensor.kind = 'point')"
 
@@ -460,10 +470,14 @@ def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, 
                                          strict, T_base_frame=T_est)
     state["cad"] = transform_path(inv_pose(T_est), path)   # after any drops, workpiece frame
     timings["cad_path_ik_s"] = time.perf_counter() - t0
-    mask = path.process_mask()
-    t0 = time.perf_counter()
-    r = _replay("cad_path", path, ik, dropped, replay_cell, realized, t_offset, path.contact[mask],
-                path.normal[mask], say)
-    timings["cad_path_replay_s"] = time.perf_counter() - t0
-    state["runs"].append(r)
+    traj = _timed("cad_path", path, ik, dropped, realized, say)
+    _collect(state["pending"], state)
+    state["runs"].append(_replayed("cad_path", path, ik, traj, dropped, replay_cell, realized, t_offset, timings,
+                                   say))
 
+
+def _collect(pending, state: dict) -> None:
+    """The scan path's run from its background replay (once)."""
+    if pending is not None and not state.get("collected"):
+        state["collected"] = True
+        state["runs"].append(pending.result())

@@ -28,9 +28,10 @@ from twin.trajectory import TABLE_CLEARANCE_M, PathIK, PathProblem, TableCheck, 
 DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose (first round)
 MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
 # The shank and holder keep this far from the part: more than the replay's collision shape
-# (a 1 mm height field, twin.replay.HFIELD_RES_M) stands out from the exact walls, up to
-# a cell's diagonal.
-CLEARANCE_M = 0.002
+# (a 1 mm height field, twin.replay.HFIELD_RES_M) stands out from the exact part, which at a
+# concave corner (a punch meeting its base) cuts the corner across a cell (2 mm still let the
+# bottle punch's shank touch the height field by 26 um).
+CLEARANCE_M = 0.003
 CLEARANCE_STEP_M = 0.002   # spacing of the clearance checks along the tool
 BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not enter the part in the air
 
@@ -180,8 +181,9 @@ def _count_kinds(problems) -> str:
 def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_ref, nominal: Cell,
                      T_base_workpiece: np.ndarray, index: MeshIndex, strict: bool,
                      T_base_frame: np.ndarray | None = None) -> tuple[ProcessPath, PathIK, list[Dropped]]:
-    """Build the path, check the tool's clearance, solve the five-axis IK; drop every bad
-    stretch and rebuild, until nothing is bad (module docstring, step 5).
+    """Build the path and check the tool's clearance, then (once the tool is clear) solve the
+    five-axis IK and check the arm against the table; drop every bad stretch and rebuild,
+    until nothing is bad (module docstring).
 
     ``lines``/``normals`` are in the frame ``T_base_frame`` maps to the base (None: the base).
 
@@ -197,12 +199,13 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
         path = build_path(lines, normals, settings, T_frame_ref=T_frame_ref, clear=clear, safe_plane=safe_plane)
         if T_base_frame is not None:
             path = transform_path(T_base_frame, path)
+        # the tool against the part first (geometry only); the IK once the tool is clear
         problems = clearance_problems(path, sc, T_base_workpiece, index)
-        ik = solve_tool_path(nominal, path, p.T_flange_tool, p.feed_m_s, p.transit_speed_m_s, free_spin=True)
-        problems += table_problems(nominal, path, ik.q)
-        problems = sorted(list(problems) + list(ik.problems), key=lambda q: q.index)
         if not problems:
-            return path, ik, dropped
+            ik = solve_tool_path(nominal, path, p.T_flange_tool, p.feed_m_s, p.transit_speed_m_s, free_spin=True)
+            problems = sorted(table_problems(nominal, path, ik.q) + list(ik.problems), key=lambda q: q.index)
+            if not problems:
+                return path, ik, dropped
         if strict:
             raise StageFailed(name, f"{len(problems)} bad pose(s) (--strict: {_count_kinds(problems)}); "
                                     f"first: {problems[0].describe()}")
