@@ -595,9 +595,19 @@ class MeshIndex:
         if self._smooth is None:
             self._smooth = _corner_normals(self.vertices, self.faces, self.face_normals)
         face = np.asarray(face, dtype=np.int64)
+        v, w = self._barycentric(face, foot)
+        v, w = np.clip(v, 0.0, 1.0), np.clip(w, 0.0, 1.0)
+        cn = self._smooth[face]  # (N, 3 corners, 3)
+        n = (1.0 - v - w)[:, None] * cn[:, 0] + v[:, None] * cn[:, 1] + w[:, None] * cn[:, 2]
+        norm = np.sqrt(np.einsum("ij,ij->i", n, n))
+        good = norm > 1e-12
+        out = np.where(good[:, None], n / np.where(good, norm, 1.0)[:, None], self.face_normals[face])
+        return out
+
+    def _barycentric(self, face: np.ndarray, foot) -> tuple[np.ndarray, np.ndarray]:
+        """Barycentric (v, w) of feet on their faces (the 2x2 Gram system; 0 on a degenerate face)."""
         g = self._data[face]
         ap = np.asarray(foot, dtype=np.float64) - g[:, 0:3]
-        # the foot lies on the face: solve the 2x2 Gram system for its barycentrics
         d1 = np.einsum("ij,ij->i", g[:, 3:6], ap)
         d2 = np.einsum("ij,ij->i", g[:, 6:9], ap)
         abab, acac, abac = g[:, 9], g[:, 10], g[:, 11]
@@ -606,14 +616,7 @@ class MeshIndex:
             v = (acac * d1 - abac * d2) / det
             w = (abab * d2 - abac * d1) / det
         ok = np.isfinite(v) & np.isfinite(w)
-        v = np.where(ok, np.clip(v, 0.0, 1.0), 0.0)
-        w = np.where(ok, np.clip(w, 0.0, 1.0), 0.0)
-        cn = self._smooth[face]  # (N, 3 corners, 3)
-        n = (1.0 - v - w)[:, None] * cn[:, 0] + v[:, None] * cn[:, 1] + w[:, None] * cn[:, 2]
-        norm = np.sqrt(np.einsum("ij,ij->i", n, n))
-        good = norm > 1e-12
-        out = np.where(good[:, None], n / np.where(good, norm, 1.0)[:, None], self.face_normals[face])
-        return out
+        return np.where(ok, v, 0.0), np.where(ok, w, 0.0)
 
     def signed_distance(self, points) -> np.ndarray:
         """(N,) distance to the surface [m], negative inside the (closed) model.
@@ -629,17 +632,7 @@ class MeshIndex:
         if self._pseudo is None:
             self._pseudo = _pseudonormals(self.vertices, self.faces, self.face_normals)
         corner_pn, edge_pn = self._pseudo
-        g = self._data[cp.face]
-        ap = cp.foot - g[:, 0:3]
-        d1 = np.einsum("ij,ij->i", g[:, 3:6], ap)
-        d2 = np.einsum("ij,ij->i", g[:, 6:9], ap)
-        abab, acac, abac = g[:, 9], g[:, 10], g[:, 11]
-        det = abab * acac - abac * abac
-        with np.errstate(divide="ignore", invalid="ignore"):
-            v = (acac * d1 - abac * d2) / det
-            w = (abab * d2 - abac * d1) / det
-        v = np.where(np.isfinite(v), v, 0.0)
-        w = np.where(np.isfinite(w), w, 0.0)
+        v, w = self._barycentric(cp.face, cp.foot)
         bary = np.column_stack([1.0 - v - w, v, w])
         on_zero = bary <= _FEATURE_TOL
         n = self.face_normals[cp.face].copy()
