@@ -13,6 +13,7 @@ stage instead (:class:`StageFailed`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,7 +39,8 @@ BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not ente
 
 @dataclass(frozen=True)
 class Dropped:
-    """A stretch of a process path left out: ``points`` contact points around ``position_m``."""
+    """A stretch of a process path left out: ``points`` contact points around ``position_m``
+    (robot base frame), on process line ``line`` of the path as it was when it was dropped."""
 
     line: int
     points: int
@@ -211,6 +213,9 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
                                     f"first: {problems[0].describe()}")
         # the margin doubles each round: a stretch still bad after a drop is wider than thought
         keep, more = _drop_masks(path, problems, lines, DROP_MARGIN_POINTS * 2**round_)
+        if T_base_frame is not None:   # the report and the recording give positions in the base frame
+            at = transform_points(T_base_frame, np.array([d.position_m for d in more]).reshape(-1, 3))
+            more = [dataclasses.replace(d, position_m=tuple(p_base)) for d, p_base in zip(more, at, strict=True)]
         dropped += more
         lines, normals = split_kept(lines, normals, keep)
         if not lines:
