@@ -300,11 +300,8 @@ def scan_path(scan: Scan, T_base_workpiece_estimate: np.ndarray, index: MeshInde
 
 
 def _max_line_spacing_m(scenario: Scenario) -> float:
-    passes = getattr(scenario.scan, "passes", None)
-    spacings = [scenario.scan.line_spacing_m]
-    if isinstance(passes, tuple):
-        spacings += [float(getattr(p, "line_spacing_m", 0.0)) for p in passes]
-    return max(spacings)
+    """The widest scan-line spacing of the scan's passes [m]."""
+    return max([scenario.scan.line_spacing_m] + [p.line_spacing_m for p in scenario.scan.passes or ()])
 
 
 def cad_path_lines(realized: Realized) -> tuple[list, list]:
