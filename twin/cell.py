@@ -25,9 +25,10 @@ from scipy.spatial.transform import Rotation
 
 from twin.errors import TwinError
 from twin.realize import Realized
-from twin.robot import FLANGE_BODY, GROUP_WORKPIECE, JOINT_NAMES, SCENE_XML, T_WRIST3_FLANGE
+from twin.robot import FLANGE_BODY, GROUP_FIXTURE, GROUP_WORKPIECE, JOINT_NAMES, SCENE_XML, T_WRIST3_FLANGE
 from twin.scenario import Scenario
-from twin.sensors import Sensor, make_sensor
+from twin.sensors import RaySensor, make_sensor
+from twin.sensors.touch_probe import TouchProbe
 
 TOOL_BALL_SITE = "tool_ball"
 
@@ -58,10 +59,11 @@ class Cell:
     which: str
     scenario: Scenario
     mesh: trimesh.Trimesh
-    sensor: Sensor
+    sensor: RaySensor
     T_world_base: np.ndarray
     T_world_workpiece: np.ndarray
     T_flange_sensor: np.ndarray
+    probe: TouchProbe | None = None
 
     @property
     def sensor_site(self) -> int:
@@ -135,6 +137,14 @@ def build_spec(realized: Realized, which: str = "true") -> tuple[mujoco.MjSpec, 
                                     pos=T_wrist3_tool[:3, 3] + p.tip_radius_m * T_wrist3_tool[:3, 2],
                                     quat=quat_wxyz(T_wrist3_tool[:3, :3]), size=[0.001, 0, 0])
 
+    probe = None
+    if scenario.probe is not None:
+        probe = TouchProbe(scenario.probe, scenario.noise)
+        T_wrist3_probe = T_WRIST3_FLANGE @ scenario.probe.T_flange_probe
+        probe.attach(spec, spec.body(FLANGE_BODY).add_body(
+            name="touch_probe", pos=T_wrist3_probe[:3, 3], quat=quat_wxyz(T_wrist3_probe[:3, :3])))
+        _add_reference_sphere(spec, scenario.probe.sphere_xyz_m, scenario.probe.sphere_radius_m)
+
     # Workpiece mesh at this cell's pose.
     mesh = realized.workpiece.mesh
     T_world_workpiece = realized.truth.T_world_workpiece if true else scenario.workpiece.T_world_workpiece_nominal
@@ -149,8 +159,28 @@ def build_spec(realized: Realized, which: str = "true") -> tuple[mujoco.MjSpec, 
     for name in JOINT_NAMES:
         spec.add_sensor(name=f"enc_{name}", type=mujoco.mjtSensor.mjSENS_JOINTPOS,
                         objtype=mujoco.mjtObj.mjOBJ_JOINT, objname=name)
-    poses = {"T_world_workpiece": T_world_workpiece, "T_flange_sensor": T_flange_sensor, "sensor": sensor}
+    poses = {"T_world_workpiece": T_world_workpiece, "T_flange_sensor": T_flange_sensor, "sensor": sensor,
+             "probe": probe}
     return spec, poses
+
+
+REFERENCE_SPHERE_STEM_RADIUS_M = 0.004
+
+
+def _add_reference_sphere(spec: mujoco.MjSpec, centre_world: np.ndarray, radius_m: float) -> None:
+    """The probe's qualification sphere on a vertical stem standing on the table (a fixture:
+    geom ``reference_sphere``, group 2)."""
+    centre = np.asarray(centre_world, dtype=np.float64)
+    if centre[2] <= radius_m:
+        raise TwinError(f"probe.sphere_xyz_m: the reference sphere's centre must stand higher than its radius "
+                        f"above the table (z > {radius_m:g} m), got z = {centre[2]:g} m")
+    stem = centre[2] - radius_m / 2
+    fixture = spec.worldbody.add_body(name="reference_sphere", pos=centre)
+    fixture.add_geom(name="reference_sphere", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius_m, 0, 0],
+                     rgba=[0.85, 0.85, 0.9, 1], group=GROUP_FIXTURE)
+    fixture.add_geom(name="reference_sphere_stem", type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+                     size=[REFERENCE_SPHERE_STEM_RADIUS_M, stem / 2, 0], pos=[0, 0, -radius_m / 2 - stem / 2],
+                     rgba=[0.5, 0.5, 0.55, 1], group=GROUP_FIXTURE)
 
 
 def build_cell(realized: Realized, which: str = "true") -> Cell:
@@ -167,4 +197,5 @@ def compile_cell(spec: mujoco.MjSpec, realized: Realized, which: str, poses: dic
     data = mujoco.MjData(model)
     scenario = realized.scenario
     return Cell(model, data, which, scenario, realized.workpiece.mesh, poses["sensor"],
-                scenario.T_world_base.copy(), poses["T_world_workpiece"], poses["T_flange_sensor"])
+                scenario.T_world_base.copy(), poses["T_world_workpiece"], poses["T_flange_sensor"],
+                poses.get("probe"))

@@ -122,7 +122,6 @@ def build_replay_cell(realized: Realized) -> Cell:
     scenario = realized.scenario
     spec, poses = build_spec(realized, "true")
     _add_tool(spec, scenario)
-    _add_height_field(spec, realized.workpiece.mesh)
     spec.add_sensor(name="tcp_pos", type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE,
                     objname="tcp")
     spec.add_sensor(name="tcp_zaxis", type=mujoco.mjtSensor.mjSENS_FRAMEZAXIS, objtype=mujoco.mjtObj.mjOBJ_SITE,
@@ -130,13 +129,52 @@ def build_replay_cell(realized: Realized) -> Cell:
     for j in JOINT_NAMES:
         spec.add_sensor(name=f"vel_{j}", type=mujoco.mjtSensor.mjSENS_JOINTVEL, objtype=mujoco.mjtObj.mjOBJ_JOINT,
                         objname=j)
+    add_collision_checks(spec, realized.workpiece.mesh)
+    return compile_cell(spec, realized, "true", poses)
+
+
+def add_collision_checks(spec: mujoco.MjSpec, mesh: trimesh.Trimesh) -> None:
+    """The part's height-field collision shape and a contact sensor for every colliding robot
+    geom against it and the table (named ``contact:GEOM:TARGET``; :func:`contact_records`)."""
+    _add_height_field(spec, mesh)
     for g in _checked_geoms(spec):
         for target in CONTACT_TARGETS:
             spec.add_sensor(name=f"contact:{g}:{target}", type=mujoco.mjtSensor.mjSENS_CONTACT,
                             objtype=mujoco.mjtObj.mjOBJ_GEOM, objname=g,
                             reftype=mujoco.mjtObj.mjOBJ_GEOM, refname=target,
                             intprm=[_CONTACT_DATA, _REDUCE_MINDIST, 1])
-    return compile_cell(spec, realized, "true", poses)
+
+
+def contact_columns(model: mujoco.MjModel) -> tuple[list[str], np.ndarray]:
+    """The contact sensors' names and their ``sensordata`` columns (5 per sensor)."""
+    names, cols = [], []
+    for i in range(model.nsensor):
+        s = model.sensor(i)
+        if s.name.startswith("contact:"):
+            names.append(s.name)
+            cols.append(np.arange(int(s.adr[0]), int(s.adr[0] + s.dim[0])))
+    return names, (np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64))
+
+
+def contact_records(names: list[str], cdata: np.ndarray, t: np.ndarray, T_base_world: np.ndarray) -> list:
+    """One :class:`ContactRecord` per contact sensor that found a contact (all unintended).
+
+    Args:
+        names: the contact sensors' names; cdata: (n, len(names), 5) their readings per step;
+        t: (n,) step times [s]; T_base_world: maps world positions into the robot base frame.
+    """
+    out = []
+    for k, nm in enumerate(names):
+        found = cdata[:, k, 0] > 0
+        if not found.any():
+            continue
+        _, geom, other = nm.split(":")
+        idx = np.flatnonzero(found)
+        j = idx[np.argmin(cdata[idx, k, 1])]
+        where = transform_points(T_base_world, cdata[j, k, 2:5][None])[0]
+        out.append(ContactRecord(geom, other, False, float(t[idx[0]]), float(t[idx[-1]]), int(len(idx)),
+                                 float(-cdata[j, k, 1]), tuple(where)))
+    return out
 
 
 def _checked_geoms(spec: mujoco.MjSpec) -> list[str]:
@@ -303,15 +341,13 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
     for i in range(model.nsensor):
         s = model.sensor(i)
         sl[s.name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
-    contact_names = [nm for nm in sl if nm.startswith("contact:")]
+    contact_names, contact_cols = contact_columns(model)
     tcp = np.empty((n, 3))
     zax = np.empty((n, 3))
     qd = np.empty((n, 6))
     q_true = np.empty((n, 6))
     cdata = np.empty((n, len(contact_names), 5))
     vel_cols = [sl[f"vel_{j}"].start for j in JOINT_NAMES]
-    contact_cols = np.concatenate([np.arange(sl[nm].start, sl[nm].stop) for nm in contact_names]) \
-        if contact_names else np.zeros(0, dtype=np.int64)
 
     def on_chunk(i0, sens, q_before):
         i1 = i0 + len(sens)
@@ -353,18 +389,8 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
     centre_w = transform_points(cell.T_world_base, centre_b)
     table_clear = centre_w[:, 2] - r
 
-    contacts = []
     t = trajectory.t
-    for k, nm in enumerate(contact_names):
-        found = cdata[:, k, 0] > 0
-        if not found.any():
-            continue
-        _, geom, other = nm.split(":")
-        idx = np.flatnonzero(found)
-        j = idx[np.argmin(cdata[idx, k, 1])]
-        contacts.append(ContactRecord(geom, other, False, float(t[idx[0]]), float(t[idx[-1]]), int(len(idx)),
-                                      float(-cdata[j, k, 1]),
-                                      tuple(transform_points(T_bw, cdata[j, k, 2:5][None])[0])))
+    contacts = contact_records(contact_names, cdata, t, T_bw)
     # The ball end: intended on the process lines, unintended anywhere else or into the table.
     touching = tip_surface <= tip_tolerance_m
     # Touch-down (approach) and lift-off (retract) belong to the process; transits do not.

@@ -25,7 +25,7 @@ from twin.plan import ScanPlan, plan_scan
 from twin.realize import Realized
 from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH
 from twin.scenario import Scenario
-from twin.sensors import Sensor
+from twin.sensors import RaySensor
 from twin.sensors.base import RawRays, sensor_slice
 from twin.sensors.laser import RAY_THREADS
 from twin.sim import simulate
@@ -76,7 +76,7 @@ class Scan:
     T_flange_sensor_nominal: np.ndarray
     beam_dirs_sensor: np.ndarray
     d_true: np.ndarray = field(repr=False)
-    sensor: Sensor = field(repr=False)
+    sensor: RaySensor = field(repr=False)
     timings_s: dict = field(default_factory=dict)
 
     @property

@@ -378,6 +378,93 @@ class PathSpec:
 
 
 @dataclass(frozen=True)
+class ProbeSpec:
+    """A touch-trigger probe on the flange, beside the laser (``[probe]``; defaults: a
+    Renishaw TP20 with its standard-force module and a 20 mm M2 stylus with a 2 mm ruby ball).
+
+    Geometry (probe frame: z along the stylus, from the probe body to the ball; the body's
+    back face at the origin):
+        T_flange_probe: (4, 4) probe frame in the flange frame (the believed mount).
+        body_radius_m, body_length_m: the probe body and module as one cylinder [m].
+        stylus_length_m: from the module's face to the ball centre [m]; stylus_radius_m its stem.
+        ball_radius_m: the stylus ball's nominal radius [m].
+    Trigger (:class:`algorithms.probing.pretravel.PretravelModel`, at ``reference_stylus_m``):
+        lateral_pretravel_m, lobe_m, lobe_phase_deg, axial_pretravel_m, reference_stylus_m,
+        repeatability_2sigma_m (unidirectional repeatability, 2 sigma, as data sheets give it).
+    Moves:
+        approach_m: the probing move starts this far off the expected surface [m];
+        search_m: and goes on this far past it before it is reported a miss [m];
+        probing_speed_m_s, transit_speed_m_s [m/s]; stop_deceleration_m_s2: the arm's braking
+        after a trigger [m/s^2]; clearance_m: the stylus and body keep this far from the part
+        on planned moves [m]; safe_height_m: transits between points run this far above the
+        part's top [m].
+    Qualification:
+        sphere_xyz_m: (3,) the reference sphere's centre, world frame (a calibrated fixture of
+        the cell) [m]; sphere_radius_m; qualification_points: probed on its equator, plus its pole.
+    Fine points:
+        points: the number of planned probe points (m >= 6); edge_margin_m: each lies this far
+        from an edge of its face; candidate_spacing_m: spacing of the candidate points.
+    """
+
+    T_flange_probe: np.ndarray
+    body_radius_m: float
+    body_length_m: float
+    stylus_length_m: float
+    stylus_radius_m: float
+    ball_radius_m: float
+    lateral_pretravel_m: float
+    lobe_m: float
+    lobe_phase_deg: float
+    axial_pretravel_m: float
+    reference_stylus_m: float
+    repeatability_2sigma_m: float
+    approach_m: float
+    search_m: float
+    probing_speed_m_s: float
+    transit_speed_m_s: float
+    stop_deceleration_m_s2: float
+    clearance_m: float
+    safe_height_m: float
+    sphere_xyz_m: np.ndarray
+    sphere_radius_m: float
+    qualification_points: int
+    points: int
+    edge_margin_m: float
+    candidate_spacing_m: float
+
+    @property
+    def tip_length_m(self) -> float:
+        """Ball centre's distance from the probe frame's origin along its z [m]."""
+        return self.body_length_m + self.stylus_length_m
+
+
+@dataclass(frozen=True)
+class LocateSpec:
+    """Document 001's hierarchy (``[locate]``, :mod:`twin.locate`).
+
+    Attributes:
+        coarse: "multistart" (document 000's Algorithm 5), "ga" (document 001's genetic
+            algorithm with its constants, one run as the document does) or "ga_restarts"
+            (up to ten runs, each checked by a short exact descent).
+        coarse_line_spacing_m: line spacing of the sparse coarse laser pass [m].
+        coarse_speed_m_s: its scan speed [m/s].
+        coarse_margin_m: the coarse pass covers the nominal part's footprint grown by this [m]
+            (the part may sit tens of mm off its nominal place).
+        planner: "d_optimal" (default), "spread" or "random" choice of the fine probe points.
+    """
+
+    coarse: str = "multistart"
+    coarse_line_spacing_m: float = 0.010
+    coarse_speed_m_s: float = 0.10
+    coarse_margin_m: float = 0.0
+    planner: str = "d_optimal"
+
+
+COARSE_METHODS = ("multistart", "ga", "ga_restarts")
+PROBE_PLANNERS = ("d_optimal", "spread", "random")
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     seed: int
@@ -389,6 +476,8 @@ class Scenario:
     source: str = ""
     raw: dict = field(default_factory=dict, repr=False)
     path: PathSpec = field(default_factory=lambda: _parse_path(_Section({}, "path")))
+    probe: ProbeSpec | None = None
+    locate: LocateSpec = field(default_factory=LocateSpec)
 
     def to_dict(self) -> dict:
         """A JSON-ready copy (numpy arrays as nested lists)."""
@@ -448,8 +537,11 @@ def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = No
     noise = _parse_noise(_Section(top.table_value("noise"), "noise"))
     scan = _parse_scan(_Section(top.table_value("scan"), "scan"), sensor)
     path = _parse_path(_Section(top.table_value("path"), "path"))
+    probe_table = top._get("probe", None)
+    probe = None if probe_table is None else _parse_probe(_Section(probe_table, "probe"))
+    locate = _parse_locate(_Section(top.table_value("locate"), "locate"))
     top.done()
-    return Scenario(title, seed, wp, T_world_base, sensor, noise, scan, source, raw, path)
+    return Scenario(title, seed, wp, T_world_base, sensor, noise, scan, source, raw, path, probe, locate)
 
 
 def _parse_workpiece(s: _Section, base_dir: Path | None) -> WorkpieceSpec:
@@ -706,3 +798,63 @@ def _parse_path(s: _Section) -> PathSpec:
                     margin, axis_name, retract, heading, heading_dir / np.linalg.norm(heading_dir), axis,
                     axis_dir / np.linalg.norm(axis_dir), lead, tilt, knots, simplify, window, k, gap, empty,
                     region_axis / np.linalg.norm(region_axis), cone, box)
+
+
+def default_probe_mount() -> np.ndarray:
+    """Probe 30 mm off the flange axis (opposite the laser), its stylus along the flange z."""
+    T = np.eye(4)
+    T[:3, 3] = [0.0, -0.030, 0.0]
+    return T
+
+
+def _parse_probe(s: _Section) -> ProbeSpec:
+    T = s.pose("mount", default_probe_mount())
+    body_r = s.number("body_radius_m", 0.0066, 0.0, 0.1, lo_open=True)
+    body_len = s.number("body_length_m", 0.045, 0.0, 0.5, lo_open=True)
+    stylus = s.number("stylus_length_m", 0.020, 0.0, 0.2, lo_open=True)
+    stylus_r = s.number("stylus_radius_m", 0.0005, 0.0, 0.01, lo_open=True)
+    ball = s.number("ball_radius_m", 0.001, 0.0, 0.02, lo_open=True)
+    lateral = s.number("lateral_pretravel_m", 4.0e-6, 0.0, 1e-3)
+    lobe = s.number("lobe_m", 0.6e-6, 0.0, 1e-3)
+    phase = s.number("lobe_phase_deg", 0.0, -360.0, 360.0)
+    axial = s.number("axial_pretravel_m", 5.4e-6, 0.0, 1e-3)
+    ref_stylus = s.number("reference_stylus_m", 0.010, 0.0, 0.2, lo_open=True)
+    rep = s.number("repeatability_2sigma_m", 0.35e-6, 0.0, 1e-4)
+    approach = s.number("approach_m", 0.005, 0.0, 0.1, lo_open=True)
+    search = s.number("search_m", 0.005, 0.0, 0.1, lo_open=True)
+    speed = s.number("probing_speed_m_s", 0.008, 0.0, 0.1, lo_open=True)
+    transit = s.number("transit_speed_m_s", 0.10, 0.0, 1.0, lo_open=True)
+    stop = s.number("stop_deceleration_m_s2", 1.0, 0.0, 50.0, lo_open=True)
+    clearance = s.number("clearance_m", 0.001, 0.0, 0.05)
+    safe = s.number("safe_height_m", 0.030, 0.0, 0.5, lo_open=True)
+    sphere = s.vector("sphere_xyz_m", [0.30, -0.25, 0.10], 3)
+    sphere_r = s.number("sphere_radius_m", 0.0125, 0.0, 0.1, lo_open=True)
+    qual = s.integer("qualification_points", 24, 5, 200)
+    points = s.integer("points", 12, 1, 200)
+    edge = s.number("edge_margin_m", 0.003, 0.0, 0.1)
+    spacing = s.number("candidate_spacing_m", 0.004, 1e-4, 0.1)
+    s.done()
+    if stylus <= ball:
+        raise TwinError(f"probe.stylus_length_m = {stylus:g} m must be longer than probe.ball_radius_m = {ball:g} m")
+    if stylus_r >= ball:
+        raise TwinError(f"probe.stylus_radius_m = {stylus_r:g} m must be smaller than probe.ball_radius_m = {ball:g} m "
+                        "(the stem would touch before the ball)")
+    if lobe >= lateral > 0 or (lateral == 0 and lobe > 0):
+        raise TwinError(f"probe.lobe_m = {lobe:g} m must be smaller than probe.lateral_pretravel_m = {lateral:g} m")
+    if points < 6:
+        raise TwinError(f"probe.points = {points} is too few: at least 6 points are needed to fix six pose directions")
+    return ProbeSpec(T, body_r, body_len, stylus, stylus_r, ball, lateral, lobe, phase, axial, ref_stylus, rep,
+                     approach, search, speed, transit, stop, clearance, safe, sphere, sphere_r, qual, points, edge,
+                     spacing)
+
+
+def _parse_locate(s: _Section) -> LocateSpec:
+    spec = LocateSpec(
+        coarse=str(s.choice("coarse", "multistart", COARSE_METHODS)),
+        coarse_line_spacing_m=s.number("coarse_line_spacing_m", 0.010, 0.0, 0.5, lo_open=True),
+        coarse_speed_m_s=s.number("coarse_speed_m_s", 0.10, 0.0, 1.0, lo_open=True),
+        coarse_margin_m=s.number("coarse_margin_m", 0.0, 0.0, 0.5),
+        planner=str(s.choice("planner", "d_optimal", PROBE_PLANNERS)),
+    )
+    s.done()
+    return spec

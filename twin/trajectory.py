@@ -164,7 +164,7 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
             # The first pose from the start guess with its full frame (the spin too): the arm
             # lands on the start guess's branch; the spin is freed from the next pose on.
             s.set_spin_free(False)
-            pe[i], oe[i], its[i] = _first_pose(s, cell, site, T_world[0], HOME_Q if q_start is None else q_start)
+            pe[i], oe[i], its[i] = first_pose(s, cell, site, T_world[0], HOME_Q if q_start is None else q_start)
             s.set_spin_free(free_spin)
             pe[i], oe[i] = s.errors()
             first_time = time.perf_counter() - t0
@@ -224,7 +224,7 @@ class TableCheck:
         return self.model.geom(int(other[k])).name, float(c.dist[k])
 
 
-def _first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
+def first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
                 q_start: np.ndarray) -> tuple[float, float, int]:
     """Solve the first pose from ``q_start``; if that ends off target (stuck at a joint limit,
     or the start lies on another branch) or with the arm in the table, from each closed-form

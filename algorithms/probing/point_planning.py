@@ -548,11 +548,19 @@ def _probe_collides(index, p, n, a, offsets, axis_s, threshold) -> np.ndarray:
     if len(p) == 0:
         return np.zeros(0, dtype=bool)
     out = np.zeros(len(p), dtype=bool)
+    lo_box, hi_box = np.asarray(index.mesh.bounds, dtype=np.float64)
     # candidates in groups, so the (group, K, S, 3) sample array stays within memory
     group = max(1, MAX_QUERY_POINTS // (len(offsets) * len(axis_s)))
     for lo in range(0, len(p), group):
         centres = p[lo:lo + group, None, :] + offsets[None, :, None] * n[lo:lo + group, None, :]   # (G, K, 3)
-        samples = centres[:, :, None, :] - axis_s[None, None, :, None] * a                         # (G, K, S, 3)
-        sd = index.signed_distance(samples.reshape(-1, 3)).reshape(len(centres), len(offsets), len(axis_s))
-        out[lo:lo + group] = np.any(sd < threshold[None, None, :], axis=(1, 2))
+        samples = (centres[:, :, None, :] - axis_s[None, None, :, None] * a).reshape(-1, 3)        # (G*K*S, 3)
+        thr = np.broadcast_to(threshold, (len(centres), len(offsets), len(axis_s))).reshape(-1)
+        # A sample farther from the part's bounding box than its threshold cannot collide
+        # (the signed distance outside is at least the distance to the box): no query.
+        box = np.maximum(lo_box - samples, samples - hi_box).max(axis=1)
+        near = box < thr
+        hit = np.zeros(len(samples), dtype=bool)
+        if near.any():
+            hit[near] = index.signed_distance(samples[near]) < thr[near]
+        out[lo:lo + group] = hit.reshape(len(centres), -1).any(axis=1)
     return out

@@ -1,6 +1,11 @@
 """The sensor interface of the cell: what every sensor on the arm does, whatever it measures.
 
-A sensor is attached to the cell's MjSpec (geometry, sites, MuJoCo sensors), decodes the
+Every sensor (:class:`Sensor`) is attached to the cell's MjSpec on the flange: its geometry,
+the site whose pose is its frame and its MuJoCo sensors. Two families build on it: the ray
+sensors (:class:`RaySensor`: the laser point sensor and the laser line profiler) and the
+touch-trigger probe (:mod:`twin.sensors.touch_probe`).
+
+A ray sensor decodes the
 per-step ``sensordata`` of the 1 ms rollout into ideal readings, turns them into what the
 real device reports (its error model) and rebuilds points in the robot base frame from the
 encoder readings (document 004, eq. 2). Every array it returns has a fixed ``(N, B)`` leading
@@ -56,16 +61,29 @@ class Measurement:
 
 
 class Sensor(ABC):
-    """A sensor on the flange. Subclasses: the laser point sensor and the laser line profiler.
+    """A sensor on the flange: it adds its geometry, sites and MuJoCo sensors to the cell.
 
     Attributes:
-        spec: the scenario's ``[sensor]`` settings; noise: its ``[noise]`` switches.
-        kind: the scenario's name of this sensor ("point", "line").
-        beams: B, the number of beams per sample.
+        kind: the scenario's name of this sensor ("point", "line", "touch_probe").
+        site: the name of the site whose pose is the sensor frame.
     """
 
     kind: str = ""
-    #: Name of the site whose pose is the sensor frame.
+    site: str = ""
+
+    @abstractmethod
+    def attach(self, spec: mujoco.MjSpec, body: mujoco.MjsBody) -> None:
+        """Add the sensor's geometry, sites and MuJoCo sensors to ``body`` (the sensor frame)."""
+
+
+class RaySensor(Sensor):
+    """A ray-casting sensor (the laser point sensor and the laser line profiler).
+
+    Attributes:
+        spec: the scenario's ``[sensor]`` settings; noise: its ``[noise]`` switches.
+        beams: B, the number of beams per sample.
+    """
+
     site: str = "laser"
 
     def __init__(self, spec: SensorSpec, noise: NoiseSpec):
@@ -80,10 +98,6 @@ class Sensor(ABC):
     @abstractmethod
     def beam_dirs_sensor(self) -> np.ndarray:
         """(B, 3) unit beam directions in the sensor frame."""
-
-    @abstractmethod
-    def attach(self, spec: mujoco.MjSpec, body: mujoco.MjsBody) -> None:
-        """Add the sensor's geometry, sites and MuJoCo sensors to ``body`` (the sensor frame)."""
 
     @abstractmethod
     def decode(self, model: mujoco.MjModel, sensordata: np.ndarray) -> RawRays:

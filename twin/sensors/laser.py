@@ -28,7 +28,7 @@ import numpy as np
 
 from twin.robot import GROUP_ARM, STATIC_GROUPS
 from twin.scenario import NoiseSpec, SensorSpec
-from twin.sensors.base import INCIDENCE, NO_HIT, OCCLUDED, OUT_OF_WINDOW, VALID, Measurement, RawRays, Sensor
+from twin.sensors.base import INCIDENCE, NO_HIT, OCCLUDED, OUT_OF_WINDOW, VALID, Measurement, RawRays, RaySensor
 
 # Start the receiver ray this far off the surface so it does not hit its own start point.
 OCCLUSION_RAY_OFFSET_M = 1e-7
@@ -118,7 +118,7 @@ def measure(rays: RawRays, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
     return Measurement(d, valid, status, incidence, np.where(hit, dist, -1.0))
 
 
-class LaserSensor(Sensor):
+class LaserSensor(RaySensor):
     """A laser triangulation sensor on the flange (the IL-065 model above); point or line."""
 
     def measure(self, rays: RawRays, rng: np.random.Generator, model: mujoco.MjModel,

@@ -1,0 +1,554 @@
+"""Locate-then-machine (document 001): a sparse laser pass, a coarse pose, planned touch
+probing, document 001's fine stage, ``T = T_fine T_coarse``. Returns a frozen
+:class:`LocateResult`; writes no files.
+
+1. coarse laser pass: the scenario's scan with ``[locate]``'s wider line spacing and speed
+   (1 ms, true cell); points within ``TABLE_BAND_M`` of the table plane are left out (the
+   cell knows its table);
+2. coarse pose, from no prior knowledge of the orientation (``locate.coarse``):
+   ``multistart`` (document 000's Algorithm 5 with a Hong-Tan polish on the coarse points),
+   ``ga`` (document 001's genetic algorithm with its constants, one run, its pose as it
+   comes) or ``ga_restarts`` (up to ten runs, each checked by a short exact descent, then
+   document 001's fine stage and a polish on the laser points);
+3. probe qualification on the cell's reference sphere: the effective ball radius (which
+   absorbs the mean sideways pre-travel) and the ball-centre offset (which absorbs the
+   axial excess and any error of the probe's mount), as a CMM qualifies a stylus;
+4. fine points planned on the CAD model moved by ``T_coarse``
+   (:mod:`algorithms.probing.point_planning`): candidates on the part's surface that a
+   straight-down stylus can touch along the normal, away from edges, with a clear approach
+   and search, reachable by the arm; of those, ``probe.points`` chosen D-optimally (or
+   spread, or at random, ``locate.planner``);
+5. probing in the true cell (:mod:`twin.probing`);
+6. document 001's fine stage (``fine_001``, variable iteration centre) on the compensated
+   points from ``T_coarse``; the compensation's normals come from the CAD model at the
+   current estimate, and are re-evaluated at the new estimate until it stops moving.
+
+The covariance of the final pose combines the probe's repeatability, the pre-travel
+variation left after qualification (a Type B term: uniform within the model's 3D pre-travel
+variation), the encoders' noise propagated through the arm's Jacobian, and the
+qualification's own uncertainty (effective radius and ball-centre offset: systematic, the
+same for every point). Robot kinematic and hand-eye errors are not in it: a scenario that
+switches them on is reported with that said.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from algorithms.errors import AlgorithmError
+from algorithms.geometry.kinematics import dh_forward, ur_inverse
+from algorithms.geometry.se3 import inv_pose, make_pose, transform_points
+from algorithms.probing.point_planning import (
+    d_optimal,
+    feasible_candidates,
+    predicted_pose_std,
+    random_points,
+    sample_candidates,
+    spread_points,
+)
+from algorithms.probing.qualification import compensate, qualify_ball
+from algorithms.registration import global_localize
+from algorithms.registration.local import localize
+from algorithms.registration.uncertainty import information_rows, sym_inverse, systematic_covariance
+from twin.cell import Cell, build_cell
+from twin.errors import TwinError
+from twin.pipeline import sensor_sigma_m
+from twin.probing import (
+    ProbeHit,
+    ProbeTarget,
+    ProbingLog,
+    ProbingProgram,
+    ball_pose,
+    build_probe_cell,
+    safe_height_world,
+)
+from twin.realize import Realized
+from twin.robot import UR5E_DH
+from twin.scan import Scan, run_scan
+from twin.segments import StageFailed
+from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
+
+TABLE_BAND_M = 0.002
+# Equator points of the qualification pattern start at this azimuth (world), then evenly spaced.
+QUALIFICATION_ELEVATION_DEG = 0.0
+COMPENSATION_ROUNDS = 5
+COMPENSATION_TOL_M = 1e-10
+MIN_FINE_POINTS = 6
+# Planning attempts: a chosen point the arm cannot reach is removed and the choice made again.
+MAX_PLANNING_ROUNDS = 20
+RECORDING_GAP_S = 1.0
+COARSE_SEED_SPACING_M = 0.002
+
+
+@dataclass(frozen=True)
+class Qualification:
+    """The probe's qualification on the reference sphere (robot base frame).
+
+    Attributes:
+        effective_radius_m: the ball radius the points are compensated with [m].
+        offset_probe_m: (3,) correction added to every recorded ball centre, probe frame [m].
+        sphere_centre: (3,) the fitted sphere centre (from the recorded centres) [m].
+        rms_m: RMS residual of the sphere fit [m].
+        radius_std_m, offset_std_m: standard uncertainties of the radius and each offset component [m].
+        hits: the probing moves on the sphere.
+    """
+
+    effective_radius_m: float
+    offset_probe_m: np.ndarray
+    sphere_centre: np.ndarray
+    rms_m: float
+    radius_std_m: float
+    offset_std_m: float
+    hits: tuple
+
+
+@dataclass(frozen=True)
+class FinePlan:
+    """The planned fine points (workpiece frame of the CAD model; targets in the base frame).
+
+    Attributes:
+        targets: the probe targets at ``T_coarse``, in probing order.
+        points_wp, normals_wp: (m, 3) the chosen points and normals on the CAD model.
+        candidates: candidate points sampled; feasible: how many passed.
+        rejected: rejected candidates by reason (faces_away, near_edge, ball_blocked,
+            stylus_collision, unreachable).
+        planner: "d_optimal", "spread" or "random".
+        predicted_std: (6,) predicted standard deviations of the twist [omega (rad), v (m)].
+    """
+
+    targets: tuple
+    points_wp: np.ndarray
+    normals_wp: np.ndarray
+    candidates: int
+    feasible: int
+    rejected: dict
+    planner: str
+    predicted_std: np.ndarray
+
+
+@dataclass(frozen=True)
+class LocateResult:
+    """Everything the hierarchy produced (robot base frame, SI units).
+
+    Attributes:
+        realized: the realized scenario.
+        scan: the coarse laser pass; coarse_points: the points the coarse stage used.
+        coarse_method: "multistart", "ga" or "ga_restarts"; coarse: its result.
+        T_coarse: (4, 4) the coarse pose (T_base_workpiece).
+        qualification: the probe's qualification.
+        plan: the fine points planned.
+        probing: the whole probing program as it ran (qualification and part).
+        hits: the part's probing moves (in the plan's order).
+        fine_001: document 001's fine stage from ``T_coarse`` (its own convergence).
+        fine: the final registration result (fine_001's pose, finished after re-compensation).
+        T_final: (4, 4) ``T_fine @ T_coarse``; T_fine: (4, 4).
+        covariance: (6, 6) of the final pose's twist [omega, v] (workpiece frame).
+        sigma_point_m: the combined random standard uncertainty of one probed point [m].
+        timings_s: wall time per stage [s]; stage_t_s: simulated time per stage [s].
+        failure: None, or (stage, reason).
+    """
+
+    realized: Realized
+    scan: Scan | None
+    coarse_points: np.ndarray | None = field(repr=False, default=None)
+    coarse_method: str = ""
+    coarse: object = None
+    T_coarse: np.ndarray | None = None
+    qualification: Qualification | None = None
+    plan: FinePlan | None = None
+    probing: ProbingLog | None = None
+    hits: tuple = ()
+    fine: object = None
+    fine_001: object = None
+    T_final: np.ndarray | None = None
+    T_fine: np.ndarray | None = None
+    covariance: np.ndarray | None = field(repr=False, default=None)
+    sigma_point_m: float = float("nan")
+    timings_s: dict = field(default_factory=dict)
+    stage_t_s: dict = field(default_factory=dict)
+    failure: tuple[str, str] | None = None
+    compensation_rounds: int = 0
+
+    @property
+    def complete(self) -> bool:
+        return self.failure is None
+
+
+def locate(realized: Realized, say: Callable[[str], None] = lambda m: None, coarse: str | None = None,
+           points: int | None = None, planner: str | None = None) -> LocateResult:
+    """Document 001's hierarchy in the twin (module docstring). ``coarse``, ``points`` and
+    ``planner`` override the scenario's ``locate.coarse``, ``probe.points`` and
+    ``locate.planner``. A failing stage ends the run with ``failure`` set."""
+    sc = realized.scenario
+    if sc.probe is None:
+        raise TwinError(f"scenario {sc.name!r} has no [probe] table: locate needs the touch probe on the flange")
+    coarse = sc.locate.coarse if coarse is None else coarse
+    planner = sc.locate.planner if planner is None else planner
+    m = sc.probe.points if points is None else int(points)
+    if m < MIN_FINE_POINTS:
+        raise TwinError(f"--points {m} is too few: at least {MIN_FINE_POINTS} points fix six pose directions")
+    state: dict = {"coarse_method": coarse}
+    timings: dict = {}
+    stage_t: dict = {}
+    failure = None
+    try:
+        _locate(realized, say, coarse, planner, m, state, timings, stage_t)
+    except StageFailed as exc:
+        failure = (exc.stage, exc.reason)
+    except (TwinError, AlgorithmError) as exc:
+        failure = (state.get("stage", "coarse_scan"), str(exc))
+    fields = {f.name for f in dataclasses.fields(LocateResult)}
+    kept = {k: v for k, v in state.items() if k in fields}
+    return LocateResult(realized=realized, scan=state.get("scan"), timings_s=timings, stage_t_s=stage_t,
+                        failure=failure, **{k: v for k, v in kept.items() if k != "scan"})
+
+
+def coarse_scenario(realized: Realized) -> Realized:
+    """The realized scenario with its scan made the sparse coarse pass of ``[locate]``."""
+    sc = realized.scenario
+    loc = sc.locate
+    scan = dataclasses.replace(sc.scan, line_spacing_m=loc.coarse_line_spacing_m, speed_m_s=loc.coarse_speed_m_s,
+                               passes=None if sc.scan.passes is None else tuple(
+                                   dataclasses.replace(p, line_spacing_m=loc.coarse_line_spacing_m,
+                                                       speed_m_s=loc.coarse_speed_m_s) for p in sc.scan.passes))
+    return dataclasses.replace(realized, scenario=dataclasses.replace(sc, scan=scan))
+
+
+def _locate(realized: Realized, say, coarse: str, planner: str, m: int, state: dict, timings: dict,
+            stage_t: dict) -> None:
+    sc = realized.scenario
+    t0 = time.perf_counter()
+    nominal = build_cell(realized, "nominal")
+    true_cell = build_cell(realized, "true")
+    probe_cell = build_probe_cell(realized)
+    timings["build_cells_s"] = time.perf_counter() - t0
+
+    # 1. the sparse laser pass
+    state["stage"] = "coarse_scan"
+    t0 = time.perf_counter()
+    try:
+        scan = run_scan(coarse_scenario(realized), nominal, true_cell)
+    except TwinError as exc:
+        raise StageFailed("coarse_scan", str(exc)) from None
+    timings["coarse_scan_s"] = time.perf_counter() - t0
+    stage_t["coarse_scan_s"] = float(scan.t[-1] - scan.t[0])
+    state["scan"] = scan
+    pts = scan.line_points_base
+    z_world = transform_points(sc.T_world_base, pts)[:, 2]
+    pts = pts[z_world > TABLE_BAND_M]
+    state["coarse_points"] = pts
+    say(f"coarse pass: {len(scan.t)} samples, {len(pts)} points on the part")
+    if len(pts) < MIN_FINE_POINTS:
+        raise StageFailed("coarse_scan", f"the coarse laser pass found {len(pts)} points off the table: the part "
+                                         "is not under the scanned region")
+
+    # 2. the coarse pose
+    state["stage"] = "coarse"
+    t0 = time.perf_counter()
+    T_coarse, result = coarse_pose(pts, realized, coarse)
+    timings["coarse_s"] = time.perf_counter() - t0
+    state["coarse"], state["T_coarse"] = result, T_coarse
+    say(f"coarse pose ({coarse}): {getattr(result, 'status', None) and result.status.value}, "
+        f"{timings['coarse_s']:.1f} s")
+
+    # 3. qualification on the reference sphere
+    state["stage"] = "qualification"
+    t_prog = float(scan.t[-1]) + RECORDING_GAP_S
+    prog = ProbingProgram(realized, nominal, probe_cell, realized.streams.generator("probe"), t_offset_s=t_prog)
+    t0 = time.perf_counter()
+    safe_z = safe_height_world(realized, sc.T_world_base @ T_coarse)
+    qual_hits = prog.run(qualification_targets(realized), safe_z, say)
+    misses = [h for h in qual_hits if not h.hit]
+    if misses:
+        raise StageFailed("qualification", f"{len(misses)} of {len(qual_hits)} probing moves on the reference sphere "
+                                           "found no surface: is the sphere where probe.sphere_xyz_m says?")
+    qual = qualify(qual_hits, realized)
+    state["qualification"] = qual
+    timings["qualification_s"] = time.perf_counter() - t0
+    stage_t["qualification_s"] = float(prog.log(qual_hits).duration_s)
+    say(f"qualified: effective ball radius {qual.effective_radius_m * 1e3:.6f} mm, fit rms "
+        f"{qual.rms_m * 1e9:.1f} nm")
+
+    # 4. plan the fine points on the CAD model at T_coarse
+    state["stage"] = "plan"
+    t0 = time.perf_counter()
+    plan = plan_fine_points(realized, nominal, T_coarse, m, planner, realized.streams.generator("coarse"))
+    state["plan"] = plan
+    timings["plan_s"] = time.perf_counter() - t0
+    say(f"planned {len(plan.targets)} probe points ({planner}) of {plan.feasible} feasible candidates")
+
+    # 5. probe them
+    state["stage"] = "probe"
+    t0 = time.perf_counter()
+    t_before = float(prog.log(qual_hits).t[-1])
+    hits = prog.run(list(plan.targets), safe_z, say)
+    prog.lift(safe_z)
+    log = prog.log(qual_hits + hits)
+    state["probing"], state["hits"] = log, hits
+    timings["probe_s"] = time.perf_counter() - t0
+    stage_t["probe_s"] = float(log.t[-1] - t_before)
+    got = [h for h in hits if h.hit]
+    if len(got) < MIN_FINE_POINTS:
+        raise StageFailed("fine", f"only {len(got)} of {len(hits)} planned points were hit (the others found no "
+                                  f"surface within the search distance of {sc.probe.search_m * 1e3:g} mm): the coarse "
+                                  "pose is too far off for its planned points")
+
+    # 6. document 001's fine stage on the compensated points
+    state["stage"] = "fine"
+    t0 = time.perf_counter()
+    doc, fine, rounds, points_wp, normals_wp = fine_stage(got, qual, realized, T_coarse)
+    timings["fine_s"] = time.perf_counter() - t0
+    state["fine_001"], state["fine"], state["compensation_rounds"] = doc, fine, rounds
+    state["T_final"] = fine.T_world_workpiece
+    state["T_fine"] = fine.T_world_workpiece @ inv_pose(T_coarse)
+    cov, sigma_point = fine_covariance(got, points_wp, normals_wp, qual, realized)
+    state["covariance"], state["sigma_point_m"] = cov, sigma_point
+    say(f"fine stage: fine_001 {doc.status.value} after {doc.iterations} iterations, then {rounds} compensation "
+        f"round(s): {fine.status.value}, rms {fine.rmse_m * 1e6:.2f} um over {len(got)} points")
+
+
+def coarse_pose(points: np.ndarray, realized: Realized, method: str) -> tuple[np.ndarray, object]:
+    """The coarse pose (T_base_workpiece) from the coarse points, and the search's result."""
+    sigma = sensor_sigma_m(realized.scenario)
+    rng = realized.streams.generator("coarse")
+    index = realized.workpiece.index
+    if method == "multistart":
+        r = global_localize(points, index=index, method="multistart", rng=rng, noise_sigma_m=sigma)
+        return r.T_world_workpiece, r
+    if method == "ga":
+        r = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma, ga_restarts=1,
+                            polish=None)
+        return r.global_diagnostics.genetic.T_coarse, r
+    if method == "ga_restarts":
+        r = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma)
+        return r.T_world_workpiece, r
+    raise TwinError(f"coarse method must be one of multistart, ga, ga_restarts; got {method!r}")
+
+
+def qualification_targets(realized: Realized) -> list[ProbeTarget]:
+    """The reference sphere's qualification pattern (base frame): ``qualification_points``
+    on its equator, evenly spaced, and its pole. With two elevations only, the sphere fit's
+    radius is that of the equator (sideways) touches, and the pole's axial excess goes to
+    the centre (the ball-centre offset), so the effective radius is the nominal radius minus
+    the mean sideways pre-travel."""
+    p = realized.scenario.probe
+    T_bw = inv_pose(realized.scenario.T_world_base)
+    az = 2 * np.pi * np.arange(p.qualification_points) / p.qualification_points
+    el = np.radians(QUALIFICATION_ELEVATION_DEG)
+    n_world = np.vstack([np.column_stack([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el),
+                                          np.full(len(az), np.sin(el))]), [[0.0, 0.0, 1.0]]])
+    pts_world = p.sphere_xyz_m + p.sphere_radius_m * n_world
+    pts = transform_points(T_bw, pts_world)
+    normals = n_world @ T_bw[:3, :3].T
+    return [ProbeTarget(pts[i], normals[i], f"sphere {i + 1}") for i in range(len(pts))]
+
+
+def qualify(hits: tuple[ProbeHit, ...], realized: Realized) -> Qualification:
+    """The effective ball radius and ball-centre offset from the sphere's hits."""
+    p = realized.scenario.probe
+    centres = np.array([h.centre for h in hits])
+    q = qualify_ball(centres, p.sphere_radius_m)
+    known = transform_points(inv_pose(realized.scenario.T_world_base), p.sphere_xyz_m[None])[0]
+    # The probe frame's orientation is the same (stylus down) for every hit up to its spin,
+    # which leaves an offset along the stylus unchanged: take the mean rotation's frame.
+    R = hits[-1].R_base_probe
+    offset_probe = R.T @ (known - q.sphere_centre)
+    n = len(centres)
+    # Standard uncertainties of the 4-parameter fit (radius, centre) from its residual.
+    u = centres - q.sphere_centre
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    A = np.column_stack([np.ones(n), u])
+    sigma = max(q.rms_m * np.sqrt(n / max(n - 4, 1)), 1e-12)
+    C = sigma**2 * np.linalg.inv(A.T @ A)
+    return Qualification(q.effective_radius_m, offset_probe, q.sphere_centre, q.rms_m, float(np.sqrt(C[0, 0])),
+                         float(np.sqrt(np.max(np.diag(C)[1:]))), hits)
+
+
+def plan_fine_points(realized: Realized, nominal: Cell, T_coarse: np.ndarray, m: int, planner: str,
+                     rng: np.random.Generator) -> FinePlan:
+    """Fine probe points on the CAD model at ``T_coarse`` (module docstring, step 4)."""
+    sc = realized.scenario
+    p = sc.probe
+    index = realized.workpiece.index
+    cand = sample_candidates(realized.workpiece.mesh, p.candidate_spacing_m, rng)
+    R_world_wp = sc.T_world_base[:3, :3] @ T_coarse[:3, :3]
+    axis_wp = R_world_wp.T @ np.array([0.0, 0.0, -1.0])
+    feas = feasible_candidates(index, cand.points, cand.normals, stylus_axis=axis_wp, ball_radius_m=p.ball_radius_m,
+                               stylus_radius_m=p.stylus_radius_m, stylus_length_m=p.stylus_length_m,
+                               body_radius_m=p.body_radius_m, body_length_m=p.body_length_m,
+                               approach_m=p.approach_m, search_m=p.search_m, edge_margin_m=p.edge_margin_m,
+                               clearance_m=p.clearance_m)
+    allowed = feas.mask.copy()
+    # The table: the approach must start above it.
+    c0 = transform_points(sc.T_world_base @ T_coarse,
+                          cand.points + (p.ball_radius_m + p.approach_m) * cand.normals)
+    low = allowed & (c0[:, 2] < p.ball_radius_m + p.body_radius_m)
+    allowed &= ~low
+    rejected = {k: int(v) for k, v in feas.counts.items() if k != "ok"}
+    rejected["below_table"] = int(low.sum())
+    rejected["unreachable"] = 0
+    reach = _ReachCheck(nominal, realized)
+    chosen = np.zeros(0, dtype=np.int64)
+    checked = np.zeros(len(cand.points), dtype=bool)
+    for _ in range(MAX_PLANNING_ROUNDS):
+        if allowed.sum() < m:
+            break
+        chosen = _choose(cand.points, cand.normals, m, allowed, planner, rng)
+        bad = [i for i in chosen if not checked[i] and not reach.ok(T_coarse, cand.points[i], cand.normals[i])]
+        checked[chosen] = True
+        if not bad:
+            break
+        allowed[bad] = False
+        rejected["unreachable"] += len(bad)
+        chosen = np.zeros(0, dtype=np.int64)
+    if len(chosen) < m:
+        why = ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in rejected.items() if v)
+        raise StageFailed("plan", f"only {int(allowed.sum())} of {len(cand.points)} candidate probe points are "
+                                  f"plannable, {m} are needed (rejected: {why})")
+    order = _tour(cand.points[chosen])
+    chosen = chosen[order]
+    T = T_coarse
+    pts_b = transform_points(T, cand.points[chosen])
+    nrm_b = cand.normals[chosen] @ T[:3, :3].T
+    targets = tuple(ProbeTarget(pts_b[i], nrm_b[i], f"point {i + 1}") for i in range(len(chosen)))
+    sigma = probe_sigma_m(realized)
+    return FinePlan(targets, cand.points[chosen], cand.normals[chosen], len(cand.points), int(feas.mask.sum()),
+                    rejected, planner, predicted_pose_std(cand.points[chosen], cand.normals[chosen], sigma))
+
+
+def _choose(points, normals, m, allowed, planner, rng) -> np.ndarray:
+    if planner == "d_optimal":
+        return np.asarray(d_optimal(points, normals, m, candidates_mask=allowed))
+    if planner == "spread":
+        return np.asarray(spread_points(points, m, candidates_mask=allowed))
+    if planner == "random":
+        return np.asarray(random_points(len(points), m, rng, candidates_mask=allowed))
+    raise TwinError(f"locate.planner must be one of d_optimal, spread, random; got {planner!r}")
+
+
+def _tour(points: np.ndarray) -> np.ndarray:
+    """A short probing order: nearest neighbour from the point farthest along +x."""
+    left = list(range(len(points)))
+    order = [int(np.argmax(points[:, 0]))]
+    left.remove(order[0])
+    while left:
+        d = np.linalg.norm(points[left] - points[order[-1]], axis=1)
+        order.append(left.pop(int(np.argmin(d))))
+    return np.asarray(order)
+
+
+class _ReachCheck:
+    """Whether the arm reaches a probe point's approach and search-end positions with the
+    stylus straight down (any spin about it): a closed-form solution of the UR geometry
+    (:func:`algorithms.geometry.kinematics.ur_inverse`) away from the wrist singularity,
+    with the links clear of the table."""
+
+    SPINS_RAD = np.radians([0.0, 90.0, 180.0, 270.0])
+    MIN_WRIST_SIN = 0.05
+
+    def __init__(self, nominal: Cell, realized: Realized):
+        p = realized.scenario.probe
+        self.realized = realized
+        self.T_base_world = inv_pose(realized.scenario.T_world_base)
+        T_flange_ball = p.T_flange_probe @ make_pose(None, [0.0, 0.0, p.tip_length_m])
+        self.T_ball_flange = inv_pose(T_flange_ball)
+        self.table = TableCheck(nominal, TABLE_CLEARANCE_M)
+
+    def ok(self, T_coarse: np.ndarray, point_wp: np.ndarray, normal_wp: np.ndarray) -> bool:
+        p = self.realized.scenario.probe
+        T = self.realized.scenario.T_world_base @ T_coarse
+        return all(self._reaches(transform_points(T, (point_wp + off * normal_wp)[None])[0])
+                   for off in (p.ball_radius_m + p.approach_m, p.ball_radius_m - p.search_m))
+
+    def _reaches(self, c_world: np.ndarray) -> bool:
+        for spin in self.SPINS_RAD:
+            T_world_ball = ball_pose(c_world) @ make_pose(Rotation.from_rotvec([0.0, 0.0, spin]).as_matrix(), None)
+            sol = ur_inverse(self.T_base_world @ T_world_ball @ self.T_ball_flange, UR5E_DH)
+            good = sol.valid[0] & (sol.wrist_sin[0] > self.MIN_WRIST_SIN)
+            if any(self.table.nearest(q) is None for q in sol.q[0][good]):
+                return True
+        return False
+
+
+def probe_sigma_m(realized: Realized) -> float:
+    """Combined random standard uncertainty of one compensated probe point along its normal
+    [m]: the unidirectional repeatability and the pre-travel variation left after
+    qualification (Type B, uniform within the model's 3D pre-travel variation)."""
+    p = realized.scenario.probe
+    s = p.stylus_length_m / p.reference_stylus_m
+    ptv_half = 0.5 * s * (max(p.axial_pretravel_m, p.lateral_pretravel_m + p.lobe_m)
+                          - min(p.axial_pretravel_m, p.lateral_pretravel_m - p.lobe_m))
+    return float(np.sqrt((p.repeatability_2sigma_m / 2) ** 2 + ptv_half**2 / 3))
+
+
+def fine_stage(hits: list[ProbeHit], qual: Qualification, realized: Realized, T_coarse: np.ndarray):
+    """Document 001's fine stage (``fine_001``, from ``T_coarse``) on the compensated points,
+    then the compensation re-done with the normals at the new estimate and the fit finished
+    by ``hong_tan`` (the same minimum: a point-to-point method such as fine_001 slides
+    slowly along the surface on a dozen points) until the estimate moves less than
+    ``COMPENSATION_TOL_M``. Returns (fine_001's result, the final result, rounds, feet and
+    normals at the final estimate (workpiece frame))."""
+    index = realized.workpiece.index
+    centres = np.array([h.centre + h.R_base_probe @ qual.offset_probe_m for h in hits])
+    sigma = probe_sigma_m(realized)
+
+    def points_at(T):
+        c_wp = transform_points(inv_pose(T), centres)
+        cp = index.query(c_wp)
+        n_wp = index.smooth_normals(cp.face, cp.foot)
+        return compensate(centres, n_wp @ T[:3, :3].T, qual.effective_radius_m), c_wp, n_wp
+
+    doc = localize(points_at(T_coarse)[0], method="fine_001", init=T_coarse, sigma=sigma, outlier=None, index=index)
+    final = doc
+    T = doc.T_world_workpiece
+    rounds, moved = 0, np.inf
+    while rounds < COMPENSATION_ROUNDS and moved >= COMPENSATION_TOL_M:
+        final = localize(points_at(T)[0], method="hong_tan", init=T, sigma=sigma, outlier=None, index=index)
+        moved = np.abs(final.T_world_workpiece - T).max()
+        T = final.T_world_workpiece
+        rounds += 1
+    _, c_wp, n_wp = points_at(T)
+    return doc, final, rounds, c_wp - qual.effective_radius_m * n_wp, n_wp
+
+
+def fine_covariance(hits, points_wp, normals_wp, qual: Qualification, realized: Realized) -> tuple[np.ndarray, float]:
+    """(6, 6) covariance of the final pose twist [omega, v] (workpiece frame) and the random
+    standard uncertainty of one point [m] (module docstring)."""
+    sc = realized.scenario
+    sigma = probe_sigma_m(realized)
+    var = np.full(len(hits), sigma**2)
+    if sc.noise.encoder_sigma_rad > 0:
+        var += _encoder_variance(hits, normals_wp, realized)
+    # Weighted least squares covariance of the random part.
+    J = information_rows(points_wp, normals_wp)
+    C = sym_inverse((J / var[:, None]).T @ J)
+    # The qualification's errors are common to every point (systematic): the radius moves
+    # each point along its normal, an offset component moves it by that component's share.
+    basis = np.column_stack([np.ones(len(hits)), normals_wp])
+    std = np.array([qual.radius_std_m] + [qual.offset_std_m] * 3)
+    C = C + systematic_covariance(points_wp, normals_wp, np.eye(6), basis, std)
+    return C, sigma
+
+
+def _encoder_variance(hits, normals_wp, realized: Realized) -> np.ndarray:
+    """Variance along each point's normal of the ball centre from the encoders' noise [m^2]
+    (the arm's position Jacobian at the latched joints, by central differences)."""
+    sc = realized.scenario
+    p = sc.probe
+    out = np.empty(len(hits))
+    eps = 1e-6
+
+    def centre(q):
+        T = dh_forward(q, UR5E_DH) @ p.T_flange_probe
+        return T[:3, 3] + p.tip_length_m * T[:3, 2]
+
+    for i, h in enumerate(hits):
+        Jp = np.column_stack([(centre(h.q + eps * e) - centre(h.q - eps * e)) / (2 * eps) for e in np.eye(6)])
+        out[i] = sc.noise.encoder_sigma_rad**2 * float(np.sum((h.target.normal @ Jp) ** 2))
+    return out

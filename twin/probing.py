@@ -1,0 +1,503 @@
+"""Touch probing in the true cell at 1 ms: the probing moves, the trigger, the hits.
+
+A probing program is a list of targets (an expected contact point and its outward normal,
+robot base frame). For each target the arm, holding the stylus straight down (its spin
+about the stylus free, :class:`twin.ik.IKSolver` on the ball centre), makes the moves a
+CMM makes:
+
+1. transit: up to the safe height, across, down to the approach point ``approach_m`` off
+   the expected surface along its normal (``transit_speed_m_s``, each straight leg from rest
+   to rest);
+2. probing move: along the normal at ``probing_speed_m_s``, until the probe triggers or the
+   ball centre is ``search_m`` past the expected surface: no trigger there is a reported
+   miss, never a point;
+3. on the trigger the controller brakes (``stop_deceleration_m_s2``) and retracts to the
+   approach point.
+
+The moves are Cartesian straight lines, solved by mink IK on the NOMINAL cell every 10 ms
+and joined by a clamped cubic spline, then simulated in the TRUE cell (servos, gravity) at
+1 ms, one rollout continuing the last (:func:`twin.sim.simulate` from its final state). The
+touch and the trigger come from the true ball-centre motion and the exact part
+(:func:`twin.sensors.touch_probe.find_trigger`); the hit is the ball centre from the joint
+encoders latched at the trigger (plus their noise) with the nominal kinematics.
+
+Checked on every move: the ball, the stylus and the probe body against the exact part,
+the reference sphere and the table (an unintended contact is a ball touch outside a probing
+move, or any touch of the stylus or the body); the arm and the laser housing against the
+part's height field and the table through MuJoCo's contact sensors
+(:func:`twin.replay.add_collision_checks`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from algorithms.geometry.kinematics import dh_forward
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import inv_pose, transform_points
+from twin.cell import Cell, build_spec, compile_cell
+from twin.errors import TwinError
+from twin.ik import IKSolver, reachable
+from twin.realize import Realized
+from twin.replay import ContactRecord, add_collision_checks, contact_columns, contact_records
+from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH
+from twin.sensors.base import sensor_slice
+from twin.sensors.touch_probe import BALL_SITE, MODULE_SITE, Trigger, find_trigger
+from twin.sim import simulate
+
+IK_KNOT_STEPS = 10
+IK_POSITION_TOL_M = 1e-7
+IK_ORIENTATION_TOL_RAD = 1e-6
+TRANSIT_ACCELERATION_M_S2 = 1.0
+# Probing moves are simulated in chunks this long, so the rollout stops soon after a trigger.
+PROBE_CHUNK_STEPS = 50
+# Contact checks sample the stylus and the body this densely along their axis [m].
+CONTACT_SAMPLE_M = 0.001
+# The probe moves straight down (its stylus along -z of the world).
+STYLUS_AXIS_WORLD = np.array([0.0, 0.0, -1.0])
+
+
+@dataclass(frozen=True)
+class ProbeTarget:
+    """A point to probe: the expected contact point and outward normal (robot base frame)."""
+
+    point: np.ndarray
+    normal: np.ndarray
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class ProbeHit:
+    """The outcome of one probing move (robot base frame, SI units).
+
+    Attributes:
+        target: what was planned.
+        hit: whether the probe triggered within the search distance.
+        centre: (3,) the recorded ball centre (latched encoders, nominal kinematics); NaN on a miss.
+        R_base_probe: (3, 3) the probe frame's rotation at the trigger (nominal kinematics).
+        trigger_t_s: the trigger's time on the program's timeline [s] (NaN on a miss).
+        miss: None, or why there is no point.
+        overtravel_m: how far the ball went past the trigger before it stopped [m].
+        q: (6,) the joint readings latched at the trigger [rad] (NaN on a miss).
+        truth: the true touch and trigger (evaluation only), or None.
+    """
+
+    target: ProbeTarget
+    hit: bool
+    centre: np.ndarray
+    R_base_probe: np.ndarray
+    trigger_t_s: float
+    miss: str | None
+    overtravel_m: float
+    q: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))
+    truth: Trigger | None = field(default=None, repr=False)
+
+
+@dataclass(frozen=True)
+class ProbingLog:
+    """A probing program as it ran in the true cell.
+
+    Attributes:
+        t: (n,) times [s] on the program's timeline (starting at ``t_offset_s``).
+        q: (n, 6) true joint positions [rad]; q_ref: (n, 6) the references.
+        ball: (n, 3) true ball centre, robot base frame [m].
+        phase: (n,) 0 transit, 1 probing move, 2 stop and retract.
+        hits: one per target, in order.
+        contacts: unintended contacts (exact probe checks and MuJoCo's arm checks).
+        min_clearance_m: smallest distance of the stylus and body to the part, sphere or
+            table over the program [m] (negative: a contact).
+        wall_s: wall time [s].
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    q_ref: np.ndarray
+    ball: np.ndarray
+    phase: np.ndarray
+    hits: tuple
+    contacts: tuple
+    min_clearance_m: float
+    wall_s: float
+    final_state: np.ndarray = field(repr=False)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
+
+    @property
+    def misses(self) -> list[ProbeHit]:
+        return [h for h in self.hits if not h.hit]
+
+
+def build_probe_cell(realized: Realized) -> Cell:
+    """The true cell with the probe, the part's height field and the arm's contact sensors."""
+    if realized.scenario.probe is None:
+        raise TwinError("the scenario has no [probe] table: nothing to probe with")
+    spec, poses = build_spec(realized, "true")
+    add_collision_checks(spec, realized.workpiece.mesh)
+    return compile_cell(spec, realized, "true", poses)
+
+
+class Obstacles:
+    """Exact distances to what the probe may touch, world frame: the true part (its exact
+    mesh), the reference sphere (analytic) and the table (z = 0)."""
+
+    def __init__(self, cell: Cell, index: MeshIndex):
+        self.index = index
+        self.T_workpiece_world = inv_pose(cell.T_world_workpiece)
+        lo, hi = index.mesh.bounds
+        self.box_lo = lo
+        self.box_hi = hi
+        probe = cell.scenario.probe
+        self.sphere_centre = np.asarray(probe.sphere_xyz_m, dtype=np.float64)
+        self.sphere_radius = probe.sphere_radius_m
+
+    def distance(self, points_world: np.ndarray, reach_m: float = np.inf) -> np.ndarray:
+        """(n,) smallest signed distance [m] to the part, the sphere and the table; the part
+        is queried only where it is within ``reach_m`` of its bounding box (else +inf)."""
+        p = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+        d = np.minimum(p[:, 2], np.linalg.norm(p - self.sphere_centre, axis=1) - self.sphere_radius)
+        pw = transform_points(self.T_workpiece_world, p)
+        out = np.maximum(self.box_lo - pw, pw - self.box_hi).max(axis=1)
+        near = out < reach_m
+        if near.any():
+            d[near] = np.minimum(d[near], self.index.signed_distance(pw[near]))
+        return d
+
+
+def line_profile(p0: np.ndarray, p1: np.ndarray, speed: float, accel: float, dt: float) -> np.ndarray:
+    """Positions (k, 3) every ``dt`` on the straight move p0 -> p1, from rest to rest
+    (trapezoidal speed, or triangular when the move is short); the first row is p0."""
+    L = float(np.linalg.norm(p1 - p0))
+    if L < 1e-12:
+        return p0[None].copy()
+    v = min(speed, np.sqrt(accel * L))
+    ta = v / accel
+    T = L / v + ta
+    t = np.arange(0.0, T + dt, dt)
+    t[-1] = min(t[-1], T)
+    s = np.where(t < ta, 0.5 * accel * t**2,
+                 np.where(t < T - ta, v * (t - ta / 2), L - 0.5 * accel * np.clip(T - t, 0, None) ** 2))
+    s = np.clip(s, 0.0, L)
+    s[-1] = L
+    return p0 + np.outer(s / L, p1 - p0)
+
+
+def ball_pose(position_world: np.ndarray) -> np.ndarray:
+    """(4, 4) target of the ball site: at ``position_world``, stylus straight down."""
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    T[:3, 3] = position_world
+    return T
+
+
+class ProbingProgram:
+    """Runs probing moves one after the other in the true cell (module docstring).
+
+    Args:
+        realized: the realized scenario (its ``encoder`` and ``probe`` random streams).
+        nominal: the nominal cell (IK); cell: :func:`build_probe_cell` (simulation).
+        rng: the probe's random stream (pre-travel repeatability).
+        t_offset_s: where the program starts on the recording's timeline [s].
+    """
+
+    def __init__(self, realized: Realized, nominal: Cell, cell: Cell, rng: np.random.Generator,
+                 t_offset_s: float = 0.0, q_start: np.ndarray = HOME_Q):
+        self.realized = realized
+        self.scenario = realized.scenario
+        self.spec = self.scenario.probe
+        self.nominal = nominal
+        self.cell = cell
+        self.rng = rng
+        self.rng_encoder = realized.streams.generator("probe_encoder")
+        self.touch_probe = cell.probe
+        self.obstacles = Obstacles(cell, realized.workpiece.index)
+        self.dt = float(cell.model.opt.timestep)
+        self.solver = IKSolver(nominal.model, BALL_SITE, IK_POSITION_TOL_M, IK_ORIENTATION_TOL_RAD,
+                               free_spin=True, avoid_table=True)
+        self.T_world_base = cell.T_world_base
+        self.T_base_world = inv_pose(cell.T_world_base)
+        model = cell.model
+        self.enc_cols = [sensor_slice(model, f"enc_{j}").start for j in JOINT_NAMES]
+        self.ball_cols = sensor_slice(model, f"{BALL_SITE}_pos")
+        self.module_cols = sensor_slice(model, f"{MODULE_SITE}_pos")
+        self.contact_names, self.contact_cols = contact_columns(model)
+        self.t0 = t_offset_s
+        self.state: np.ndarray | None = None
+        self.q_start = np.asarray(q_start, dtype=np.float64)
+        self._logs: dict[str, list] = {k: [] for k in ("t", "q", "q_ref", "ball", "module", "phase", "cdata")}
+        self.wall_s = 0.0
+
+    # ------------------------------------------------------------------ motion
+    def _ik_references(self, P_world: np.ndarray, qd_start: np.ndarray | None = None) -> tuple:
+        """Joint references (k, 6) and their rates along ball positions P (k, 3) every dt:
+        IK every IK_KNOT_STEPS steps, a cubic spline in between (starting at ``qd_start``)."""
+        k = len(P_world)
+        knots = np.arange(0, k, IK_KNOT_STEPS)
+        if knots[-1] != k - 1:
+            knots = np.append(knots, k - 1)
+        q = np.empty((len(knots), 6))
+        for i, j in enumerate(knots):
+            pe, oe, _ = self.solver.solve(ball_pose(P_world[j]), dt=IK_KNOT_STEPS * self.dt, max_iterations=50)
+            if not reachable(pe, oe):
+                p = P_world[j]
+                raise TwinError(f"probing move unreachable: the ball centre at world ({p[0]:.4f}, {p[1]:.4f}, "
+                                f"{p[2]:.4f}) m stays {pe * 1e3:.2f} mm / {np.degrees(oe):.2f} deg off")
+            q[i] = self.solver.q
+        t = np.arange(k) * self.dt
+        if len(knots) == 1:
+            return np.repeat(q, k, axis=0), np.zeros((k, 6))
+        start = (1, np.zeros(6)) if qd_start is None else (1, qd_start)
+        spline = CubicSpline(t[knots], q, axis=0, bc_type=(start, (1, np.zeros(6))))
+        return spline(t), spline(t, 1)
+
+    def _run(self, q_ref: np.ndarray, qd_ref: np.ndarray, phase: int,
+             stop: Callable[[np.ndarray, np.ndarray], bool] | None = None,
+             chunk_steps: int = 2000) -> tuple[int, list]:
+        """Simulate references from the current state; ``stop(ball, t)`` sees the move's
+        samples so far after each chunk and ends the rollout when it returns True. Returns the
+        number of steps simulated and the states after each step."""
+        n_before = sum(len(x) for x in self._logs["t"])
+        t_base = self.t0 + n_before * self.dt
+        balls: list = []
+        times: list = []
+        states: list = []
+
+        def on_chunk(i0, sens, q_before):
+            n = len(sens)
+            t = t_base + (i0 + np.arange(n)) * self.dt
+            ball_w = sens[:, self.ball_cols]
+            self._logs["t"].append(t)
+            self._logs["q"].append(q_before.copy())
+            self._logs["q_ref"].append(q_ref[i0:i0 + n])
+            self._logs["ball"].append(ball_w.copy())
+            self._logs["module"].append(sens[:, self.module_cols].copy())
+            self._logs["phase"].append(np.full(n, phase, dtype=np.int8))
+            self._logs["cdata"].append(sens[:, self.contact_cols].reshape(n, len(self.contact_names), 5)
+                                       if len(self.contact_names) else np.zeros((n, 0, 5)))
+            balls.append(ball_w)
+            times.append(t)
+            return bool(stop is not None and stop(np.vstack(balls), np.concatenate(times)))
+
+        t0 = time.perf_counter()
+        self.state = simulate(self.cell, q_ref, qd_ref, on_chunk, state=self.state, chunk_steps=chunk_steps,
+                              states_out=states)
+        self.wall_s += time.perf_counter() - t0
+        return sum(len(x) for x in times), states
+
+    def _truncate(self, n_keep_total: int) -> None:
+        """Keep only the first ``n_keep_total`` logged steps (the controller reacted there)."""
+        total = 0
+        for i, t in enumerate(self._logs["t"]):
+            if total + len(t) >= n_keep_total:
+                cut = n_keep_total - total
+                for key in self._logs:
+                    self._logs[key] = self._logs[key][:i] + [self._logs[key][i][:cut]]
+                return
+            total += len(t)
+
+    def ball_world(self) -> np.ndarray:
+        """The current reference ball position (world) from the solver's configuration."""
+        return self.solver.site_pose()[:3, 3].copy()
+
+    def start(self) -> None:
+        """Put the arm at rest at its start configuration, stylus down."""
+        self.solver.set_q(self.q_start)
+        pe, oe, _ = self.solver.solve(ball_pose(self.ball_world()), dt=0.05, max_iterations=2000,
+                                      velocity_limited=False)
+        q0 = self.solver.q
+        self.state = None
+        q_ref = np.repeat(q0[None], 2, axis=0)
+        self._run(q_ref, np.zeros_like(q_ref), 0)
+
+    def transit(self, to_world: np.ndarray, safe_z_world: float) -> None:
+        """Up to the safe height, across, down to ``to_world`` (ball centre), at transit speed."""
+        here = self.ball_world()
+        z = max(safe_z_world, here[2], to_world[2])
+        legs = [(here, np.r_[here[:2], z]), (np.r_[here[:2], z], np.r_[to_world[:2], z]),
+                (np.r_[to_world[:2], z], to_world)]
+        for a, b in legs:
+            if np.linalg.norm(b - a) < 1e-9:
+                continue
+            P = line_profile(a, b, self.spec.transit_speed_m_s, TRANSIT_ACCELERATION_M_S2, self.dt)
+            q_ref, qd_ref = self._ik_references(P)
+            self._run(q_ref, qd_ref, 0)
+
+    def probe(self, target: ProbeTarget, safe_z_world: float) -> ProbeHit:
+        """Transit to the target's approach point, probe, brake and retract (module docstring)."""
+        p = self.spec
+        r = p.ball_radius_m
+        point_w = transform_points(self.T_world_base, target.point[None])[0]
+        n_w = self.T_world_base[:3, :3] @ target.normal
+        c0 = point_w + (r + p.approach_m) * n_w
+        c1 = point_w + (r - p.search_m) * n_w
+        self.transit(c0, safe_z_world)
+        P = line_profile(c0, c1, p.probing_speed_m_s, p.stop_deceleration_m_s2, self.dt)
+        q_ref, qd_ref = self._ik_references(P)
+        found: dict = {}
+
+        def gap(c):
+            return self.obstacles.distance(c, reach_m=r + 1e-3) - r
+
+        def draw(direction_w):
+            # one draw per touch, however many chunks it takes to reach the trigger
+            if "delta" not in found:
+                u = direction_w @ self._R_world_probe_true()
+                # A touch with the motion slightly away from the body (an equator touch while
+                # the servo rises by micrometres) triggers sideways: the model's lateral law.
+                u[2] = max(u[2], 0.0)
+                found["delta"] = float(self.touch_probe.pretravel.draw_m(u / np.linalg.norm(u), self.rng))
+            return found["delta"]
+
+        def stop(balls, times):
+            trig = find_trigger(times, balls, gap, draw) if "trigger" not in found else found["trigger"]
+            if trig is not None:
+                found["trigger"] = trig
+                return True
+            return False
+
+        n_before = sum(len(x) for x in self._logs["t"])
+        n_sim, states = self._run(q_ref, qd_ref, 1, stop=stop, chunk_steps=PROBE_CHUNK_STEPS)
+        trig = found.get("trigger")
+        if trig is None:
+            self.transit_line(c1, c0, p.transit_speed_m_s, 2)
+            return ProbeHit(target, False, np.full(3, np.nan), np.eye(3), float("nan"),
+                            f"no trigger within the search distance ({p.search_m * 1e3:g} mm past the expected "
+                            "surface)", 0.0)
+        # The controller reacts at the first 1 ms cycle after the trigger.
+        k_react = int(np.ceil((trig.trigger_t_s - (self.t0 + n_before * self.dt)) / self.dt - 1e-9))
+        k_react = min(max(k_react, 1), n_sim)
+        q_latch = self._latched_joints(trig.trigger_t_s)
+        centre, R_bp = self._recorded_centre(q_latch)
+        self._truncate(n_before + k_react)
+        self.state = np.vstack(states)[k_react - 1].copy()
+        # Brake along the probing line from the reference at the reaction, then retract.
+        v_ref = P[min(k_react, len(P) - 1)] - P[min(k_react - 1, len(P) - 2)]
+        speed = float(np.linalg.norm(v_ref)) / self.dt
+        u = (c1 - c0) / np.linalg.norm(c1 - c0)
+        s_stop = speed**2 / (2 * p.stop_deceleration_m_s2)
+        tb = np.arange(0.0, speed / p.stop_deceleration_m_s2 + self.dt, self.dt)
+        tb[-1] = min(tb[-1], speed / p.stop_deceleration_m_s2)
+        s = np.minimum(speed * tb - 0.5 * p.stop_deceleration_m_s2 * tb**2, s_stop)
+        P_brake = P[min(k_react, len(P) - 1)] + np.outer(s, u)
+        qd0 = qd_ref[min(k_react, len(qd_ref) - 1)]
+        self.solver.set_q(q_ref[min(k_react, len(q_ref) - 1)])
+        q_b, qd_b = self._ik_references(P_brake, qd_start=qd0)
+        self._run(q_b, qd_b, 2)
+        stop_at = P_brake[-1]
+        overtravel = float(np.linalg.norm(self._logs["ball"][-1][-1] - trig.centre_trigger))
+        self.transit_line(stop_at, c0, p.transit_speed_m_s, 2)
+        to_base = self.T_base_world
+        truth = Trigger(trig.touch_t_s, trig.trigger_t_s, transform_points(to_base, trig.centre_touch[None])[0],
+                        transform_points(to_base, trig.centre_trigger[None])[0], to_base[:3, :3] @ trig.direction,
+                        trig.pretravel_m)
+        return ProbeHit(target, True, centre, R_bp, trig.trigger_t_s, None, overtravel, q_latch, truth)
+
+    def transit_line(self, a: np.ndarray, b: np.ndarray, speed: float, phase: int) -> None:
+        P = line_profile(a, b, speed, TRANSIT_ACCELERATION_M_S2, self.dt)
+        q_ref, qd_ref = self._ik_references(P)
+        self._run(q_ref, qd_ref, phase)
+
+    # ------------------------------------------------------------------ readings
+    def _R_world_probe_true(self) -> np.ndarray:
+        """The probe frame's rotation in the world at the latest simulated step (true cell)."""
+        q = self._logs["q"][-1][-1]
+        T_bf = dh_forward(q, UR5E_DH)
+        return self.T_world_base[:3, :3] @ T_bf[:3, :3] @ self.scenario.probe.T_flange_probe[:3, :3]
+
+    def _latched_joints(self, t_s: float) -> np.ndarray:
+        """Joint encoder readings latched at ``t_s`` (true positions interpolated between the
+        1 ms samples, plus the encoders' noise)."""
+        t = np.concatenate(self._logs["t"])
+        q = np.vstack(self._logs["q"])
+        q_t = np.array([np.interp(t_s, t, q[:, j]) for j in range(6)])
+        sigma = self.scenario.noise.encoder_sigma_rad
+        if sigma > 0:
+            q_t = q_t + self.rng_encoder.normal(0.0, sigma, 6)
+        return q_t
+
+    def _recorded_centre(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ball centre and probe rotation, base frame, from joints with the nominal kinematics."""
+        T_bp = dh_forward(q, UR5E_DH) @ self.scenario.probe.T_flange_probe
+        return T_bp[:3, 3] + self.spec.tip_length_m * T_bp[:3, 2], T_bp[:3, :3]
+
+    # ------------------------------------------------------------------ the whole program
+    def run(self, targets: list[ProbeTarget], safe_z_world: float,
+            say: Callable[[str], None] = lambda m: None) -> tuple[ProbeHit, ...]:
+        """Probe every target in order (from rest at the start configuration the first time)."""
+        if self.state is None and not self._logs["t"]:
+            self.start()
+        hits = []
+        for i, tg in enumerate(targets):
+            hits.append(self.probe(tg, safe_z_world))
+            say(f"probe point {i + 1}/{len(targets)} ({tg.label}): {'hit' if hits[-1].hit else 'MISS'}")
+        return tuple(hits)
+
+    def lift(self, safe_z_world: float) -> None:
+        """Straight up to the safe height (the end of a program)."""
+        here = self.ball_world()
+        self.transit(np.r_[here[:2], max(safe_z_world, here[2])], safe_z_world)
+
+    def log(self, hits: tuple) -> ProbingLog:
+        t = np.concatenate(self._logs["t"])
+        ball_w = np.vstack(self._logs["ball"])
+        module_w = np.vstack(self._logs["module"])
+        phase = np.concatenate(self._logs["phase"])
+        cdata = np.concatenate(self._logs["cdata"], axis=0)
+        contacts = contact_records(self.contact_names, cdata, t, self.T_base_world)
+        probe_contacts, clearance = self._probe_contacts(t, ball_w, module_w, phase)
+        return ProbingLog(t, np.vstack(self._logs["q"]), np.vstack(self._logs["q_ref"]),
+                          transform_points(self.T_base_world, ball_w), phase, hits,
+                          tuple(contacts + probe_contacts), clearance, self.wall_s, self.state)
+
+    def _probe_contacts(self, t, ball_w, module_w, phase) -> tuple[list, float]:
+        """Exact contacts of the ball (outside probing moves), the stylus and the body."""
+        p = self.spec
+        axis = ball_w - module_w
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        stem = p.stylus_length_m - p.ball_radius_m
+        n_stem = max(int(np.ceil(stem / CONTACT_SAMPLE_M)), 2)
+        n_body = max(int(np.ceil(p.body_length_m / CONTACT_SAMPLE_M)), 2)
+        out: list[ContactRecord] = []
+        clearance = np.inf
+        parts = (("probe_ball", ball_w[:, None, :], p.ball_radius_m, phase == 0),
+                 ("probe_stylus", module_w[:, None, :] + axis[:, None, :] * np.linspace(0, stem, n_stem)[None, :, None],
+                  p.stylus_radius_m, np.ones(len(t), bool)),
+                 ("probe_body", module_w[:, None, :] - axis[:, None, :]
+                  * np.linspace(0, p.body_length_m, n_body)[None, :, None], p.body_radius_m, np.ones(len(t), bool)))
+        for name, pts, radius, check in parts:
+            k = pts.shape[1]
+            d = self.obstacles.distance(pts.reshape(-1, 3), reach_m=radius + 0.01).reshape(-1, k).min(axis=1) - radius
+            if name != "probe_ball":
+                clearance = min(clearance, float(d.min()))
+            bad = check & (d < 0)
+            if bad.any():
+                idx = np.flatnonzero(bad)
+                j = idx[np.argmin(d[idx])]
+                where = transform_points(self.T_base_world, ball_w[j][None])[0]
+                out.append(ContactRecord(name, "part, sphere or table (exact)", False, float(t[idx[0]]),
+                                         float(t[idx[-1]]), int(len(idx)), float(-d[j]), tuple(where)))
+        return out, clearance
+
+
+def safe_height_world(realized: Realized, T_world_workpiece: np.ndarray) -> float:
+    """Transit height: the part's top (at the given pose) or the reference sphere's top, plus
+    the probe's ``safe_height_m`` [m, world z of the ball centre]."""
+    probe = realized.scenario.probe
+    top = transform_points(T_world_workpiece, np.asarray(realized.workpiece.mesh.vertices))[:, 2].max()
+    top = max(top, probe.sphere_xyz_m[2] + probe.sphere_radius_m)
+    return float(top + probe.safe_height_m + probe.ball_radius_m)
+
+
+def joint_state_of(state: np.ndarray, cell: Cell) -> np.ndarray:
+    """The joint positions (6,) in a full physics state."""
+    return np.asarray(state)[cell.qpos_adr + 1]
+
+
+__all__ = ["ProbeHit", "ProbeTarget", "ProbingLog", "ProbingProgram", "build_probe_cell", "line_profile",
+           "safe_height_world"]
