@@ -14,6 +14,7 @@ from algorithms.geometry.kinematics import dh_forward
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, rotation_error_rad, transform_points, translation_error_m
 from algorithms.paths.normals import angle_deg, pca_normals
+from algorithms.probing.qualification import cosine_error_m
 from algorithms.registration.uncertainty import information_rows, part_symmetry_directions, pose_error_twist
 from twin.realize import Realized
 from twin.robot import UR5E_DH
@@ -156,3 +157,42 @@ def contact_std_m(path_workpiece, localization, covariance) -> float:
     A = information_rows(p, n) @ D.T
     C = np.asarray(localization.covariance if covariance is None else covariance, dtype=np.float64)
     return float(np.sqrt(np.max(np.einsum("ij,jk,ik->i", A, C, A))))
+
+
+def true_effective_radius_m(probe) -> float:
+    """What qualification should find: the nominal ball radius minus the mean sideways
+    pre-travel of the probe's model (the equator touches; the pole's axial excess goes into
+    the ball-centre offset, :func:`twin.locate.qualification_targets`)."""
+    return float(probe.ball_radius_m - probe.stylus_length_m / probe.reference_stylus_m * probe.lateral_pretravel_m)
+
+
+def full_pose_errors(T_estimate: np.ndarray, T_true: np.ndarray, covariance: np.ndarray | None) -> dict:
+    """Rotation [rad] and translation [m] errors of a pose fixed in all six directions, its
+    error twist ``[omega, v]`` (workpiece frame) and, with a (6, 6) covariance, each
+    component in standard deviations and the Mahalanobis distance."""
+    xi = pose_error_twist(T_estimate, T_true)
+    out = {"rotation_rad": rotation_error_rad(T_estimate, T_true),
+           "translation_m": translation_error_m(T_estimate, T_true), "twist": xi}
+    if covariance is not None:
+        C = np.asarray(covariance, dtype=np.float64)
+        std = np.sqrt(np.clip(np.diag(C), 0.0, None))
+        out["std"] = std
+        out["sigmas"] = np.abs(xi) / std
+        out["mahalanobis"] = float(np.sqrt(xi @ np.linalg.solve(C, xi)))
+    return out
+
+
+def cosine_errors_m(hits, T_base_workpiece: np.ndarray, effective_radius_m: float, realized: Realized) -> np.ndarray:
+    """(n,) the r (1 - cos theta) error the radius compensation leaves at each hit when its
+    normals come from the CAD model at ``T_base_workpiece``: theta between that normal and
+    the true surface normal at the true contact."""
+    index = realized.workpiece.index
+    T_true = realized.T_base_workpiece_true
+    out = []
+    for h in hits:
+        c_est = transform_points(inv_pose(T_base_workpiece), h.centre[None])
+        cp = index.query(c_est)
+        n_est = index.smooth_normals(cp.face, cp.foot)[0] @ T_base_workpiece[:3, :3].T
+        n_true = true_normals_base(h.truth.centre_touch[None], T_true, index)[0]
+        out.append(cosine_error_m(effective_radius_m, float(np.arccos(np.clip(n_est @ n_true, -1.0, 1.0)))))
+    return np.asarray(out, dtype=np.float64)

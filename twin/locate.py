@@ -38,8 +38,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.kinematics import dh_forward, ur_inverse
@@ -69,7 +69,7 @@ from twin.probing import (
     safe_height_world,
 )
 from twin.realize import Realized
-from twin.robot import UR5E_DH
+from twin.robot import HOME_Q, UR5E_DH
 from twin.scan import Scan, run_scan
 from twin.segments import StageFailed
 from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
@@ -392,16 +392,18 @@ def plan_fine_points(realized: Realized, nominal: Cell, T_coarse: np.ndarray, m:
     allowed &= ~low
     rejected = {k: int(v) for k, v in feas.counts.items() if k != "ok"}
     rejected["below_table"] = int(low.sum())
-    rejected["unreachable"] = 0
+    rejected["unreachable"] = 0   # or the laser's housing beside the probe would come too near the part
     reach = _ReachCheck(nominal, realized)
     chosen = np.zeros(0, dtype=np.int64)
-    checked = np.zeros(len(cand.points), dtype=bool)
+    spins: dict[int, float | None] = {}
     for _ in range(MAX_PLANNING_ROUNDS):
         if allowed.sum() < m:
             break
         chosen = _choose(cand.points, cand.normals, m, allowed, planner, rng)
-        bad = [i for i in chosen if not checked[i] and not reach.ok(T_coarse, cand.points[i], cand.normals[i])]
-        checked[chosen] = True
+        for i in chosen:
+            if i not in spins:
+                spins[int(i)] = reach.spin(T_coarse, cand.points[i], cand.normals[i])
+        bad = [i for i in chosen if spins[int(i)] is None]
         if not bad:
             break
         allowed[bad] = False
@@ -416,7 +418,7 @@ def plan_fine_points(realized: Realized, nominal: Cell, T_coarse: np.ndarray, m:
     T = T_coarse
     pts_b = transform_points(T, cand.points[chosen])
     nrm_b = cand.normals[chosen] @ T[:3, :3].T
-    targets = tuple(ProbeTarget(pts_b[i], nrm_b[i], f"point {i + 1}") for i in range(len(chosen)))
+    targets = tuple(ProbeTarget(pts_b[i], nrm_b[i], f"point {i + 1}", spins[int(j)]) for i, j in enumerate(chosen))
     sigma = probe_sigma_m(realized)
     return FinePlan(targets, cand.points[chosen], cand.normals[chosen], len(cand.points), int(feas.mask.sum()),
                     rejected, planner, predicted_pose_std(cand.points[chosen], cand.normals[chosen], sigma))
@@ -445,35 +447,60 @@ def _tour(points: np.ndarray) -> np.ndarray:
 
 class _ReachCheck:
     """Whether the arm reaches a probe point's approach and search-end positions with the
-    stylus straight down (any spin about it): a closed-form solution of the UR geometry
-    (:func:`algorithms.geometry.kinematics.ur_inverse`) away from the wrist singularity,
-    with the links clear of the table."""
+    stylus straight down, and at which spin about the stylus: a closed-form solution of the
+    UR geometry (:func:`algorithms.geometry.kinematics.ur_inverse`) away from the wrist
+    singularity, the links clear of the table, and the laser's housing beside the probe at
+    least ``HEAD_CLEARANCE_M`` from the part at the coarse pose (its box sampled on a grid,
+    exact distances). Spins are tried nearest the arm's start spin first."""
 
-    SPINS_RAD = np.radians([0.0, 90.0, 180.0, 270.0])
+    SPINS_RAD = np.radians(np.arange(0.0, 360.0, 45.0))
     MIN_WRIST_SIN = 0.05
+    HEAD_CLEARANCE_M = 0.010
+    HOUSING_GRID = 5
 
     def __init__(self, nominal: Cell, realized: Realized):
         p = realized.scenario.probe
         self.realized = realized
+        self.nominal = nominal
         self.T_base_world = inv_pose(realized.scenario.T_world_base)
         T_flange_ball = p.T_flange_probe @ make_pose(None, [0.0, 0.0, p.tip_length_m])
         self.T_ball_flange = inv_pose(T_flange_ball)
         self.table = TableCheck(nominal, TABLE_CLEARANCE_M)
+        self.data = mujoco.MjData(nominal.model)
+        self.housing = nominal.model.geom("laser_housing").id
+        g = np.linspace(-1.0, 1.0, self.HOUSING_GRID)
+        self.grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3) \
+            * nominal.model.geom_size[self.housing]
+        T_home = realized.scenario.T_world_base @ dh_forward(HOME_Q, UR5E_DH) @ T_flange_ball
+        home = float(np.arctan2(T_home[1, 0], T_home[0, 0]))
+        self.spins = self.SPINS_RAD[np.argsort(np.abs(np.angle(np.exp(1j * (self.SPINS_RAD - home)))))]
 
-    def ok(self, T_coarse: np.ndarray, point_wp: np.ndarray, normal_wp: np.ndarray) -> bool:
+    def spin(self, T_coarse: np.ndarray, point_wp: np.ndarray, normal_wp: np.ndarray) -> float | None:
+        """A spin [rad] at which the probe reaches the point and the housing clears, or None."""
         p = self.realized.scenario.probe
         T = self.realized.scenario.T_world_base @ T_coarse
-        return all(self._reaches(transform_points(T, (point_wp + off * normal_wp)[None])[0])
-                   for off in (p.ball_radius_m + p.approach_m, p.ball_radius_m - p.search_m))
+        ends = [transform_points(T, (point_wp + off * normal_wp)[None])[0]
+                for off in (p.ball_radius_m + p.approach_m, p.ball_radius_m - p.search_m)]
+        for spin in self.spins:
+            if all(self._clear(c, spin, T) for c in ends):
+                return float(spin)
+        return None
 
-    def _reaches(self, c_world: np.ndarray) -> bool:
-        for spin in self.SPINS_RAD:
-            T_world_ball = ball_pose(c_world) @ make_pose(Rotation.from_rotvec([0.0, 0.0, spin]).as_matrix(), None)
-            sol = ur_inverse(self.T_base_world @ T_world_ball @ self.T_ball_flange, UR5E_DH)
-            good = sol.valid[0] & (sol.wrist_sin[0] > self.MIN_WRIST_SIN)
-            if any(self.table.nearest(q) is None for q in sol.q[0][good]):
+    def _clear(self, c_world: np.ndarray, spin: float, T_world_workpiece: np.ndarray) -> bool:
+        sol = ur_inverse(self.T_base_world @ ball_pose(c_world, spin) @ self.T_ball_flange, UR5E_DH)
+        good = sol.valid[0] & (sol.wrist_sin[0] > self.MIN_WRIST_SIN)
+        for q in sol.q[0][good]:
+            if self.table.nearest(q) is None and self._housing_clear(q, T_world_workpiece):
                 return True
         return False
+
+    def _housing_clear(self, q: np.ndarray, T_world_workpiece: np.ndarray) -> bool:
+        self.data.qpos[self.nominal.qpos_adr] = q
+        mujoco.mj_kinematics(self.nominal.model, self.data)
+        R = self.data.geom_xmat[self.housing].reshape(3, 3)
+        pts_w = self.grid @ R.T + self.data.geom_xpos[self.housing]
+        pts_wp = transform_points(inv_pose(T_world_workpiece), pts_w)
+        return bool(np.all(self.realized.workpiece.index.signed_distance(pts_wp) > self.HEAD_CLEARANCE_M))
 
 
 def probe_sigma_m(realized: Realized) -> float:

@@ -54,6 +54,7 @@ IK_KNOT_STEPS = 10
 IK_POSITION_TOL_M = 1e-7
 IK_ORIENTATION_TOL_RAD = 1e-6
 TRANSIT_ACCELERATION_M_S2 = 1.0
+SPIN_RATE_RAD_S = 1.0
 # Probing moves are simulated in chunks this long, so the rollout stops soon after a trigger.
 PROBE_CHUNK_STEPS = 50
 # Contact checks sample the stylus and the body this densely along their axis [m].
@@ -69,6 +70,9 @@ class ProbeTarget:
     point: np.ndarray
     normal: np.ndarray
     label: str = ""
+    #: rotation of the probe about its stylus (world z) [rad]: chosen by the planner so the
+    #: laser's housing beside the probe clears the part
+    spin_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -188,10 +192,12 @@ def line_profile(p0: np.ndarray, p1: np.ndarray, speed: float, accel: float, dt:
     return p0 + np.outer(s / L, p1 - p0)
 
 
-def ball_pose(position_world: np.ndarray) -> np.ndarray:
-    """(4, 4) target of the ball site: at ``position_world``, stylus straight down."""
+def ball_pose(position_world: np.ndarray, spin_rad: float = 0.0) -> np.ndarray:
+    """(4, 4) target of the ball site: at ``position_world``, stylus straight down, turned by
+    ``spin_rad`` about it."""
+    c, s = np.cos(spin_rad), np.sin(spin_rad)
     T = np.eye(4)
-    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    T[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.diag([1.0, -1.0, -1.0])
     T[:3, 3] = position_world
     return T
 
@@ -219,7 +225,8 @@ class ProbingProgram:
         self.obstacles = Obstacles(cell, realized.workpiece.index)
         self.dt = float(cell.model.opt.timestep)
         self.solver = IKSolver(nominal.model, BALL_SITE, IK_POSITION_TOL_M, IK_ORIENTATION_TOL_RAD,
-                               free_spin=True, avoid_table=True)
+                               avoid_table=True)
+        self.spin = 0.0
         self.T_world_base = cell.T_world_base
         self.T_base_world = inv_pose(cell.T_world_base)
         model = cell.model
@@ -234,21 +241,30 @@ class ProbingProgram:
         self.wall_s = 0.0
 
     # ------------------------------------------------------------------ motion
-    def _ik_references(self, P_world: np.ndarray, qd_start: np.ndarray | None = None) -> tuple:
+    def _ik_references(self, P_world: np.ndarray, qd_start: np.ndarray | None = None,
+                       spin_to: float | None = None) -> tuple:
         """Joint references (k, 6) and their rates along ball positions P (k, 3) every dt:
-        IK every IK_KNOT_STEPS steps, a cubic spline in between (starting at ``qd_start``)."""
+        IK every IK_KNOT_STEPS steps, a cubic spline in between (starting at ``qd_start``).
+        With ``spin_to`` the probe turns about its stylus from the current spin to it along
+        the move (in proportion to the distance travelled)."""
         k = len(P_world)
         knots = np.arange(0, k, IK_KNOT_STEPS)
         if knots[-1] != k - 1:
             knots = np.append(knots, k - 1)
         q = np.empty((len(knots), 6))
+        spin0 = self.spin
+        spin1 = spin0 if spin_to is None else spin0 + np.angle(np.exp(1j * (spin_to - spin0)))
+        travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P_world, axis=0), axis=1))])
+        frac = travel / travel[-1] if travel[-1] > 0 else np.linspace(0.0, 1.0, k)
         for i, j in enumerate(knots):
-            pe, oe, _ = self.solver.solve(ball_pose(P_world[j]), dt=IK_KNOT_STEPS * self.dt, max_iterations=50)
+            spin = spin0 + frac[j] * (spin1 - spin0)
+            pe, oe, _ = self.solver.solve(ball_pose(P_world[j], spin), dt=IK_KNOT_STEPS * self.dt, max_iterations=50)
             if not reachable(pe, oe):
                 p = P_world[j]
                 raise TwinError(f"probing move unreachable: the ball centre at world ({p[0]:.4f}, {p[1]:.4f}, "
                                 f"{p[2]:.4f}) m stays {pe * 1e3:.2f} mm / {np.degrees(oe):.2f} deg off")
             q[i] = self.solver.q
+        self.spin = spin1
         t = np.arange(k) * self.dt
         if len(knots) == 1:
             return np.repeat(q, k, axis=0), np.zeros((k, 6))
@@ -308,24 +324,33 @@ class ProbingProgram:
     def start(self) -> None:
         """Put the arm at rest at its start configuration, stylus down."""
         self.solver.set_q(self.q_start)
-        pe, oe, _ = self.solver.solve(ball_pose(self.ball_world()), dt=0.05, max_iterations=2000,
+        T = self.solver.site_pose()
+        self.spin = float(np.arctan2(T[1, 0], T[0, 0]))
+        pe, oe, _ = self.solver.solve(ball_pose(self.ball_world(), self.spin), dt=0.05, max_iterations=2000,
                                       velocity_limited=False)
         q0 = self.solver.q
         self.state = None
         q_ref = np.repeat(q0[None], 2, axis=0)
         self._run(q_ref, np.zeros_like(q_ref), 0)
 
-    def transit(self, to_world: np.ndarray, safe_z_world: float) -> None:
-        """Up to the safe height, across, down to ``to_world`` (ball centre), at transit speed."""
+    def transit(self, to_world: np.ndarray, safe_z_world: float, spin_rad: float | None = None) -> None:
+        """Up to the safe height, across (turning to ``spin_rad``), down to ``to_world`` (ball
+        centre), at transit speed."""
         here = self.ball_world()
         z = max(safe_z_world, here[2], to_world[2])
         legs = [(here, np.r_[here[:2], z]), (np.r_[here[:2], z], np.r_[to_world[:2], z]),
                 (np.r_[to_world[:2], z], to_world)]
-        for a, b in legs:
+        for i, (a, b) in enumerate(legs):
             if np.linalg.norm(b - a) < 1e-9:
                 continue
             P = line_profile(a, b, self.spec.transit_speed_m_s, TRANSIT_ACCELERATION_M_S2, self.dt)
-            q_ref, qd_ref = self._ik_references(P)
+            q_ref, qd_ref = self._ik_references(P, spin_to=spin_rad if i == 1 else None)
+            self._run(q_ref, qd_ref, 0)
+        turn = abs(float(np.angle(np.exp(1j * (spin_rad - self.spin))))) if spin_rad is not None else 0.0
+        if turn > 1e-9:
+            # the across leg was empty: turn on the spot (at most SPIN_RATE_RAD_S)
+            k = max(int(np.ceil(turn / SPIN_RATE_RAD_S / self.dt)), 2 * IK_KNOT_STEPS)
+            q_ref, qd_ref = self._ik_references(np.repeat(to_world[None], k, axis=0), spin_to=spin_rad)
             self._run(q_ref, qd_ref, 0)
 
     def probe(self, target: ProbeTarget, safe_z_world: float) -> ProbeHit:
@@ -336,7 +361,7 @@ class ProbingProgram:
         n_w = self.T_world_base[:3, :3] @ target.normal
         c0 = point_w + (r + p.approach_m) * n_w
         c1 = point_w + (r - p.search_m) * n_w
-        self.transit(c0, safe_z_world)
+        self.transit(c0, safe_z_world, target.spin_rad)
         P = line_profile(c0, c1, p.probing_speed_m_s, p.stop_deceleration_m_s2, self.dt)
         q_ref, qd_ref = self._ik_references(P)
         found: dict = {}

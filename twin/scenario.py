@@ -380,12 +380,14 @@ class PathSpec:
 @dataclass(frozen=True)
 class ProbeSpec:
     """A touch-trigger probe on the flange, beside the laser (``[probe]``; defaults: a
-    Renishaw TP20 with its standard-force module and a 20 mm M2 stylus with a 2 mm ruby ball).
+    Renishaw TP20 class probe (body 13.2 mm across) with its standard-force module on a
+    50 mm extension bar, so the ball reaches 76 mm below the laser's housing, and a 20 mm
+    M2 stylus with a 2 mm ball).
 
     Geometry (probe frame: z along the stylus, from the probe body to the ball; the body's
     back face at the origin):
         T_flange_probe: (4, 4) probe frame in the flange frame (the believed mount).
-        body_radius_m, body_length_m: the probe body and module as one cylinder [m].
+        body_radius_m, body_length_m: the extension, probe body and module as one cylinder [m].
         stylus_length_m: from the module's face to the ball centre [m]; stylus_radius_m its stem.
         ball_radius_m: the stylus ball's nominal radius [m].
     Trigger (:class:`algorithms.probing.pretravel.PretravelModel`, at ``reference_stylus_m``):
@@ -810,7 +812,7 @@ def default_probe_mount() -> np.ndarray:
 def _parse_probe(s: _Section) -> ProbeSpec:
     T = s.pose("mount", default_probe_mount())
     body_r = s.number("body_radius_m", 0.0066, 0.0, 0.1, lo_open=True)
-    body_len = s.number("body_length_m", 0.045, 0.0, 0.5, lo_open=True)
+    body_len = s.number("body_length_m", 0.095, 0.0, 0.5, lo_open=True)
     stylus = s.number("stylus_length_m", 0.020, 0.0, 0.2, lo_open=True)
     stylus_r = s.number("stylus_radius_m", 0.0005, 0.0, 0.01, lo_open=True)
     ball = s.number("ball_radius_m", 0.001, 0.0, 0.02, lo_open=True)
@@ -825,7 +827,7 @@ def _parse_probe(s: _Section) -> ProbeSpec:
     speed = s.number("probing_speed_m_s", 0.008, 0.0, 0.1, lo_open=True)
     transit = s.number("transit_speed_m_s", 0.10, 0.0, 1.0, lo_open=True)
     stop = s.number("stop_deceleration_m_s2", 1.0, 0.0, 50.0, lo_open=True)
-    clearance = s.number("clearance_m", 0.001, 0.0, 0.05)
+    clearance = s.number("clearance_m", 0.0002, 0.0, 0.05)
     safe = s.number("safe_height_m", 0.030, 0.0, 0.5, lo_open=True)
     sphere = s.vector("sphere_xyz_m", [0.30, -0.25, 0.10], 3)
     sphere_r = s.number("sphere_radius_m", 0.0125, 0.0, 0.1, lo_open=True)

@@ -7,6 +7,8 @@ stderr and a documented exit status, never a traceback (README, "Exit status"):
 - 0: done, and the result can be trusted;
 - 2: bad input (a file, an option, an output location, a file system error): nothing written;
 - 3: finished, but the result cannot be trusted (printed and written all the same, saying so);
+- 4: a stage failed (``twin run``, ``twin locate``): what the finished stages made is written,
+  the report says ``complete: false`` and why;
 - 130 / 143: interrupted by SIGINT / SIGTERM: temporary files removed, nothing written;
 - 141: the reader of stdout went away (``twin ... | head``): ends quietly.
 """
@@ -24,7 +26,7 @@ from algorithms.errors import AlgorithmError
 from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM, OneLineParser
 from twin.errors import TwinError
 
-COMMANDS = ["scan", "demo", "localize", "run", "warmup"]
+COMMANDS = ["scan", "demo", "localize", "run", "locate", "warmup"]
 
 
 class Terminated(BaseException):

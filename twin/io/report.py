@@ -219,3 +219,142 @@ def write_json(path: Path, data: dict) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(data, indent=2))
     os.replace(tmp, path)
+
+
+def _pose_error_block(T_est, T_true, covariance=None) -> dict:
+    e = evaluate.full_pose_errors(T_est, T_true, covariance)
+    out = {"rotation_error_deg": float(np.degrees(e["rotation_rad"])),
+           "translation_error_mm": float(e["translation_m"] * MM)}
+    if covariance is not None:
+        out["std_rotation_deg"] = [float(np.degrees(v)) for v in e["std"][:3]]
+        out["std_translation_um"] = [float(v * UM) for v in e["std"][3:]]
+        out["error_sigmas"] = [round(float(v), 3) for v in e["sigmas"]]
+        out["max_error_sigmas"] = round(float(np.max(e["sigmas"])), 3)
+        out["mahalanobis"] = round(e["mahalanobis"], 3)
+    return out
+
+
+def _hit_row(h) -> dict:
+    row = {"label": h.target.label, "hit": bool(h.hit),
+           "target_m": np.round(h.target.point, 9).tolist(), "normal": np.round(h.target.normal, 9).tolist()}
+    if h.hit:
+        row.update({"centre_m": np.round(h.centre, 10).tolist(), "trigger_t_s": round(float(h.trigger_t_s), 6),
+                    "overtravel_um": round(float(h.overtravel_m * UM), 3)})
+        if h.truth is not None:
+            row["true_pretravel_um"] = round(float(h.truth.pretravel_m * UM), 4)
+    else:
+        row["miss"] = h.miss
+    return row
+
+
+def locate_report(result) -> dict:
+    """The ``report.json`` of ``twin locate`` (document 001's hierarchy): each stage's result,
+    its error against the truth, the covariance, the probe hits and misses, the contacts and
+    the time of each stage; a run that stopped at a stage gets what the finished stages made."""
+    realized = result.realized
+    sc = realized.scenario
+    p = sc.probe
+    T_true = realized.T_base_workpiece_true
+    report: dict = {"command": "locate", "scenario": sc.source or sc.name, "seed": sc.seed,
+                    "complete": result.complete}
+    if result.failure is not None:
+        report["failed_stage"], report["failure"] = result.failure
+    if result.scan is not None:
+        report["coarse_scan"] = {"samples": int(len(result.scan.t)),
+                                 "simulated_s": round(float(result.scan.t[-1] - result.scan.t[0]), 3),
+                                 "line_spacing_mm": sc.locate.coarse_line_spacing_m * MM,
+                                 "points_used": int(len(result.coarse_points)) if result.coarse_points is not None
+                                 else 0}
+    if result.T_coarse is not None:
+        c = _pose_error_block(result.T_coarse, T_true)
+        c.update({"method": result.coarse_method, "status": getattr(result.coarse, "status", None)
+                  and result.coarse.status.value,
+                  "within_1mm_1deg": bool(c["rotation_error_deg"] <= 1.0 and c["translation_error_mm"] <= 1.0),
+                  "nominal_rotation_error_deg": float(np.degrees(evaluate.pose_errors(result.T_coarse, realized)
+                                                                 .nominal_rotation_rad)),
+                  "nominal_translation_error_mm": float(evaluate.pose_errors(result.T_coarse, realized)
+                                                        .nominal_translation_m * MM),
+                  "T_base_workpiece": np.round(result.T_coarse, 12).tolist()})
+        report["coarse"] = c
+    if result.qualification is not None:
+        q = result.qualification
+        truth = evaluate.true_effective_radius_m(p)
+        report["qualification"] = {
+            "points": len(q.hits), "effective_radius_mm": q.effective_radius_m * MM,
+            "nominal_radius_mm": p.ball_radius_m * MM, "true_effective_radius_mm": truth * MM,
+            "effective_radius_error_um": (q.effective_radius_m - truth) * UM,
+            "effective_radius_std_um": q.radius_std_m * UM,
+            "ball_centre_offset_um": [float(v * UM) for v in q.offset_probe_m],
+            "fit_rms_um": q.rms_m * UM,
+            "note": "the effective radius absorbs the mean sideways pre-travel; the axial excess of the pole "
+                    "touch and any mount error go into the ball-centre offset (probe frame: z along the stylus)",
+        }
+    if result.plan is not None:
+        pl = result.plan
+        report["plan"] = {"planner": pl.planner, "points": len(pl.targets), "candidates": pl.candidates,
+                          "feasible": pl.feasible, "rejected": pl.rejected,
+                          "predicted_std_rotation_deg": [float(np.degrees(v)) for v in pl.predicted_std[:3]],
+                          "predicted_std_translation_um": [float(v * UM) for v in pl.predicted_std[3:]]}
+    if result.probing is not None:
+        log = result.probing
+        hits = [h for h in result.hits if h.hit]
+        report["probing"] = {
+            "points": len(result.hits), "hits": len(hits), "misses": [_hit_row(h) for h in result.hits if not h.hit],
+            "unintended_contacts": len(log.contacts), "contacts": [c.to_dict() for c in log.contacts],
+            "min_stylus_body_clearance_mm": log.min_clearance_m * MM,
+            "max_overtravel_um": max((h.overtravel_m for h in result.hits if h.hit), default=0.0) * UM,
+            "simulated_s": round(log.duration_s, 3), "rollout_wall_s": round(log.wall_s, 3),
+            "hits_detail": [_hit_row(h) for h in result.hits],
+        }
+    if result.fine is not None:
+        f, d = result.fine, result.fine_001
+        report["fine"] = {
+            "fine_001": {"status": d.status.value, "converged": bool(d.converged), "iterations": int(d.iterations),
+                         "rmse_um": d.rmse_m * UM, "message": d.message},
+            "status": f.status.value, "message": f.message, "rmse_um": f.rmse_m * UM,
+            "compensation_rounds": int(result.compensation_rounds), "points": int(f.n_points_used),
+            "sigma_point_um": result.sigma_point_m * UM,
+            "T_fine": np.round(result.T_fine, 12).tolist(),
+            "T_base_workpiece": np.round(result.T_final, 12).tolist(),
+            "T_world_workpiece": np.round(sc.T_world_base @ result.T_final, 12).tolist(),
+            "covariance_includes": "probe repeatability; pre-travel variation left after qualification (Type B); "
+                                   + ("encoder noise; " if sc.noise.encoder_sigma_rad > 0 else "")
+                                   + "qualification radius and offset (systematic)",
+            "covariance_excludes": "robot kinematic and hand-eye errors"
+                                   + (" (switched ON in this scenario: the errors may exceed it)"
+                                      if sc.noise.kinematic_sigma_m > 0 or sc.noise.kinematic_sigma_rad > 0 else
+                                      " (off in this scenario)"),
+        }
+        report["fine"].update(_pose_error_block(result.T_final, T_true, result.covariance))
+        hits = [h for h in result.hits if h.hit]
+        if result.qualification is not None:
+            r_eff = result.qualification.effective_radius_m
+            report["fine"]["max_cosine_error_at_coarse_um"] = float(
+                evaluate.cosine_errors_m(hits, result.T_coarse, r_eff, realized).max() * UM)
+            report["fine"]["max_cosine_error_at_final_um"] = float(
+                evaluate.cosine_errors_m(hits, result.T_final, r_eff, realized).max() * UM)
+    fine_ok = result.fine is not None and result.fine.status.value == "ok" and not result.fine.poor_fit_reason
+    report["trusted"] = bool(result.complete and fine_ok and report.get("probing", {}).get("unintended_contacts", 1)
+                             == 0)
+    report["timings_s"] = {k: round(v, 3) for k, v in result.timings_s.items()}
+    report["simulated_s"] = {k: round(v, 3) for k, v in result.stage_t_s.items()}
+    return report
+
+
+def locate_headline(report: dict) -> dict:
+    """The short JSON ``twin locate`` prints."""
+    out = {k: report[k] for k in ("complete", "failed_stage", "failure", "trusted") if k in report}
+    if "coarse" in report:
+        out["coarse"] = {k: report["coarse"][k] for k in ("method", "rotation_error_deg", "translation_error_mm",
+                                                          "within_1mm_1deg")}
+    if "qualification" in report:
+        out["effective_radius_error_um"] = report["qualification"]["effective_radius_error_um"]
+    if "probing" in report:
+        out["probing"] = {k: report["probing"][k] for k in ("points", "hits", "unintended_contacts")}
+    if "fine" in report:
+        out["fine"] = {k: report["fine"][k] for k in ("status", "rotation_error_deg", "translation_error_mm",
+                                                      "max_error_sigmas")}
+    for k in ("report", "recording", "wall_s"):
+        if k in report:
+            out[k] = report[k]
+    return out

@@ -1,0 +1,108 @@
+"""``twin locate SCENARIO --out DIR [--coarse ...] [--points M] [--planner ...]``: document
+001's locate-then-machine hierarchy in the twin (:mod:`twin.locate`)."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import time
+from functools import partial
+
+import numpy as np
+
+from twin.cli.common import EXIT_OK, EXIT_STAGE_FAILED, EXIT_UNTRUSTED, add_output_options, checked_outputs, progress
+from twin.io.output import Staged
+from twin.io.report import locate_headline, locate_report, write_json
+from twin.io.scan_files import write_points_ply
+from twin.realize import realize
+from twin.scenario import COARSE_METHODS, PROBE_PLANNERS, load_scenario
+
+REPORT_FILE = "report.json"
+HITS_FILE = "probe_hits.csv"
+COARSE_POINTS_FILE = "coarse_points.ply"
+#: Columns of probe_hits.csv (robot base frame, metres, seconds).
+HIT_COLUMNS = ("label", "hit", "target_x_m", "target_y_m", "target_z_m", "normal_x", "normal_y", "normal_z",
+               "centre_x_m", "centre_y_m", "centre_z_m", "trigger_t_s", "miss")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "locate", help="document 001: coarse laser pass, planned touch probing, T = T_fine T_coarse",
+        description="Locate a part clamped far from its nominal pose, as document 001 does: a sparse laser pass "
+                    "and a coarse pose from no prior orientation, the touch probe qualified on the cell's "
+                    "reference sphere, fine probe points planned on the CAD model at the coarse pose (D-optimal "
+                    "by default), probed by the arm in the true cell at 1 ms, and document 001's fine stage. "
+                    f"Writes DIR/{REPORT_FILE} (every stage's error against the truth, the covariance, hits, "
+                    f"misses, contacts, times), DIR/{HITS_FILE} and DIR/{COARSE_POINTS_FILE}.",
+        epilog=f"exit status: {EXIT_OK} a trusted pose; 2 bad input; {EXIT_UNTRUSTED} finished but not trusted "
+               f"(fine fit not ok, or an unintended contact); {EXIT_STAGE_FAILED} a stage failed (what the "
+               "finished stages made is written, the report says complete: false)",
+    )
+    p.add_argument("scenario", help="scenario TOML file with a [probe] table")
+    add_output_options(p, "output folder (created; refused if it exists, unless --force)")
+    p.add_argument("--coarse", choices=COARSE_METHODS,
+                   help="coarse method (default: the scenario's locate.coarse): multistart (document 000, "
+                        "Algorithm 5), ga (document 001's genetic algorithm, one run, its pose as it comes), "
+                        "ga_restarts (up to ten checked runs, then a fine stage on the laser points)")
+    p.add_argument("--points", type=int, help="number of fine probe points (>= 6; default probe.points)")
+    p.add_argument("--planner", choices=PROBE_PLANNERS, help="how the fine points are chosen (default d_optimal)")
+    p.set_defaults(run=run)
+
+
+def write_hits(path, hits) -> None:
+    """``probe_hits.csv``: one row per probing move (columns ``HIT_COLUMNS``)."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(HIT_COLUMNS)
+        for h in hits:
+            c = h.centre if h.hit else np.full(3, np.nan)
+            w.writerow([h.target.label, int(h.hit), *[f"{v:.10f}" for v in h.target.point],
+                        *[f"{v:.9f}" for v in h.target.normal], *[f"{v:.10f}" for v in c],
+                        f"{h.trigger_t_s:.6f}", h.miss or ""])
+
+
+def exit_code(report: dict) -> int:
+    if not report["complete"]:
+        return EXIT_STAGE_FAILED
+    return EXIT_OK if report["trusted"] else EXIT_UNTRUSTED
+
+
+def run(args: argparse.Namespace) -> int:
+    from twin.locate import locate
+
+    scenario = load_scenario(args.scenario)
+    if scenario.probe is None:
+        from twin.errors import TwinError
+
+        raise TwinError(f"scenario {args.scenario} has no [probe] table: twin locate needs a touch probe")
+    if args.points is not None and args.points < 6:
+        from twin.errors import TwinError
+
+        raise TwinError(f"--points {args.points} is too few: at least 6 points fix six pose directions")
+    out, rrd = checked_outputs(args)
+    t_all = time.perf_counter()
+    with Staged(out) as stage:
+        realized = realize(scenario)
+        result = locate(realized, say=partial(progress, "locate"), coarse=args.coarse, points=args.points,
+                        planner=args.planner)
+        report = locate_report(result)
+        if result.coarse_points is not None:
+            write_points_ply(stage.folder / COARSE_POINTS_FILE, result.coarse_points)
+        if result.hits:
+            write_hits(stage.folder / HITS_FILE, result.hits)
+        if rrd is not None:
+            from twin.probing import build_probe_cell
+            from twin.viz.locate import save_locate_recording
+
+            save_locate_recording(stage.file(rrd), result, build_probe_cell(realized), report)
+            report["recording"] = str(rrd)
+        report["wall_s"] = round(time.perf_counter() - t_all, 2)
+        report["report"] = str(stage.out / REPORT_FILE)
+        write_json(stage.folder / REPORT_FILE, report)
+        stage.commit()
+    print(json.dumps(locate_headline(report), indent=2))
+    if not report["complete"]:
+        progress("locate", f"stopped at {report['failed_stage']}: {report['failure']} "
+                           f"(partial report in {report['report']})")
+    return exit_code(report)

@@ -1,0 +1,94 @@
+"""The recording of ``twin locate``: the coarse laser pass, the probe's qualification and
+probing moves, the planned and measured points, and the coarse, final and true poses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+
+from algorithms.geometry.se3 import transform_points
+from twin.viz.cell import _mesh_outline, body_poses, log_cell
+from twin.viz.scan import POSE_EVERY, log_scan
+
+COARSE_COLOUR = [255, 150, 40]
+FINAL_COLOUR = [40, 200, 255]
+
+
+def save_locate_recording(path: str | Path, result, cell, report: dict | None = None,
+                          app_id: str = "scan_twin_locate") -> Path:
+    """Write the ``.rrd`` of a locate run (:class:`twin.locate.LocateResult`); ``cell`` is the
+    probe cell (the true cell with the probe, the laser and the reference sphere)."""
+    path = Path(path)
+    rec = rr.RecordingStream(app_id)
+    T_wb = cell.T_world_base
+    with rec:
+        rec.save(str(path))
+        rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        log_cell(cell)
+        if result.scan is not None:
+            log_scan(cell, result.scan, T_wb)
+        outline = _mesh_outline(cell.mesh)
+        for name, T, colour in (("coarse", result.T_coarse, COARSE_COLOUR), ("estimate", result.T_final, FINAL_COLOUR)):
+            if T is None:
+                continue
+            T_w = T_wb @ T
+            rr.log(f"world/workpiece/{name}", rr.Transform3D(translation=T_w[:3, 3], mat3x3=T_w[:3, :3]), static=True)
+            rr.log(f"world/workpiece/{name}/mesh", rr.LineStrips3D(outline, colors=[colour], radii=0.0003),
+                   static=True)
+        if result.plan is not None:
+            pts = transform_points(T_wb, np.array([t.point for t in result.plan.targets]))
+            rr.log("world/probe/planned", rr.Points3D(pts, radii=0.0012, colors=[[60, 120, 255]],
+                                                      labels=[t.label for t in result.plan.targets]), static=True)
+        if result.probing is not None:
+            _log_probing(cell, result.probing, T_wb)
+        if report is not None:
+            rr.log("report/summary", rr.TextDocument(_summary(report), media_type=rr.MediaType.MARKDOWN), static=True)
+        rec.flush()
+    return path
+
+
+def _log_probing(cell, log, T_wb) -> None:
+    idx = np.arange(0, len(log.t), POSE_EVERY)
+    times = rr.TimeColumn("sim_time", duration=log.t[idx])
+    for name, T in body_poses(cell, log.q[idx]).items():
+        rr.send_columns(f"world/robot/{name}", indexes=[times], columns=rr.Transform3D.columns(
+            translation=T[:, :3, 3], mat3x3=T[:, :3, :3]))
+    ball_w = transform_points(T_wb, log.ball)
+    rr.send_columns("world/probe/ball_centre", indexes=[rr.TimeColumn("sim_time", duration=log.t[idx])],
+                    columns=rr.Points3D.columns(positions=ball_w[idx]))
+    rr.log("world/probe/ball_centre", rr.Points3D.from_fields(radii=0.0008, colors=[[230, 30, 40]]), static=True)
+    hit = [h for h in log.hits if h.hit]
+    for h in hit:
+        rr.set_time("sim_time", duration=float(h.trigger_t_s))
+        rr.log(f"world/probe/hits/{h.target.label.replace(' ', '_')}",
+               rr.Points3D(transform_points(T_wb, h.centre[None]), radii=0.001, colors=[[40, 220, 90]],
+                           labels=[h.target.label]))
+    miss = [h for h in log.hits if not h.hit]
+    if miss:
+        rr.log("world/probe/misses", rr.Points3D(transform_points(T_wb, np.array([h.target.point for h in miss])),
+                                                 radii=0.0015, colors=[[255, 0, 0]],
+                                                 labels=[f"{h.target.label}: miss" for h in miss]), static=True)
+    if log.contacts:
+        where = transform_points(T_wb, np.array([c.position_m for c in log.contacts]))
+        rr.log("world/probe/contacts", rr.Points3D(where, radii=0.002, colors=[[255, 0, 255]],
+                                                   labels=[f"{c.geom} x {c.other}" for c in log.contacts]),
+               static=True)
+
+
+def _summary(report: dict) -> str:
+    lines = ["# twin locate", ""]
+    if "failure" in report:
+        lines.append(f"**stopped at {report['failed_stage']}**: {report['failure']}")
+    for key in ("coarse", "fine"):
+        if key in report:
+            b = report[key]
+            lines.append(f"- {key}: {b['rotation_error_deg']:.4f} deg, {b['translation_error_mm'] * 1e3:.2f} um from "
+                         "the truth" + (f", max {b['max_error_sigmas']} sigma" if "max_error_sigmas" in b else ""))
+    if "qualification" in report:
+        lines.append(f"- effective ball radius {report['qualification']['effective_radius_mm']:.6f} mm")
+    if "probing" in report:
+        p = report["probing"]
+        lines.append(f"- probing: {p['hits']} of {p['points']} hit, {p['unintended_contacts']} unintended contacts")
+    return "\n".join(lines)
