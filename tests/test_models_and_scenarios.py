@@ -12,6 +12,7 @@ import pytest
 
 from tests.helpers import MODELS, SCENARIOS
 from twin.cell import build_cell
+from twin.probing import build_probe_cell
 from twin.realize import realize
 from twin.replay import build_replay_cell
 from twin.robot import HOME_Q
@@ -46,8 +47,11 @@ def test_model_scene_compiles_and_steps(path: Path):
 @pytest.mark.parametrize("path", SCENARIO_FILES, ids=lambda p: p.stem)
 def test_scenario_cells_compile_and_step(path: Path):
     realized = realize(load_scenario(path))
-    for which, cell in (("nominal", build_cell(realized, "nominal")), ("true", build_cell(realized, "true")),
-                        ("replay", build_replay_cell(realized))):
+    cells = [("nominal", build_cell(realized, "nominal")), ("true", build_cell(realized, "true")),
+             ("replay", build_replay_cell(realized))]
+    if realized.scenario.probe is not None:
+        cells.append(("probe", build_probe_cell(realized)))
+    for which, cell in cells:
         cell.set_q(HOME_Q)
         # hold the home posture with the servos (position and velocity references)
         cell.data.ctrl[:] = np.concatenate([HOME_Q, np.zeros(6)])

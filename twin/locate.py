@@ -278,7 +278,7 @@ def _locate(realized: Realized, say, coarse: str, planner: str, m: int, state: d
     # 4. plan the fine points on the CAD model at T_coarse
     state["stage"] = "plan"
     t0 = time.perf_counter()
-    plan = plan_fine_points(realized, nominal, T_coarse, m, planner, realized.streams.generator("coarse"))
+    plan = plan_fine_points(realized, nominal, T_coarse, m, planner, realized.streams.generator("plan"))
     state["plan"] = plan
     timings["plan_s"] = time.perf_counter() - t0
     say(f"planned {len(plan.targets)} probe points ({planner}) of {plan.feasible} feasible candidates")

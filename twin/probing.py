@@ -1,13 +1,13 @@
 """Touch probing in the true cell at 1 ms: the probing moves, the trigger, the hits.
 
-A probing program is a list of targets (an expected contact point and its outward normal,
-robot base frame). For each target the arm, holding the stylus straight down (its spin
-about the stylus free, :class:`twin.ik.IKSolver` on the ball centre), makes the moves a
-CMM makes:
+A probing program is a list of targets (an expected contact point, its outward normal and
+the probe's spin about the stylus, robot base frame). For each target the arm, holding the
+stylus straight down (:class:`twin.ik.IKSolver` on the ball centre), makes the moves a CMM
+makes:
 
-1. transit: up to the safe height, across, down to the approach point ``approach_m`` off
-   the expected surface along its normal (``transit_speed_m_s``, each straight leg from rest
-   to rest);
+1. transit: up to the safe height, across (turning to the target's spin), down to the
+   approach point ``approach_m`` off the expected surface along its normal
+   (``transit_speed_m_s``, each straight leg from rest to rest);
 2. probing move: along the normal at ``probing_speed_m_s``, until the probe triggers or the
    ball centre is ``search_m`` past the expected surface: no trigger there is a reported
    miss, never a point;

@@ -26,7 +26,7 @@ from twin.robot import LINK_BODIES
 from twin.scenario import Scenario
 
 #: The named random streams, in spawn order (append only).
-STREAM_NAMES = ("kinematics", "sensor", "encoder", "localization", "probe", "probe_encoder", "coarse")
+STREAM_NAMES = ("kinematics", "sensor", "encoder", "localization", "probe", "probe_encoder", "coarse", "plan")
 
 
 @dataclass(frozen=True)

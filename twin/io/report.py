@@ -275,6 +275,11 @@ def locate_report(result) -> dict:
                   "nominal_translation_error_mm": float(evaluate.pose_errors(result.T_coarse, realized)
                                                         .nominal_translation_m * MM),
                   "T_base_workpiece": np.round(result.T_coarse, 12).tolist()})
+        cov = getattr(result.coarse, "covariance", None)
+        if result.coarse_method != "ga" and cov is not None and np.shape(cov) == (6, 6):
+            # the coarse method's own Cramer-Rao covariance (the laser's random noise only)
+            b = _pose_error_block(result.T_coarse, T_true, cov)
+            c.update({f"crlb_{k}": b[k] for k in ("std_rotation_deg", "std_translation_um", "max_error_sigmas")})
         report["coarse"] = c
     if result.qualification is not None:
         q = result.qualification

@@ -60,11 +60,12 @@ def _log_probing(cell, log, T_wb) -> None:
                     columns=rr.Points3D.columns(positions=ball_w[idx]))
     rr.log("world/probe/ball_centre", rr.Points3D.from_fields(radii=0.0008, colors=[[230, 30, 40]]), static=True)
     hit = [h for h in log.hits if h.hit]
-    for h in hit:
+    # one entity growing with each trigger (every hit so far, labelled)
+    for k, h in enumerate(hit):
         rr.set_time("sim_time", duration=float(h.trigger_t_s))
-        rr.log(f"world/probe/hits/{h.target.label.replace(' ', '_')}",
-               rr.Points3D(transform_points(T_wb, h.centre[None]), radii=0.001, colors=[[40, 220, 90]],
-                           labels=[h.target.label]))
+        centres = transform_points(T_wb, np.array([g.centre for g in hit[:k + 1]]))
+        rr.log("world/probe/hits", rr.Points3D(centres, radii=0.001, colors=[[40, 220, 90]],
+                                               labels=[g.target.label for g in hit[:k + 1]]))
     miss = [h for h in log.hits if not h.hit]
     if miss:
         rr.log("world/probe/misses", rr.Points3D(transform_points(T_wb, np.array([h.target.point for h in miss])),
