@@ -102,3 +102,12 @@ def sensor_poses(cell: Cell, q: np.ndarray) -> np.ndarray:
         out[k, :3, :3] = data.site_xmat[cell.sensor_site].reshape(3, 3)
         out[k, :3, 3] = data.site_xpos[cell.sensor_site]
     return out
+
+
+def log_pose_with_outline(entity: str, T_world: np.ndarray, mesh: trimesh.Trimesh, colour) -> None:
+    """A pose of the part (static): its frame, its sharp-edge outline, and the matrix in full
+    precision (``pose_matrix``: 16 float64, row-major; the transform itself is stored in float32)."""
+    T = np.asarray(T_world, dtype=np.float64)
+    rr.log(entity, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
+    rr.log(entity, rr.AnyValues(pose_matrix=T.ravel()), static=True)
+    rr.log(f"{entity}/mesh", rr.LineStrips3D(_mesh_outline(mesh), colors=[colour], radii=0.0003), static=True)

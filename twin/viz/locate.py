@@ -9,7 +9,8 @@ import numpy as np
 import rerun as rr
 
 from algorithms.geometry.se3 import transform_points
-from twin.viz.cell import _mesh_outline, body_poses, log_cell
+from twin.viz.blueprint import REPORT_ENTITY, send_blueprint
+from twin.viz.cell import body_poses, log_cell, log_pose_with_outline
 from twin.viz.scan import POSE_EVERY, log_scan
 
 COARSE_COLOUR = [255, 150, 40]
@@ -25,18 +26,16 @@ def save_locate_recording(path: str | Path, result, cell, report: dict | None = 
     T_wb = cell.T_world_base
     with rec:
         rec.save(str(path))
+        focus = transform_points(cell.T_world_workpiece, cell.mesh.bounds.mean(axis=0)[None])[0]
+        send_blueprint(focus, float(np.ptp(cell.mesh.vertices, axis=0).max()),
+                       [("plots/scan", "coarse pass: distance d [mm]")])
         rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         log_cell(cell)
         if result.scan is not None:
-            log_scan(cell, result.scan, T_wb)
-        outline = _mesh_outline(cell.mesh)
+            log_scan(cell, result.scan, T_wb, result.realized.workpiece.index)
         for name, T, colour in (("coarse", result.T_coarse, COARSE_COLOUR), ("estimate", result.T_final, FINAL_COLOUR)):
-            if T is None:
-                continue
-            T_w = T_wb @ T
-            rr.log(f"world/workpiece/{name}", rr.Transform3D(translation=T_w[:3, 3], mat3x3=T_w[:3, :3]), static=True)
-            rr.log(f"world/workpiece/{name}/mesh", rr.LineStrips3D(outline, colors=[colour], radii=0.0003),
-                   static=True)
+            if T is not None:
+                log_pose_with_outline(f"world/workpiece/{name}", T_wb @ T, cell.mesh, colour)
         if result.plan is not None:
             pts = transform_points(T_wb, np.array([t.point for t in result.plan.targets]))
             rr.log("world/probe/planned", rr.Points3D(pts, radii=0.0012, colors=[[60, 120, 255]],
@@ -44,7 +43,7 @@ def save_locate_recording(path: str | Path, result, cell, report: dict | None = 
         if result.probing is not None:
             _log_probing(cell, result.probing, T_wb)
         if report is not None:
-            rr.log("report/summary", rr.TextDocument(_summary(report), media_type=rr.MediaType.MARKDOWN), static=True)
+            rr.log(REPORT_ENTITY, rr.TextDocument(_summary(report), media_type=rr.MediaType.MARKDOWN), static=True)
         rec.flush()
     return path
 
@@ -56,9 +55,10 @@ def _log_probing(cell, log, T_wb) -> None:
         rr.send_columns(f"world/robot/{name}", indexes=[times], columns=rr.Transform3D.columns(
             translation=T[:, :3, 3], mat3x3=T[:, :3, :3]))
     ball_w = transform_points(T_wb, log.ball)
+    # the ball centre every 10 ms: a trail of the probing moves in the blueprint's cumulative views
     rr.send_columns("world/probe/ball_centre", indexes=[rr.TimeColumn("sim_time", duration=log.t[idx])],
                     columns=rr.Points3D.columns(positions=ball_w[idx]))
-    rr.log("world/probe/ball_centre", rr.Points3D.from_fields(radii=0.0008, colors=[[230, 30, 40]]), static=True)
+    rr.log("world/probe/ball_centre", rr.Points3D.from_fields(radii=0.0003, colors=[[230, 30, 40]]), static=True)
     hit = [h for h in log.hits if h.hit]
     # one entity growing with each trigger (every hit so far, labelled)
     for k, h in enumerate(hit):
@@ -79,7 +79,7 @@ def _log_probing(cell, log, T_wb) -> None:
 
 
 def _summary(report: dict) -> str:
-    lines = ["# twin locate", ""]
+    lines = ["# twin locate", "", "coarse pose: orange outline; final estimate: cyan; truth: the solid part", ""]
     if "failure" in report:
         lines.append(f"**stopped at {report['failed_stage']}**: {report['failure']}")
     for key in ("coarse", "fine"):

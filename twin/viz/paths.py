@@ -9,7 +9,7 @@ from twin.cell import Cell
 from twin.viz.cell import body_poses
 from twin.viz.scan import POSE_EVERY
 
-FRAME_EVERY = 10      # one tool frame / normal arrow every 10 path points
+FRAME_EVERY = 50      # one tool frame / normal arrow every 50 path points
 FRAME_LENGTH_M = 0.004
 
 
@@ -41,11 +41,11 @@ def log_normals(entity: str, points: np.ndarray, normals: np.ndarray, T_world_ba
     rr.log(entity, rr.Arrows3D(origins=p, vectors=n * length, colors=[color], radii=0.0001), static=True)
 
 
-def log_replay(cell: Cell, replay_log, t_offset: float, entity: str) -> None:
-    """The arm replaying a trajectory on ``sim_time`` (from ``t_offset``) and the actual TCP path.
+def log_replay(cell: Cell, replay_log, t_offset: float, entity: str, colour) -> None:
+    """The arm replaying a trajectory on ``sim_time`` (from ``t_offset``) and the actual TCP.
 
-    ``entity``/actual: the TCP trail (static polyline, process samples), ``entity``/tcp: the
-    moving TCP, ``plots/<name>/deviation_um``: the path deviation.
+    ``entity``/tcp: the TCP every 10 ms, which the blueprint's cumulative views draw as a trail
+    growing with the cursor; ``plots/<name>/deviation_um``: the path deviation.
     """
     idx = np.arange(0, len(replay_log.t), POSE_EVERY)
     t = replay_log.t[idx] + t_offset
@@ -55,15 +55,8 @@ def log_replay(cell: Cell, replay_log, t_offset: float, entity: str) -> None:
         rr.send_columns(f"world/robot/{name}", indexes=[times], columns=rr.Transform3D.columns(
             translation=T[:, :3, 3], mat3x3=T[:, :3, :3]))
     tcp_w = _world(cell.T_world_base, replay_log.tcp_actual)
-    strips = []
-    proc = replay_log.process
-    cuts = np.flatnonzero(np.diff(proc.astype(np.int8)) != 0) + 1
-    for part in np.split(np.arange(len(proc)), cuts):
-        if len(part) > 1 and proc[part[0]]:
-            strips.append(tcp_w[part])
-    rr.log(f"{entity}/actual", rr.LineStrips3D(strips, colors=[[255, 140, 0]], radii=0.00015), static=True)
     rr.send_columns(f"{entity}/tcp", indexes=[times], columns=rr.Points3D.columns(positions=tcp_w[idx]))
-    rr.log(f"{entity}/tcp", rr.Points3D.from_fields(radii=0.001, colors=[[255, 140, 0]]), static=True)
+    rr.log(f"{entity}/tcp", rr.Points3D.from_fields(radii=0.0004, colors=[colour]), static=True)
     name = entity.rsplit("/", 1)[-1]
     dev = np.nan_to_num(replay_log.deviation_m * 1e6, nan=0.0)
     rr.send_columns(f"plots/{name}/deviation_um", indexes=[rr.TimeColumn("sim_time", duration=replay_log.t + t_offset)],
