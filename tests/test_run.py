@@ -76,7 +76,7 @@ def test_recording_has_the_paths_frames_and_normals(loop):
     _, out, _, _ = loop
     entities = {c.entity_path for c in RrdReader(str(out / "run.rrd")).stream().to_chunks()}
     for name in ("scan_path", "cad_path"):
-        for leaf in ("planned", "actual", "tool_frames", "normals", "tcp"):
+        for leaf in ("planned", "tool_frames", "normals", "tcp"):
             assert f"/world/path/{name}/{leaf}" in entities
     assert "/world/robot/tool" in entities and "/world/scan/beam" in entities
 
