@@ -17,7 +17,7 @@ from matplotlib.patches import Ellipse
 from algorithms.geometry.se3 import inv_pose, transform_points
 from twin import evaluate
 
-DEVIATION_SCALE_UM = 25.0
+DEVIATION_SCALE_UM = 10.0
 DPI = 110
 
 

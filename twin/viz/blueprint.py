@@ -2,9 +2,10 @@
 a 3D view of the part with the points coloured by their signed deviation, the time series in
 tabs (titles with units) and a text panel with the headline figures.
 
-Both 3D views show what was logged up to the time cursor (a visible time range from the
+The cell view shows what was logged up to the time cursor (a visible time range from the
 start to the cursor): the scan points and the replayed tool tip grow as the cursor moves,
-while poses (the arm, the beam's frame) show their latest value.
+while poses (the arm, the beam's frame) show their latest value. The part view shows every
+point of the scan whatever the cursor: the deviation map.
 """
 
 from __future__ import annotations
@@ -23,6 +24,11 @@ def cumulative() -> rrb.VisibleTimeRange:
                                 end=rrb.TimeRangeBoundary.cursor_relative(0))
 
 
+def whole() -> rrb.VisibleTimeRange:
+    """The whole timeline, wherever the cursor is."""
+    return rrb.VisibleTimeRange(TIMELINE, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
+
+
 def eye_on(focus_world: np.ndarray, extent_m: float) -> rrb.EyeControls3D:
     """A camera looking at ``focus_world`` from above and in front, far enough to frame ``extent_m``."""
     focus = np.asarray(focus_world, dtype=np.float64)
@@ -39,9 +45,12 @@ def send_blueprint(focus_world: np.ndarray, extent_m: float, plots: list[tuple[s
     """
     eye = eye_on(focus_world, extent_m)
     main = rrb.Spatial3DView(origin="world", name="cell", eye_controls=eye, time_ranges=cumulative())
+    # the part view shows every point whatever the cursor: the deviation map of the whole scan
+    # (the solid true part left out, so nothing hides the points)
     part = rrb.Spatial3DView(origin="world", name="part: points by signed deviation",
-                             contents=["world/workpiece/**", "world/scan/points", "world/probe/**"],
-                             eye_controls=eye_on(focus_world, 0.6 * extent_m), time_ranges=cumulative())
+                             contents=["world/workpiece/**", "- world/workpiece/true/mesh", "world/scan/points",
+                                       "world/probe/**"],
+                             eye_controls=eye_on(focus_world, 0.45 * extent_m), time_ranges=whole())
     tabs = [rrb.TimeSeriesView(origin=entity, name=title) for entity, title in plots]
     right = [part]
     if tabs:

@@ -19,7 +19,7 @@ from twin.viz.cell import body_poses, sensor_poses
 
 POSE_EVERY = 10      # arm and beam logged every 10 ms (points and distances every 1 ms)
 POINT_CHUNK = 100    # points logged 100 ms at a time
-DEVIATION_SCALE_M = 25e-6
+DEVIATION_SCALE_M = 10e-6
 OFF_PART_M = 1e-3    # a point farther than this from the true surface is off the part (the table)
 LINE_PALETTE = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
                          [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207]],
