@@ -67,21 +67,15 @@ def run_trial(args) -> dict:
     name, seed, coarse, planner, coarse_only = args
     from twin import evaluate
     from twin.io.report import locate_report
-    from twin.locate import coarse_pose, coarse_scenario
+    from twin.locate import coarse_pose, coarse_scan
     from twin.realize import realize
 
     realized = realize(trial_scenario(name, seed))
     t0 = time.perf_counter()
     if coarse_only:
         from twin.cell import build_cell
-        from twin.scan import run_scan
 
-        sc = realized.scenario
-        scan = run_scan(coarse_scenario(realized), build_cell(realized, "nominal"), build_cell(realized, "true"))
-        pts = scan.line_points_base
-        from algorithms.geometry.se3 import transform_points
-
-        pts = pts[transform_points(sc.T_world_base, pts)[:, 2] > 0.002]
+        _, pts = coarse_scan(realized, build_cell(realized, "nominal"), build_cell(realized, "true"))
         T, _ = coarse_pose(pts, realized, coarse)
         e = evaluate.full_pose_errors(T, realized.T_base_workpiece_true, None)
         return {"scenario": name, "seed": seed, "coarse": coarse,
@@ -92,7 +86,7 @@ def run_trial(args) -> dict:
     res = locate(realized, coarse=coarse, planner=planner)
     rep = locate_report(res)
     out = {"scenario": name, "seed": seed, "coarse": coarse, "planner": planner, "complete": rep["complete"],
-           "failure": rep.get("failure"), "wall_s": time.perf_counter() - t0}
+           "failed_stage": rep.get("failed_stage"), "failure": rep.get("failure"), "wall_s": time.perf_counter() - t0}
     if "coarse" in rep:
         out.update(coarse_rot_deg=rep["coarse"]["rotation_error_deg"],
                    coarse_trans_mm=rep["coarse"]["translation_error_mm"])
@@ -133,7 +127,7 @@ def section_trials(names, trials, workers, lines):
         coarse = load_scenario(ROOT / "scenarios" / f"{name}.toml").locate.coarse
         rows = _pool([(name, s, coarse, "d_optimal", False) for s in range(trials)], workers)
         done = [r for r in rows if r.get("complete")]
-        fails = [f"seed {r['seed']}: {r['failure'][0]}" for r in rows if not r.get("complete")]
+        fails = [f"seed {r['seed']}: {r['failed_stage']} ({r['failure']})" for r in rows if not r.get("complete")]
         worst_rot = max(r.get("coarse_rot_deg", np.nan) for r in rows)
         worst_tr = max(r.get("coarse_trans_mm", np.nan) for r in rows)
         lines.append(

@@ -2,9 +2,10 @@
 probing, document 001's fine stage, ``T = T_fine T_coarse``. Returns a frozen
 :class:`LocateResult`; writes no files.
 
-1. coarse laser pass: the scenario's scan with ``[locate]``'s wider line spacing and speed
-   (1 ms, true cell); points within ``TABLE_BAND_M`` of the table plane are left out (the
-   cell knows its table);
+1. coarse laser pass: a level raster over the nominal footprint grown by
+   ``locate.coarse_margin_m``, with ``[locate]``'s line spacing and speed (1 ms, true cell;
+   :func:`twin.plan.plan_level_raster`); points within ``TABLE_BAND_M`` of the table plane are
+   left out (the cell knows its table);
 2. coarse pose, from no prior knowledge of the orientation (``locate.coarse``):
    ``multistart`` (document 000's Algorithm 5 with a Hong-Tan polish on the coarse points),
    ``ga`` (document 001's genetic algorithm with its constants, one run, its pose as it
@@ -59,6 +60,7 @@ from algorithms.registration.uncertainty import information_rows, sym_inverse, s
 from twin.cell import Cell, build_cell
 from twin.errors import TwinError
 from twin.pipeline import sensor_sigma_m
+from twin.plan import plan_level_raster
 from twin.probing import (
     ProbeHit,
     ProbeTarget,
@@ -209,15 +211,14 @@ def locate(realized: Realized, say: Callable[[str], None] = lambda m: None, coar
                         failure=failure, **{k: v for k, v in kept.items() if k != "scan"})
 
 
-def coarse_scenario(realized: Realized) -> Realized:
-    """The realized scenario with its scan made the sparse coarse pass of ``[locate]``."""
-    sc = realized.scenario
-    loc = sc.locate
-    scan = dataclasses.replace(sc.scan, line_spacing_m=loc.coarse_line_spacing_m, speed_m_s=loc.coarse_speed_m_s,
-                               passes=None if sc.scan.passes is None else tuple(
-                                   dataclasses.replace(p, line_spacing_m=loc.coarse_line_spacing_m,
-                                                       speed_m_s=loc.coarse_speed_m_s) for p in sc.scan.passes))
-    return dataclasses.replace(realized, scenario=dataclasses.replace(sc, scan=scan))
+def coarse_scan(realized: Realized, nominal: Cell, true_cell: Cell) -> tuple[Scan, np.ndarray]:
+    """The sparse coarse laser pass (:func:`twin.plan.plan_level_raster` over the nominal
+    footprint grown by ``locate.coarse_margin_m``) and its points off the table (base frame)."""
+    loc = realized.scenario.locate
+    plan = plan_level_raster(nominal, loc.coarse_margin_m, loc.coarse_line_spacing_m, loc.coarse_speed_m_s)
+    scan = run_scan(realized, nominal, true_cell, plan)
+    pts = scan.line_points_base
+    return scan, pts[transform_points(realized.scenario.T_world_base, pts)[:, 2] > TABLE_BAND_M]
 
 
 def _locate(realized: Realized, say, coarse: str, planner: str, m: int, state: dict, timings: dict,
@@ -233,15 +234,12 @@ def _locate(realized: Realized, say, coarse: str, planner: str, m: int, state: d
     state["stage"] = "coarse_scan"
     t0 = time.perf_counter()
     try:
-        scan = run_scan(coarse_scenario(realized), nominal, true_cell)
+        scan, pts = coarse_scan(realized, nominal, true_cell)
     except TwinError as exc:
         raise StageFailed("coarse_scan", str(exc)) from None
     timings["coarse_scan_s"] = time.perf_counter() - t0
     stage_t["coarse_scan_s"] = float(scan.t[-1] - scan.t[0])
     state["scan"] = scan
-    pts = scan.line_points_base
-    z_world = transform_points(sc.T_world_base, pts)[:, 2]
-    pts = pts[z_world > TABLE_BAND_M]
     state["coarse_points"] = pts
     say(f"coarse pass: {len(scan.t)} samples, {len(pts)} points on the part")
     if len(pts) < MIN_FINE_POINTS:

@@ -346,6 +346,44 @@ def _plan_single_pass(cell: Cell, spec: ScanSpec, dt: float) -> ScanPlan:
     return replace(plan, line_y_m=np.array([ln.cross_m for ln in lines]), line_pass=np.zeros(len(lines), np.int32))
 
 
+def plan_level_raster(cell: Cell, margin_m: float, line_spacing_m: float, speed_m_s: float,
+                      dt: float = 0.001) -> ScanPlan:
+    """A level raster at one height, beam straight down, over the nominal part's footprint
+    grown by ``margin_m`` on every side (world x-y): document 001's coarse acquisition of a
+    part that may lie tens of millimetres and degrees off its nominal pose, so the lines are
+    not laid on the nominal CAD model. Lines run along the longer side of the footprint; the
+    sensor flies ``near + 2 mm`` above the part's nominal top, so the part's top lies in the
+    window and the table (for parts up to the window's depth) beyond it."""
+    spec = cell.scenario.scan
+    sensor = cell.scenario.sensor
+    corners = transform_points(cell.T_world_workpiece, np.asarray(cell.mesh.vertices))
+    lo = corners[:, :2].min(axis=0) - margin_m
+    hi = corners[:, :2].max(axis=0) + margin_m
+    z_s = float(corners[:, 2].max()) + sensor.window_m[0] + 0.002
+    along = int(np.argmax(hi - lo))
+    across = 1 - along
+    rows = np.arange(lo[across] + line_spacing_m / 2, hi[across], line_spacing_m)
+    lines = []
+    for i, v in enumerate(rows):
+        a, b = np.empty(3), np.empty(3)
+        a[along], b[along] = (lo[along], hi[along]) if i % 2 == 0 else (hi[along], lo[along])
+        a[across] = b[across] = v
+        a[2] = b[2] = z_s
+        axis = np.zeros(3)
+        axis[along] = 1.0
+        R = _frames(np.array([[0.0, 0.0, -1.0]]), axis[None])[0]
+        T_line = np.stack([np.eye(4), np.eye(4)])
+        T_line[:, :3, :3] = R
+        T_line[0, :3, 3], T_line[1, :3, 3] = a, b
+        lines.append(_Line(i, 0, float(v), T_line, np.array([0.0, float(np.linalg.norm(b - a))]), speed_m_s,
+                           spec.transit_speed_m_s, spec.retract_m))
+    info = PassInfo("coarse raster", "fixed", (0.0, 0.0, -1.0), len(lines), 0,
+                    f"a level raster {margin_m * 1e3:.0f} mm beyond the nominal footprint, {z_s * 1e3:.0f} mm above "
+                    "the table: the part may lie far off its nominal pose", float("nan"), ())
+    plan = _assemble(cell, lines, dt, (info,), ())
+    return replace(plan, line_y_m=rows.copy(), line_pass=np.zeros(len(lines), np.int32))
+
+
 # --------------------------------------------------------------------------- passes
 
 

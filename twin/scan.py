@@ -146,17 +146,19 @@ def _pass_label(plan: ScanPlan, line: int) -> str:
     return f" (pass {plan.passes[int(plan.line_pass[line])].name!r})"
 
 
-def run_scan(realized: Realized, nominal: Cell, true_cell: Cell) -> Scan:
+def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan | None = None) -> Scan:
     """Simulate the scenario's scan and reconstruct its points (see the module docstring).
 
     Args:
         realized: the realized scenario (its ``sensor`` and ``encoder`` streams are used).
         nominal: the nominal cell (plan and IK); true_cell: the true cell (simulation).
+        plan: a plan made elsewhere (e.g. :func:`twin.plan.plan_level_raster`); default: the
+            scenario's ``[scan]`` planned by :func:`twin.plan.plan_scan`.
     """
     scenario = realized.scenario
     timings = {}
     t0 = time.perf_counter()
-    plan = plan_scan(nominal)
+    plan = plan_scan(nominal) if plan is None else plan
     timings["plan_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     q_ref, qd_ref = solve_joint_references(nominal, plan)

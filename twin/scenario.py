@@ -450,12 +450,15 @@ class LocateSpec:
             (up to ten runs, each checked by a short exact descent).
         coarse_line_spacing_m: line spacing of the sparse coarse laser pass [m].
         coarse_speed_m_s: its scan speed [m/s].
+        coarse_margin_m: the coarse pass covers the nominal part's footprint grown by this on
+            every side [m] (the part may lie tens of millimetres off its nominal place).
         planner: "d_optimal" (default), "spread" or "random" choice of the fine probe points.
     """
 
     coarse: str = "multistart"
     coarse_line_spacing_m: float = 0.010
     coarse_speed_m_s: float = 0.10
+    coarse_margin_m: float = 0.04
     planner: str = "d_optimal"
 
 
@@ -852,6 +855,7 @@ def _parse_locate(s: _Section) -> LocateSpec:
         coarse=str(s.choice("coarse", "multistart", COARSE_METHODS)),
         coarse_line_spacing_m=s.number("coarse_line_spacing_m", 0.010, 0.0, 0.5, lo_open=True),
         coarse_speed_m_s=s.number("coarse_speed_m_s", 0.10, 0.0, 1.0, lo_open=True),
+        coarse_margin_m=s.number("coarse_margin_m", 0.04, 0.0, 0.5),
         planner=str(s.choice("planner", "d_optimal", PROBE_PLANNERS)),
     )
     s.done()
