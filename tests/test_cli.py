@@ -72,7 +72,7 @@ def test_user_mesh_scan_and_recording(tmp_path):
     scen = write_scenario(tmp_path, lambda b: short(b).replace(
         'shape = "s_surface"', 'mesh = "block_mm.stl"\nunits = "mm"'), name="user.toml")
     out, rrd = tmp_path / "out", tmp_path / "scan.rrd"
-    r = run_cli("scan", str(scen), "--out", str(out), "--rrd", str(rrd))
+    r = run_cli("scan", str(scen), "--out", str(out), "--rrd", str(rrd), "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert summary["valid"] > 1000

@@ -210,7 +210,7 @@ def test_fuzz_scenario_files(capsys, raw):
         d = Path(tmp)
         (d / "s.toml").write_bytes(raw)
         out = d / "scan"
-        rc, stdout, err = run(capsys, ["scan", d / "s.toml", "--out", out])
+        rc, stdout, err = run(capsys, ["scan", d / "s.toml", "--out", out, "--json"])
         assert rc in (0, EXIT_BAD_INPUT), (rc, err)
         assert "Traceback" not in err
         assert not [p for p in d.iterdir() if PARTIAL_MARK in p.name]

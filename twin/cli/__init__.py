@@ -1,8 +1,10 @@
 """The ``twin`` command line.
 
 Each subcommand lives in its own module ``twin/cli/<name>.py`` exposing
-``add_parser(subparsers)`` and ``run(args) -> int``. Whatever goes wrong ends in one line on
-stderr and a documented exit status, never a traceback (README, "Exit status"):
+``add_parser(subparsers)`` and ``run(args) -> int``. stdout carries the result only (a short
+summary, or one JSON object with ``--json``); progress and errors go to stderr (``--quiet``
+keeps the errors only). Whatever goes wrong ends in one line on stderr and a documented exit
+status, never a traceback (README, "Exit status"):
 
 - 0: done, and the result can be trusted;
 - 2: bad input (a file, an option, an output location, a file system error): nothing written;
@@ -26,7 +28,8 @@ from algorithms.errors import AlgorithmError
 from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM, OneLineParser
 from twin.errors import TwinError
 
-COMMANDS = ["scan", "demo", "localize", "run", "locate", "warmup"]
+#: Subcommands; each is the module of its name with "-" as "_" (``export-mesh``: ``export_mesh.py``).
+COMMANDS = ["scan", "demo", "localize", "run", "locate", "view", "export-mesh", "warmup"]
 
 
 class Terminated(BaseException):
@@ -40,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
     for name in COMMANDS:
-        module = importlib.import_module(f"twin.cli.{name}")
+        module = importlib.import_module(f"twin.cli.{name.replace('-', '_')}")
         module.add_parser(sub)
     return parser
 

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 
-from twin.cli.common import add_output_options, checked_outputs
-from twin.cli.run import exit_code, run_and_report
+from twin.cli.common import add_output_options, checked_outputs, print_result, progress, reporting
+from twin.cli.run import exit_code, run_and_report, summary_rows
 from twin.errors import TwinError
 from twin.io import write_scan
 from twin.io.output import Staged
@@ -23,7 +22,9 @@ def add_parser(sub) -> None:
         description="Scan the S-surface part at 1 ms, localize it against its CAD model, make a "
                     "process path from the scan (document 004) and one from the CAD model moved by "
                     "the estimate (document 003), solve the joints with mink, replay both in the true "
-                    "cell and report errors against the truth, path deviation and contacts.",
+                    "cell and report errors against the truth, path deviation and contacts. stdout: a "
+                    "short summary, or with --json the report's headline as one JSON object; progress "
+                    "goes to stderr.",
     )
     p.add_argument("--scenario", default=str(DEFAULT_SCENARIO), help="scenario TOML (default: S-surface)")
     add_output_options(p, "output folder (default: out/demo; refused if it exists, unless --force)",
@@ -37,10 +38,16 @@ def run(args: argparse.Namespace) -> int:
         raise TwinError("--rrd and --no-rrd exclude each other; give one")
     scenario = load_scenario(args.scenario)
     out, rrd = checked_outputs(args, default_rrd_name=None if args.no_rrd else "demo.rrd")
-    with Staged(out) as stage:
-        result, report = run_and_report(scenario, stage, rrd, command="demo")
+    with reporting(args, "demo") as say, Staged(out) as stage:
+        result, report = run_and_report(scenario, stage, rrd, command="demo", say=say)
         if result.scan is not None:
             write_scan(result.scan, stage.folder)
+            say("wrote samples.parquet, points.ply, scan.json")
         stage.commit()
-    print(json.dumps(headline(report), indent=2))
+    h = headline(report)
+    files = f"{out} (samples.parquet, points.ply, scan.json)" if result.scan is not None else None
+    print_result(args, h, summary_rows(h, files), indent=2)
+    if not report["complete"]:
+        progress("demo", f"stopped at {report['failed_stage']}: {report['failure']} "
+                         f"(partial report in {report['report']})")
     return exit_code(report)

@@ -5,13 +5,22 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import time
-from functools import partial
 
 import numpy as np
 
-from twin.cli.common import EXIT_OK, EXIT_STAGE_FAILED, EXIT_UNTRUSTED, add_output_options, checked_outputs, progress
+from twin.cli.common import (
+    EXIT_OK,
+    EXIT_STAGE_FAILED,
+    EXIT_UNTRUSTED,
+    add_output_options,
+    checked_outputs,
+    number,
+    print_result,
+    progress,
+    reporting,
+    yes_no,
+)
 from twin.io.output import Staged
 from twin.io.report import locate_headline, locate_report, write_json
 from twin.io.scan_files import write_points_ply
@@ -34,7 +43,8 @@ def add_parser(sub) -> None:
                     "reference sphere, fine probe points planned on the CAD model at the coarse pose (D-optimal "
                     "by default), probed by the arm in the true cell at 1 ms, and document 001's fine stage. "
                     f"Writes DIR/{REPORT_FILE} (every stage's error against the truth, the covariance, hits, "
-                    f"misses, contacts, times), DIR/{HITS_FILE} and DIR/{COARSE_POINTS_FILE}.",
+                    f"misses, contacts, times), DIR/{HITS_FILE} and DIR/{COARSE_POINTS_FILE}. stdout: a short "
+                    "summary, or with --json the report's headline as one JSON object; progress goes to stderr.",
         epilog=f"exit status: {EXIT_OK} a trusted pose; 2 bad input; {EXIT_UNTRUSTED} finished but not trusted "
                f"(fine fit not ok, or an unintended contact); {EXIT_STAGE_FAILED} a stage failed (what the "
                "finished stages made is written, the report says complete: false)",
@@ -62,6 +72,34 @@ def write_hits(path, hits) -> None:
                         f"{h.trigger_t_s:.6f}", h.miss or ""])
 
 
+def summary_rows(h: dict) -> list[tuple[str, str]]:
+    """The summary of ``twin locate`` for a reader, from its headline ``h``."""
+    rows = [("complete", "yes" if h["complete"] else f"no: stopped at {h.get('failed_stage')}: {h.get('failure')}"),
+            ("trusted", yes_no(h["trusted"]))]
+    c = h.get("coarse")
+    if c is not None:
+        rows.append(("coarse pose", f"{c['method']}: rotation error {number(c['rotation_error_deg'], 'deg')}, "
+                                    f"translation error {number(c['translation_error_mm'], 'mm')}"
+                                    f"{'' if c['within_1mm_1deg'] else ' (outside 1 mm / 1 deg)'}"))
+    if "effective_radius_error_um" in h:
+        rows.append(("qualification", f"effective ball radius error {number(h['effective_radius_error_um'], 'um')}"))
+    pr = h.get("probing")
+    if pr is not None:
+        rows.append(("probing", f"{pr['hits']} of {pr['points']} points hit, "
+                                f"{pr['unintended_contacts']} unintended contact(s)"))
+    f = h.get("fine")
+    if f is not None:
+        rows.append(("fine pose", f"{f['status']}: rotation error {number(f['rotation_error_deg'], 'deg')}, "
+                                  f"translation error {number(f['translation_error_mm'], 'mm')}, "
+                                  f"largest error {number(f.get('max_error_sigmas'), 'sigma', 3)}"))
+    rows.append(("report", h.get("report", "n/a")))
+    if "recording" in h:
+        rows.append(("recording", h["recording"]))
+    if "wall_s" in h:
+        rows.append(("wall time", number(h["wall_s"], "s", 3)))
+    return rows
+
+
 def exit_code(report: dict) -> int:
     if not report["complete"]:
         return EXIT_STAGE_FAILED
@@ -82,10 +120,9 @@ def run(args: argparse.Namespace) -> int:
         raise TwinError(f"--points {args.points} is too few: at least 6 points fix six pose directions")
     out, rrd = checked_outputs(args)
     t_all = time.perf_counter()
-    with Staged(out) as stage:
+    with reporting(args, "locate") as say, Staged(out) as stage:
         realized = realize(scenario)
-        result = locate(realized, say=partial(progress, "locate"), coarse=args.coarse, points=args.points,
-                        planner=args.planner)
+        result = locate(realized, say=say, coarse=args.coarse, points=args.points, planner=args.planner)
         report = locate_report(result)
         if result.coarse_points is not None:
             write_points_ply(stage.folder / COARSE_POINTS_FILE, result.coarse_points)
@@ -96,12 +133,14 @@ def run(args: argparse.Namespace) -> int:
             from twin.viz.locate import save_locate_recording
 
             save_locate_recording(stage.file(rrd), result, build_probe_cell(realized), report)
+            say("wrote the recording")
             report["recording"] = str(rrd)
         report["wall_s"] = round(time.perf_counter() - t_all, 2)
         report["report"] = str(stage.out / REPORT_FILE)
         write_json(stage.folder / REPORT_FILE, report)
         stage.commit()
-    print(json.dumps(locate_headline(report), indent=2))
+    h = locate_headline(report)
+    print_result(args, h, summary_rows(h), indent=2)
     if not report["complete"]:
         progress("locate", f"stopped at {report['failed_stage']}: {report['failure']} "
                            f"(partial report in {report['report']})")

@@ -3,13 +3,24 @@
 from __future__ import annotations
 
 import argparse
-import json
 import time
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
 from twin import pipeline
-from twin.cli.common import EXIT_OK, EXIT_STAGE_FAILED, EXIT_UNTRUSTED, add_output_options, checked_outputs, progress
+from twin.cli.common import (
+    EXIT_OK,
+    EXIT_STAGE_FAILED,
+    EXIT_UNTRUSTED,
+    add_output_options,
+    checked_outputs,
+    number,
+    print_result,
+    progress,
+    reporting,
+    yes_no,
+)
 from twin.errors import TwinError
 from twin.io.output import Staged
 from twin.io.report import headline, run_report, write_json
@@ -25,7 +36,9 @@ def add_parser(sub) -> None:
         description="Scan the part, localize it, make a process path from the scan (document 004) "
                     "and one from the CAD model moved by the estimate (document 003), solve the joints "
                     "with mink, replay both in the true cell at 1 ms and write DIR/report.json. The "
-                    "folder (and the recording) appear when everything is written.",
+                    "folder (and the recording) appear when everything is written. stdout: a short "
+                    "summary, or with --json the report's headline as one JSON object; progress goes "
+                    "to stderr.",
     )
     p.add_argument("scenario", help="scenario TOML file")
     add_output_options(p, "output folder for report.json (created; refused if it exists, unless --force)")
@@ -40,13 +53,17 @@ def add_parser(sub) -> None:
 
 
 def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command: str = "run",
-                   strict: bool = False, placement: dict | None = None):
+                   strict: bool = False, placement: dict | None = None,
+                   say: Callable[[str], None] | None = None):
     """Run the loop and write ``report.json`` (and the recording) into the staged folder;
-    returns (result, report). The caller commits the stage: a run that stopped at a stage
-    still leaves its evidence (the report says ``complete: false``, the failing stage and why)."""
+    returns (result, report). ``say`` gets the stage lines (default: plain lines on stderr).
+    The caller commits the stage: a run that stopped at a stage still leaves its evidence (the
+    report says ``complete: false``, the failing stage and why)."""
+    if say is None:
+        say = partial(progress, command)
     t_all = time.perf_counter()
     realized = realize(scenario)
-    result = pipeline.run(realized, say=partial(progress, command), strict=strict)
+    result = pipeline.run(realized, say=say, strict=strict)
     report = run_report(result, pipeline.sensor_sigma_m(realized.scenario))
     if placement is not None:
         report["placement"] = placement
@@ -64,6 +81,7 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
 
         t0 = time.perf_counter()
         save_run_recording(stage.file(rrd), result)
+        say("wrote the recording")
         report["timings_s"]["recording_s"] = round(time.perf_counter() - t0, 3)
         report["recording"] = str(rrd)
     report["wall_s"] = round(time.perf_counter() - t_all, 2)
@@ -79,20 +97,55 @@ def exit_code(report: dict) -> int:
     return EXIT_OK if report["trusted"] else EXIT_UNTRUSTED
 
 
+def summary_rows(h: dict, files: str | None = None) -> list[tuple[str, str]]:
+    """The summary of ``twin run`` and ``twin demo`` for a reader, from the headline ``h``."""
+    rows = [("complete", "yes" if h["complete"] else f"no: stopped at {h.get('failed_stage')}: {h.get('failure')}")]
+    loc = h.get("localization")
+    untrusted_loc = loc is not None and loc["status"] != "ok"
+    rows.append(("trusted", yes_no(h["trusted"]) + (f" (localization {loc['status']})" if untrusted_loc else "")))
+    if loc is not None:
+        if "free" in (loc["rotation_error_deg"], loc["translation_error_mm"]):
+            # along a free direction the points say nothing, so there is no pose error to state
+            errors = "free direction(s), no pose error defined"
+        else:
+            errors = (f"rotation error {number(loc['rotation_error_deg'], 'deg')}, "
+                      f"translation error {number(loc['translation_error_mm'], 'mm')}")
+        rows.append(("localization", f"{loc['status']}: {errors}; largest error along the determined directions "
+                                     f"{number(loc['max_error_sigmas'], 'sigma', 3)}"))
+    pv = h.get("path_verification")
+    if pv is not None:
+        rows.append(("path replay", f"{pv['path']}: max deviation {number(pv['max_deviation_mm'], 'mm')}, "
+                                    f"rms {number(pv['rms_deviation_mm'], 'mm')}, "
+                                    f"{pv['unintended_contacts']} unintended contact(s)"))
+    if "max_surface_error_mm" in h:
+        rows.append(("surface error", f"max {number(h['max_surface_error_mm'], 'mm')} (CAD path against the true "
+                                      "surface)"))
+    rows.append(("report", h.get("report", "n/a")))
+    if files:
+        rows.append(("files", files))
+    if "recording" in h:
+        rows.append(("recording", h["recording"]))
+    if "wall_s" in h:
+        rows.append(("wall time", number(h["wall_s"], "s", 3)))
+    return rows
+
+
 def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     out, rrd = checked_outputs(args)
     placement = None
-    if args.place_base:
-        from twin.placement import place_base
+    with reporting(args, "run") as say:
+        if args.place_base:
+            from twin.placement import place_base
 
-        scenario, placement = place_base(scenario)
-        progress("run", f"base placed at {placement['new_base']} (was {placement['old_base']}; "
-                        f"margin {placement['margin']:.2f}, {placement['time_s']:.1f} s)")
-    with Staged(out) as stage:
-        _, report = run_and_report(scenario, stage, rrd, strict=args.strict, placement=placement)
-        stage.commit()
-    print(json.dumps(headline(report), indent=2))
+            scenario, placement = place_base(scenario)
+            say(f"base placed at {placement['new_base']} (was {placement['old_base']}; "
+                f"margin {placement['margin']:.2f}, {placement['time_s']:.1f} s)")
+        with Staged(out) as stage:
+            _, report = run_and_report(scenario, stage, rrd, strict=args.strict, placement=placement, say=say)
+            stage.commit()
+    h = headline(report)
+    print_result(args, h, summary_rows(h), indent=2)
     if not report["complete"]:
         progress("run", f"stopped at {report['failed_stage']}: {report['failure']} "
                         f"(partial report in {report['report']})")

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 
 from twin.cell import build_cell
-from twin.cli.common import add_output_options, checked_outputs
+from twin.cli.common import add_output_options, checked_outputs, number, print_result, reporting
 from twin.io import write_scan
 from twin.io.output import Staged
 from twin.realize import realize
@@ -23,7 +22,8 @@ def add_parser(sub) -> None:
                     "DIR/samples.parquet (t, q1..q6, d, valid, status, line), DIR/points.ply "
                     "(valid points, robot base frame, metres) and DIR/scan.json. The folder (and the "
                     "recording) appear when everything is written; an existing one is refused "
-                    "unless --force.",
+                    "unless --force. stdout: a short summary, or with --json one JSON object (out, "
+                    "samples, valid, duration_s, wall_s, recording); progress goes to stderr.",
     )
     p.add_argument("scenario", help="scenario TOML file (see scenarios/README.md)")
     add_output_options(p, "output folder (created; refused if it exists, unless --force)")
@@ -37,15 +37,23 @@ def run(args: argparse.Namespace) -> int:
         scenario = dataclasses.replace(scenario, noise=scenario.noise.all_off())
     out, rrd = checked_outputs(args)
     t0 = time.perf_counter()
-    with Staged(out) as stage:
+    # deferred lines: every stage up to the last write can still refuse the input (an unreachable
+    # scan line, a full disk), and a refusal is one line on stderr
+    with reporting(args, "scan", defer=True) as say, Staged(out) as stage:
         realized = realize(scenario)
+        say(f"realized the scenario: {len(realized.workpiece.mesh.faces)} triangles, seed {scenario.seed}")
         true_cell = build_cell(realized, "true")
-        scan = run_scan(realized, build_cell(realized, "nominal"), true_cell)
+        nominal_cell = build_cell(realized, "nominal")
+        say("built the nominal and the true cell")
+        scan = run_scan(realized, nominal_cell, true_cell)
+        say(f"scanned {len(scan.t)} samples ({scan.t[-1]:.1f} s simulated), {int(scan.valid.sum())} valid")
         write_scan(scan, stage.folder, extra={"recording": str(rrd)} if rrd else None)
+        say("wrote samples.parquet, points.ply, scan.json")
         if rrd is not None:
             from twin.viz import save_scan_recording
 
             save_scan_recording(stage.file(rrd), true_cell, scan)
+            say("wrote the recording")
         stage.commit()
     summary = {
         "out": str(out),
@@ -54,5 +62,19 @@ def run(args: argparse.Namespace) -> int:
         "duration_s": round(float(scan.t[-1]), 3),
         "wall_s": round(time.perf_counter() - t0, 2),
     }
-    print(json.dumps(summary))
+    if rrd is not None:
+        summary["recording"] = str(rrd)
+    print_result(args, summary, scan_rows(summary))
     return 0
+
+
+def scan_rows(summary: dict) -> list[tuple[str, str]]:
+    """The summary of ``twin scan`` for a reader."""
+    share = 100.0 * summary["valid"] / max(summary["samples"], 1)
+    rows = [("scan", f"complete: {summary['samples']} samples at 1 ms ({summary['duration_s']:.3f} s simulated), "
+                     f"{summary['valid']} valid ({share:.1f} %)"),
+            ("files", f"{summary['out']} (samples.parquet, points.ply, scan.json)")]
+    if "recording" in summary:
+        rows.append(("recording", summary["recording"]))
+    rows.append(("wall time", number(summary["wall_s"], "s", 3)))
+    return rows
