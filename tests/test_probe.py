@@ -204,3 +204,5 @@ def test_every_locate_scenario_meets_the_bar(tmp_path, scenario):
     hits = (out / "probe_hits.csv").read_text().splitlines()
     assert len(hits) == 1 + rep["probing"]["points"] and (out / "coarse_points.ply").stat().st_size > 0
     assert (tmp_path / "locate.rrd").stat().st_size > 0
+    assert "pose_error.png" in rep["figures"] and (out / "pose_error.png").exists()
+    assert "FAIL" not in (out / "report.html").read_text()

@@ -148,3 +148,13 @@ def test_a_stage_that_fails_leaves_a_partial_report(tmp_path, edit, stage, messa
     assert report["complete"] is False and report["failed_stage"] == stage
     assert message in report["failure"] and "Traceback" not in r.stderr
     assert "scan" in report and "localization" in report and "cad_path" not in report
+
+
+def test_the_run_writes_its_figures_and_a_report_page(loop):
+    _, out, report, _ = loop
+    assert set(report["figures"]) >= {"scan_residuals.png", "scan_deviation_map.png", "path_deviation.png",
+                                      "tracking_error.png"}
+    for name in report["figures"]:
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    page = (out / "report.html").read_text()
+    assert all(f'src="{name}"' in page for name in report["figures"]) and "pass" in page

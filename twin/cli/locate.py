@@ -28,6 +28,7 @@ from twin.realize import realize
 from twin.scenario import COARSE_METHODS, PROBE_PLANNERS, load_scenario
 
 REPORT_FILE = "report.json"
+PAGE_FILE = "report.html"
 HITS_FILE = "probe_hits.csv"
 COARSE_POINTS_FILE = "coarse_points.ply"
 #: Columns of probe_hits.csv (robot base frame, metres, seconds).
@@ -135,8 +136,14 @@ def run(args: argparse.Namespace) -> int:
             save_locate_recording(stage.file(rrd), result, build_probe_cell(realized), report)
             say("wrote the recording")
             report["recording"] = str(rrd)
+        from twin.io.figures import locate_checks, locate_figures, report_page
+        from twin.pipeline import sensor_sigma_m
+
+        figures = locate_figures(result, sensor_sigma_m(scenario), stage.folder)
+        report["figures"] = [f.name for f in figures]
         report["wall_s"] = round(time.perf_counter() - t_all, 2)
         report["report"] = str(stage.out / REPORT_FILE)
+        report_page(report, figures, locate_checks(report), stage.folder / PAGE_FILE, f"twin locate: {scenario.name}")
         write_json(stage.folder / REPORT_FILE, report)
         stage.commit()
     h = locate_headline(report)

@@ -28,6 +28,7 @@ from twin.realize import realize
 from twin.scenario import Scenario, load_scenario
 
 REPORT_FILE = "report.json"
+PAGE_FILE = "report.html"
 
 
 def add_parser(sub) -> None:
@@ -84,8 +85,13 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
         say("wrote the recording")
         report["timings_s"]["recording_s"] = round(time.perf_counter() - t0, 3)
         report["recording"] = str(rrd)
+    from twin.io.figures import report_page, run_checks, run_figures
+
+    figures = run_figures(result, pipeline.sensor_sigma_m(realized.scenario), stage.folder)
+    report["figures"] = [f.name for f in figures]
     report["wall_s"] = round(time.perf_counter() - t_all, 2)
     report["report"] = str(stage.out / REPORT_FILE)
+    report_page(report, figures, run_checks(report), stage.folder / PAGE_FILE, f"twin {command}: {scenario.name}")
     write_json(stage.folder / REPORT_FILE, report)
     return result, report
 

@@ -38,14 +38,15 @@ def residual_histogram(residual_m: np.ndarray, sigma_m: float, path: Path, title
     """Histogram of point residuals [um] against the noise model N(0, sigma)."""
     r = np.asarray(residual_m, dtype=np.float64) * 1e6
     fig, ax = _figure(5.5, 3.6)
-    lim = max(4 * sigma_m * 1e6, np.percentile(np.abs(r), 99.5) if len(r) else 1.0)
+    lim = max(4 * sigma_m * 1e6, np.percentile(np.abs(r), 99.5) if len(r) else 1.0, 1e-3)
     ax.hist(r, bins=80, range=(-lim, lim), density=True, color="#4c78a8", alpha=0.8, label=f"points (n = {len(r)})")
     # the sensor's combined standard uncertainty as a normal law (its linearity part is in
     # truth a smooth systematic curve, so the histogram need not be normal)
-    x = np.linspace(-lim, lim, 400)
     s = sigma_m * 1e6
-    ax.plot(x, np.exp(-0.5 * (x / s) ** 2) / (s * np.sqrt(2 * np.pi)), color="#e45756",
-            label=f"combined uncertainty N(0, {s:.2f} um)")
+    if s > 0:
+        x = np.linspace(-lim, lim, 400)
+        ax.plot(x, np.exp(-0.5 * (x / s) ** 2) / (s * np.sqrt(2 * np.pi)), color="#e45756",
+                label=f"combined uncertainty N(0, {s:.2f} um)")
     ax.set_xlabel("signed distance to the true surface [um]")
     ax.set_ylabel("density [1/um]")
     ax.set_title(title)
@@ -200,3 +201,47 @@ figure{{display:inline-block;margin:6px}} img{{max-width:520px}}</style></head>
 """
     path.write_text(page)
     return path
+
+
+def run_checks(report: dict) -> list[tuple[str, bool, str]]:
+    """Pass/fail of a run's report: complete, trusted, errors within 3 reported standard
+    deviations, no unintended contact, the CAD path's surface error within its bound."""
+    loc = report.get("localization", {})
+    pv = report.get("path_verification", {})
+    cad = report.get("cad_path", {})
+    out = [("complete", bool(report.get("complete")), report.get("failure", "")),
+           ("trusted", bool(report.get("trusted")), loc.get("message", ""))]
+    if loc.get("max_error_sigmas") is not None:
+        out.append(("localization error within 3 sigma", loc["max_error_sigmas"] <= 3.0,
+                    f"max {loc['max_error_sigmas']} sigma along the determined directions"))
+    if pv:
+        out.append(("no unintended contact", pv["unintended_contacts"] == 0, f"{pv['unintended_contacts']} contact(s)"))
+    if "max_surface_error_mm" in cad and "surface_error_bound_mm" in cad:
+        out.append(("CAD path on the true surface", cad["max_surface_error_mm"] <= cad["surface_error_bound_mm"],
+                    f"{cad['max_surface_error_mm'] * 1e3:.2f} um against a bound of "
+                    f"{cad['surface_error_bound_mm'] * 1e3:.2f} um"))
+    return out
+
+
+def locate_checks(report: dict) -> list[tuple[str, bool, str]]:
+    """Pass/fail of a locate report against issue's bar: coarse within 1 mm and 1 deg, the
+    qualified radius within 0.1 um of its truth, the final error within 3 standard deviations,
+    every planned point hit, no unintended contact."""
+    out = [("complete", bool(report.get("complete")), report.get("failure", "")),
+           ("trusted", bool(report.get("trusted")), "")]
+    if "coarse" in report:
+        c = report["coarse"]
+        out.append(("coarse within 1 mm and 1 deg", c["within_1mm_1deg"],
+                    f"{c['rotation_error_deg']:.4f} deg, {c['translation_error_mm']:.4f} mm"))
+    if "qualification" in report:
+        e = report["qualification"]["effective_radius_error_um"]
+        out.append(("effective radius within 0.1 um", abs(e) <= 0.1, f"{e:+.3f} um"))
+    if "probing" in report:
+        p = report["probing"]
+        out.append(("every planned point hit", not p["misses"], f"{p['hits']} of {p['points']}"))
+        out.append(("no unintended contact", p["unintended_contacts"] == 0, f"{p['unintended_contacts']} contact(s)"))
+    if "fine" in report:
+        f = report["fine"]
+        out.append(("final error within 3 sigma", f["max_error_sigmas"] <= 3.0,
+                    f"max {f['max_error_sigmas']} sigma (Mahalanobis {f['mahalanobis']})"))
+    return out
