@@ -105,7 +105,9 @@ def _run_blocks(run) -> dict:
     if run is None:
         return {}
     return {"dropped": [d.to_dict() for d in run.dropped], "ik": ik_report(run.ik, run.trajectory),
-            "verification": run.log.summary()}
+            "verification": run.log.summary(),
+            # the replay's own times (contacts, limits) start at 0: add this for the recording's sim_time
+            "recording_t_offset_s": round(float(run.t_offset_s), 6)}
 
 
 def scan_path_report(result, sensor_sigma_m: float) -> dict:
