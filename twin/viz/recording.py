@@ -40,6 +40,8 @@ def _save(path: str | Path, cell: Cell, scan, result, app_id: str) -> Path:
         rec.save(str(path))
         plots = [("plots/scan", "distance d [mm]")] + [(f"plots/{r.name}", f"{PATH_TITLES.get(r.name, r.name)} "
                                                                              "deviation [um]") for r in runs]
+        if getattr(result, "localization", None) is not None:
+            plots.append(("plots/localization", "localization residual rms [um] per iteration"))
         send_blueprint(_focus(cell), float(np.ptp(cell.mesh.vertices, axis=0).max()), plots)
         rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         log_cell(cell)
@@ -50,6 +52,12 @@ def _save(path: str | Path, cell: Cell, scan, result, app_id: str) -> Path:
         if loc is not None:
             log_pose_with_outline("world/workpiece/estimate", cell.T_world_base @ loc.T_world_workpiece, cell.mesh,
                                   [40, 200, 255])
+            # the residual falling over the iterations, on a timeline of its own
+            hist = np.asarray(loc.history, dtype=np.float64)
+            if len(hist):
+                rr.send_columns("plots/localization/rms_um",
+                                indexes=[rr.TimeColumn("localization_iteration", sequence=np.arange(len(hist)))],
+                                columns=rr.Scalars.columns(scalars=hist * 1e6))
         for run in runs:
             ent = f"world/path/{run.name}"
             planned, actual = PATH_COLOURS.get(run.name, ([90, 90, 90], [255, 200, 0]))
@@ -59,6 +67,12 @@ def _save(path: str | Path, cell: Cell, scan, result, app_id: str) -> Path:
             log_tool_frames(f"{ent}/tool_frames", p.T_tool[p.process_mask()], cell.T_world_base)
             log_normals(f"{ent}/normals", run.normals_points, run.normals, cell.T_world_base, planned)
             log_replay(cell, run.log, run.t_offset_s, ent, actual)
+            bad = [c for c in run.log.contacts if not c.intended]
+            if bad:
+                rr.log(f"{ent}/contacts", rr.Points3D(transform_points(cell.T_world_base,
+                                                                       np.array([c.position_m for c in bad])),
+                                                      radii=0.002, colors=[255, 0, 255],
+                                                      labels=[f"{c.geom} x {c.other}" for c in bad]), static=True)
             if run.dropped:
                 # The stretches left out (unreachable, singular, colliding), as markers.
                 pts = np.array([d.position_m for d in run.dropped])
@@ -94,6 +108,10 @@ def _summary(scan, result, runs) -> str:
         err = (f"{np.degrees(e.rotation_rad):.4f} deg, {e.translation_m * 1e6:.1f} um from the truth" if not free
                else f"{free} free direction(s)")
         out.append(f"- estimate (`world/workpiece/estimate`, cyan): {loc.status.value}, {err}")
+        d = evaluate.determined_errors(loc, result.realized, result.pose_covariance)
+        if d["std"]:
+            out.append(f"- errors along the determined directions: max {d['max_sigmas']} standard deviations "
+                       f"(1 sigma: {', '.join(f'{v:.2e}' for v in d['std'])}, rad or m)")
     for run in runs:
         v = run.log.summary()
         dev = "" if v["max_deviation_mm"] is None else f", max deviation {v['max_deviation_mm'] * 1e3:.0f} um"
