@@ -139,9 +139,10 @@ def section_trials(names, trials, workers, lines):
             f"{max((abs(r['radius_error_um']) for r in rows if 'radius_error_um' in r), default=np.nan):.3f} | "
             f"{sum(r.get('hits', 0) for r in rows)}/{sum(r.get('points', 0) for r in rows)} | "
             f"{sum(r.get('contacts', 0) for r in rows)} | {np.mean([r['wall_s'] for r in rows]):.1f} |")
+        print(lines[-1], flush=True)
         if fails:
             lines.append(f"|  | failed: {'; '.join(fails)} |||||||||||")
-        print(lines[-1], flush=True)
+            print(lines[-1], flush=True)
     lines.append("")
 
 
