@@ -45,7 +45,7 @@ from twin.errors import TwinError
 from twin.ik import IKSolver, reachable
 from twin.realize import Realized
 from twin.replay import ContactRecord, add_collision_checks, contact_columns, contact_records
-from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH
+from twin.robot import HOME_Q, UR5E_DH
 from twin.sensors.base import sensor_slice
 from twin.sensors.touch_probe import BALL_SITE, MODULE_SITE, Trigger, find_trigger
 from twin.sim import simulate
@@ -230,7 +230,6 @@ class ProbingProgram:
         self.T_world_base = cell.T_world_base
         self.T_base_world = inv_pose(cell.T_world_base)
         model = cell.model
-        self.enc_cols = [sensor_slice(model, f"enc_{j}").start for j in JOINT_NAMES]
         self.ball_cols = sensor_slice(model, f"{BALL_SITE}_pos")
         self.module_cols = sensor_slice(model, f"{MODULE_SITE}_pos")
         self.contact_names, self.contact_cols = contact_columns(model)
