@@ -109,7 +109,8 @@ def test_existing_out_is_refused_and_force_replaces_it_whole(tmp_path, capsys):
     assert one_line_refusal(rc, err) and "--force" in err
     rc, _, err = run_main(capsys, "scan", sc, "--out", out, "--force")
     assert rc == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["points.ply", "samples.parquet", "scan.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["points.ply", "samples.parquet", "scan.json",
+                                                     "scan_deviation_map.png", "scan_residuals.png"]
     assert leftovers(tmp_path) == []
 
 
