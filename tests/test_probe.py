@@ -206,3 +206,21 @@ def test_every_locate_scenario_meets_the_bar(tmp_path, scenario):
     assert (tmp_path / "locate.rrd").stat().st_size > 0
     assert "pose_error.png" in rep["figures"] and (out / "pose_error.png").exists()
     assert "FAIL" not in (out / "report.html").read_text()
+
+
+def test_every_coarse_method_returns_a_pose():
+    """The coarse methods on points of the part at its true pose: the multistart within 1 mm and
+    1 deg; the document's single genetic run returns its own pose, whatever its quality."""
+    from algorithms.geometry.se3 import rotation_error_rad, translation_error_m
+    from twin.locate import coarse_pose
+
+    realized = realize(load_scenario(LOCATE_SCENARIOS[-1]))
+    pts_wp, _ = realized.workpiece.mesh.sample(3000, return_index=True, seed=3)
+    pts = transform_points(realized.T_base_workpiece_true, pts_wp)
+    pts = pts[transform_points(realized.scenario.T_world_base, pts)[:, 2] > 0.002]    # the table hides the bottom
+    T, r = coarse_pose(pts, realized, "multistart")
+    assert np.degrees(rotation_error_rad(T, realized.T_base_workpiece_true)) < 1.0
+    assert translation_error_m(T, realized.T_base_workpiece_true) < 1e-3
+    T_ga, r_ga = coarse_pose(pts, realized, "ga")
+    assert np.allclose(T_ga[:3, :3] @ T_ga[:3, :3].T, np.eye(3), atol=1e-9)
+    assert np.array_equal(T_ga, r_ga.diagnostics.genetic.T_coarse)

@@ -327,7 +327,7 @@ def coarse_pose(points: np.ndarray, realized: Realized, method: str) -> tuple[np
     if method == "ga":
         r = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma, ga_restarts=1,
                             polish=None, n_coarse=COARSE_POINTS)
-        return r.global_diagnostics.genetic.T_coarse, r
+        return r.diagnostics.genetic.T_coarse, r
     if method == "multistart":
         r = global_localize(points, index=index, method="multistart", rng=rng, noise_sigma_m=sigma,
                             n_coarse=COARSE_POINTS)
