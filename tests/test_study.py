@@ -1,0 +1,156 @@
+"""``twin study``: study files refused in one line, results independent of the worker count and
+the scheduler, resume after a real SIGKILL without a lost or repeated trial."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from tests.helpers import ROOT, SCENARIOS
+from twin.cli import main
+from twin.cli.common import EXIT_BAD_INPUT
+from twin.errors import TwinError
+from twin.studies import load_study
+from twin.studies.runner import BATCH_DIR, RESULTS, batch_files, run_study
+
+#: A tiny study: two scan lines of the S-surface, two sigma levels, six trials each.
+TINY = f"""
+name = "tiny"
+seed = 7
+scenario = "{SCENARIOS / 's_surface.toml'}"
+trials = 6
+kind = "fast"
+
+[overrides.scan]
+max_lines = 2
+
+[grid]
+"sensor.sigma_m" = [1e-6, 5e-6]
+"""
+
+
+def write_study(folder, text=TINY, name="tiny.toml"):
+    p = folder / name
+    p.write_text(text)
+    return p
+
+
+def run_main(capsys, *argv):
+    rc = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def one_line_refusal(rc, err):
+    return rc == EXIT_BAD_INPUT and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def assert_same_table(a, b):
+    """Equal trial by trial, bit for bit (the wall time aside)."""
+    a, b = a.drop_columns(["time_s"]), b.drop_columns(["time_s"])
+    assert a.column_names == b.column_names
+    for name in a.column_names:
+        x, y = a.column(name).to_pylist(), b.column(name).to_pylist()
+        if isinstance(x[0], float):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y), err_msg=name)
+        else:
+            assert x == y, name
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The tiny study run in this process (one worker)."""
+    folder = tmp_path_factory.mktemp("study")
+    study = write_study(folder)
+    run_study(load_study(study), folder / "one", workers=1)
+    return study, pq.read_table(folder / "one" / RESULTS)
+
+
+@pytest.mark.parametrize("text, words", [
+    ("bogus = 1\n" + TINY, ["bogus", "allowed"]),
+    (TINY.replace("[1e-6, 5e-6]", "[]"), ["empty list"]),
+    (TINY.replace("[1e-6, 5e-6]", "[1e-6, -2.0]"), ["sensor.sigma_m", "-2.0"]),
+    (TINY + '"sensor.nonsense" = [1]\n', ["sensor.nonsense"]),
+    (TINY + '"localize.method" = ["nope"]\n', ["localize.method", "nope"]),
+    (TINY.replace('kind = "fast"', 'kind = "slow"'), ["kind", "fast, full"]),
+])
+def test_bad_study_refused_in_one_line(tmp_path, capsys, text, words):
+    study = write_study(tmp_path, text)
+    with pytest.raises(TwinError) as exc:
+        load_study(study)
+    assert all(w in str(exc.value) for w in words), str(exc.value)
+    rc, out, err = run_main(capsys, "study", study, "--out", tmp_path / "out")
+    assert one_line_refusal(rc, err), err
+    assert out == "" and not (tmp_path / "out").exists()
+
+
+def test_workers_give_identical_tables(reference, tmp_path):
+    study, table = reference
+    assert table.num_rows == 12 and set(table.column("status").to_pylist()) <= {"ok", "not_converged", "poor_fit"}
+    assert table.column("sensor.sigma_m").to_pylist() == [1e-6] * 6 + [5e-6] * 6
+    run_study(load_study(study), tmp_path / "two", workers=2)
+    assert_same_table(table, pq.read_table(tmp_path / "two" / RESULTS))
+    assert (tmp_path / "two" / "report.md").is_file() and (tmp_path / "two" / "translation_error.png").is_file()
+
+
+def test_dask_local_cluster_equals_local_run(reference, tmp_path):
+    study, table = reference
+    run_study(load_study(study), tmp_path / "dask", workers=2, scheduler="dask")
+    assert_same_table(table, pq.read_table(tmp_path / "dask" / RESULTS))
+
+
+def test_resume_after_sigkill(reference, tmp_path, capsys):
+    study, table = reference
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "twin.cli", "study", str(study), "--out", str(out), "--quiet"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while not batch_files(out) and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.01)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    assert batch_files(out) and not (out / RESULTS).exists(), "the kill must land between the first batch and the end"
+    done_before = sum(pq.read_table(p).num_rows for p in batch_files(out))
+    assert 0 < done_before < table.num_rows
+    rc, _, err = run_main(capsys, "study", study, "--out", out)   # refused without --resume
+    assert one_line_refusal(rc, err) and "--resume" in err
+    rc, text, err = run_main(capsys, "study", study, "--out", out, "--resume", "--json", "--quiet")
+    assert rc == 0, err
+    assert f'"trials_resumed": {done_before}' in text
+    final = pq.read_table(out / RESULTS)
+    ids = list(zip(final.column("cell").to_pylist(), final.column("trial").to_pylist(), strict=True))
+    assert len(ids) == len(set(ids)) == table.num_rows
+    assert_same_table(table, final)
+    # no temporary batch left under a final name; every row in exactly one batch file
+    assert sum(pq.read_table(p).num_rows for p in batch_files(out)) == table.num_rows
+    assert all(p.name.startswith("batch-") for p in (out / BATCH_DIR).iterdir() if not p.name.startswith("."))
+
+
+def test_folder_of_another_study_refused(reference, tmp_path, capsys):
+    study, _ = reference
+    out = tmp_path / "a"
+    other = write_study(tmp_path, TINY.replace("seed = 7", "seed = 8").replace("trials = 6", "trials = 1"),
+                        "other.toml")
+    rc, _, err = run_main(capsys, "study", other, "--out", out, "--quiet")
+    assert rc == 0, err
+    for extra in ([], ["--resume"]):
+        rc, out_text, err = run_main(capsys, "study", study, "--out", out, *extra)
+        assert one_line_refusal(rc, err) and "different study" in err, err
+        assert out_text == ""
+    assert pq.read_table(out / RESULTS).num_rows == 2   # the other study's results are untouched
+
+
+def test_unreachable_scheduler(reference, tmp_path, capsys):
+    study, _ = reference
+    t0 = time.monotonic()
+    rc, out, err = run_main(capsys, "study", study, "--out", tmp_path / "x", "--scheduler", "tcp://127.0.0.1:1")
+    assert one_line_refusal(rc, err) and "tcp://127.0.0.1:1" in err, err
+    assert time.monotonic() - t0 < 10 and out == "" and not (tmp_path / "x").exists()

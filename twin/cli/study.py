@@ -1,0 +1,53 @@
+"""``twin study STUDY.toml --out DIR``: a Monte Carlo / benchmark study (``twin.studies``).
+
+Runs every trial of the study's grid not yet in ``DIR`` on one process, a process pool
+(``--workers N``) or Dask (``--scheduler dask``: a LocalCluster of N workers; ``tcp://HOST:PORT``:
+a running scheduler), streams the results to ``DIR/results/`` in batches, then writes
+``DIR/results.parquet`` (sorted by cell and trial) and ``DIR/report.md`` with its plot.
+``--resume`` continues a study whose run was stopped; the results do not depend on the worker
+count, the scheduler or the resume.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from twin.cli.common import add_print_options, positive_int, print_result
+from twin.studies.runner import progress_printer, run_study
+from twin.studies.spec import load_study
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "study", help="run a Monte Carlo / benchmark study (a grid of factors, trials per cell), resumable",
+        description="Run the study file's trials (a grid of scenario and localization factors, trials per "
+                    "cell) and write DIR/results.parquet, DIR/report.md and its plot. Results stream to "
+                    "DIR/results/ in batches; --resume skips the finished trials. The same study gives the "
+                    "same table whatever the workers, the scheduler or the resume.",
+    )
+    p.add_argument("study", help="study TOML file (studies/README.md documents its keys)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--workers", type=positive_int, default=1,
+                   help="worker processes (default 1: this process; with --scheduler dask the cluster's size)")
+    p.add_argument("--scheduler", default="local",
+                   help="local (a process pool, default), dask (start a Dask LocalCluster) or "
+                        "tcp://HOST:PORT (a running Dask scheduler)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the same study in DIR, running only the trials not yet finished")
+    p.add_argument("--force", action="store_true", help="replace an existing DIR whole (start over)")
+    add_print_options(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    study = load_study(args.study)
+    summary = run_study(study, args.out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
+                        force=args.force, on_progress=progress_printer(args.quiet))
+    rows = [("study", f"{summary['study']} ({summary['cells']} cell(s) x {summary['trials_per_cell']} trial(s))"),
+            ("trials", f"{summary['trials']} ({summary['trials_run']} run now, {summary['trials_resumed']} resumed)"),
+            ("success rate", f"{summary['success_rate'] * 100:.1f} %"),
+            ("time", f"{summary['seconds']:.1f} s"),
+            ("results", summary["results"]),
+            ("report", summary["report"])]
+    print_result(args, summary, rows)
+    return 0

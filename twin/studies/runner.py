@@ -1,0 +1,339 @@
+"""Run a study: every (cell, trial) not yet done, in batches, on an executor, streamed to Parquet.
+
+Layout of the output folder ``DIR``:
+
+* ``manifest.json``: the study's content hash (``study_hash``) and settings; a folder whose
+  manifest names another study is refused.
+* ``results/batch-XXXXXX.parquet``: one file per finished batch, written to a hidden temporary
+  name and renamed into place, so a file under its final name is whole. ``--resume`` reads the
+  finished (cell, trial) ids from these files and runs the others: a run killed at any moment
+  loses at most its batches in flight and never repeats a trial.
+* ``report.md`` and ``translation_error.png`` (:mod:`twin.studies.report`).
+* ``results.parquet``: the final table, every batch, sorted by (cell, trial); written last, so
+  its presence says the study is complete.
+
+Columns of the tables (one row per trial):
+
+* ``cell`` (int): the grid cell (row-major over the grid's factors, the last fastest);
+  ``trial`` (int): the trial within the cell;
+* one column per grid factor, named by its key path (``sensor.sigma_m``), holding the cell's value;
+* ``omega_x_urad``, ``omega_y_urad``, ``omega_z_urad`` [urad], ``v_x_um``, ``v_y_um``, ``v_z_um`` [um]:
+  the pose error twist ``xi = [omega, v]`` with ``T_est = T_true exp(xi)``, workpiece frame;
+* ``rotation_error_deg`` [deg], ``translation_error_um`` [um]: the rotation angle and translation
+  distance between the estimate and the truth;
+* ``rmse_um`` [um]: RMS point-to-model distance of the inliers at the estimate;
+* ``iterations`` (int): pose updates; ``status`` (str): the localization's verdict (``ok``, ...,
+  ``error`` where it raised); ``time_s`` [s]: wall time of the localization (not reproducible);
+  ``n_points`` (int): points handed to the localization.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import logging
+import multiprocessing
+import os
+import re
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from twin.errors import TwinError
+from twin.studies.spec import Study
+from twin.studies.trials import METRIC_COLUMNS, run_trial
+
+MANIFEST = "manifest.json"
+RESULTS = "results.parquet"
+BATCH_DIR = "results"
+BATCH_RE = re.compile(r"^batch-(\d{6})\.parquet$")
+#: Seconds to wait for a Dask scheduler named by address before giving up.
+CONNECT_TIMEOUT_S = 5
+#: Batches in flight per worker (keeps workers busy while finished batches are written).
+IN_FLIGHT_PER_WORKER = 2
+
+
+def batch_size(study: Study, workers: int) -> int:
+    """Trials per batch: small enough that a kill loses little and work spreads over workers."""
+    return max(1, min(16, study.n_trials // (4 * max(workers, 1)) or 1))
+
+
+def run_batch(study: Study, ids: list[tuple[int, int]]) -> list[dict]:
+    """The trials ``ids`` ((cell, trial) pairs) of a study, in order (runs in a worker)."""
+    return [run_trial(study, c, t) for c, t in ids]
+
+
+# ------------------------------------------------------------------ the folder
+def prepare_folder(out: Path, study: Study, resume: bool, force: bool) -> None:
+    """Check the output folder before any work and write the manifest (module docstring)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise TwinError(f"--out {out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        old = _read_manifest(out)
+        same = old is not None and old.get("study_hash") == study.content_hash
+        if resume and not same:
+            what = "no study manifest" if old is None else f"a different study ({old.get('name')!r})"
+            raise TwinError(f"--out {out} holds {what}; --resume continues the same study only")
+        if not resume:
+            if not force:
+                held = "" if same or old is None else f" (it holds a different study, {old.get('name')!r})"
+                raise TwinError(f"--out {out} exists{held}; pass --resume to continue the same study, "
+                                "or --force to replace it whole")
+            shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / BATCH_DIR).mkdir(exist_ok=True)
+    for stale in (out / RESULTS, out / "report.md"):
+        stale.unlink(missing_ok=True)  # the final files are remade; an old one must not look current
+    manifest = {"study_hash": study.content_hash, **study.settings()}
+    _write_atomic(out / MANIFEST, json.dumps(manifest, indent=2, default=str).encode())
+
+
+def _read_manifest(out: Path) -> dict | None:
+    try:
+        return json.loads((out / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _umask_mode() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.partial-", dir=path.parent)
+    try:
+        # mkstemp makes the file private (0600); the result gets a new file's usual permissions
+        os.fchmod(fd, _umask_mode())
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(name, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(name)
+        raise
+
+
+def _write_table_atomic(path: Path, table: pa.Table) -> None:
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.partial-", dir=path.parent)
+    os.close(fd)
+    try:
+        pq.write_table(table, name)
+        with open(name, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.chmod(name, _umask_mode())
+        os.replace(name, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(name)
+        raise
+
+
+def batch_files(out: Path) -> list[Path]:
+    """The finished batch files, by number (temporaries, hidden, are not listed)."""
+    d = Path(out) / BATCH_DIR
+    return sorted(p for p in d.iterdir() if BATCH_RE.match(p.name)) if d.is_dir() else []
+
+
+def finished_ids(out: Path) -> set[tuple[int, int]]:
+    """(cell, trial) of every trial in the finished batch files."""
+    done: set[tuple[int, int]] = set()
+    for p in batch_files(out):
+        t = pq.read_table(p, columns=["cell", "trial"])
+        done.update(zip(t.column("cell").to_pylist(), t.column("trial").to_pylist(), strict=True))
+    return done
+
+
+def rows_table(study: Study, rows: list[dict]) -> pa.Table:
+    """Trial rows as a table with the factor columns added (module docstring)."""
+    cells = study.cells
+    cols: dict[str, list] = {"cell": [r["cell"] for r in rows], "trial": [r["trial"] for r in rows]}
+    for f in study.factors:
+        cols[f] = [cells[r["cell"]][f] for r in rows]
+    for m in METRIC_COLUMNS:
+        cols[m] = [r[m] for r in rows]
+    return pa.table(cols)
+
+
+# ------------------------------------------------------------------ executors
+def _chunks(ids: list, size: int) -> Iterator[list]:
+    for i in range(0, len(ids), size):
+        yield ids[i:i + size]
+
+
+@contextlib.contextmanager
+def executor(scheduler: str, workers: int) -> Iterator[tuple[str, object]]:
+    """``(mode, executor)``: ``("inline", None)`` (one worker: this process), ``("pool", a process
+    pool)`` or ``("dask", a Dask client)`` (a LocalCluster started here, or a running scheduler)."""
+    if scheduler == "local" and workers == 1:
+        yield "inline", None
+        return
+    if scheduler == "local":
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            yield "pool", pool
+        return
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise TwinError("--scheduler dask needs the 'distributed' package (pip install 'dask[distributed]')") \
+            from None
+    if scheduler == "dask":
+        # the cluster's own log lines would bury the progress and the one-line errors on stderr
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                          silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+            yield "dask", client
+        return
+    try:
+        client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise TwinError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there "
+                        f"({' '.join(str(exc).split())[:160]})") from None
+    with client:
+        yield "dask", client
+
+
+def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local", resume: bool = False,
+              force: bool = False, on_progress: Callable[[int, int], None] = lambda done, total: None) -> dict:
+    """Run every trial not yet in ``out``'s batch files, then write the final table and report.
+
+    Returns a summary: trials run now and before, batches, seconds, the output files.
+    """
+    from twin.studies.report import write_report
+
+    out = Path(out)
+    if scheduler not in ("local", "dask") and not scheduler.startswith("tcp://"):
+        raise TwinError(f"--scheduler must be local, dask or a tcp://HOST:PORT address, got {scheduler!r}")
+    if scheduler.startswith("tcp://"):
+        _probe(scheduler)
+    prepare_folder(out, study, resume, force)
+    done = finished_ids(out)
+    todo = [(c, t) for c in range(study.n_cells) for t in range(study.trials) if (c, t) not in done]
+    total = study.n_trials
+    numbers = [int(BATCH_RE.match(p.name).group(1)) for p in batch_files(out)]
+    next_batch = max(numbers, default=-1) + 1
+    count = total - len(todo)
+    on_progress(count, total)
+    t0 = time.perf_counter()
+    batches = list(_chunks(todo, batch_size(study, workers)))
+    with executor(scheduler, workers) as (mode, ex):
+        if mode == "inline":
+            results: Iterator[list[dict]] = (run_batch(study, b) for b in batches)
+        else:
+            results = _stream(mode, ex, study, batches, workers)
+        for rows in results:
+            _write_table_atomic(out / BATCH_DIR / f"batch-{next_batch:06d}.parquet", rows_table(study, rows))
+            next_batch += 1
+            count += len(rows)
+            on_progress(count, total)
+    table = final_table(out)
+    if table.num_rows != total:
+        raise TwinError(f"{out}: {table.num_rows} trials in the batch files, expected {total}")
+    files = write_report(study, table, out)
+    # the final table last: its presence says the study is complete
+    _write_table_atomic(out / RESULTS, table)
+    return {"study": study.name, "study_hash": study.content_hash, "out": str(out), "cells": study.n_cells,
+            "trials_per_cell": study.trials, "trials": total, "trials_run": len(todo),
+            "trials_resumed": total - len(todo), "seconds": time.perf_counter() - t0,
+            "results": str(out / RESULTS), "report": str(files[0]), "plots": [str(p) for p in files[1:]],
+            "success_rate": _success_rate(table)}
+
+
+def _success_rate(table: pa.Table) -> float:
+    status = table.column("status").to_pylist()
+    return sum(s == "ok" for s in status) / max(len(status), 1)
+
+
+def _stream(mode: str, ex, study: Study, batches: list, workers: int) -> Iterator[list[dict]]:
+    """Finished batches as they complete, with a bounded number in flight."""
+    limit = max(1, workers * IN_FLIGHT_PER_WORKER)
+    queue = iter(batches)
+    if mode == "pool":
+        pending = set()
+        for b in queue:
+            pending.add(ex.submit(run_batch, study, b))
+            if len(pending) >= limit:
+                break
+        while pending:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for f in finished:
+                yield f.result()
+                nxt = next(queue, None)
+                if nxt is not None:
+                    pending.add(ex.submit(run_batch, study, nxt))
+        return
+    from distributed import as_completed
+
+    first = [ex.submit(run_batch, study, b, pure=False) for b in itertools.islice(queue, limit)]
+    ac = as_completed(first)
+    for f in ac:
+        yield f.result()
+        nxt = next(queue, None)
+        if nxt is not None:
+            ac.add(ex.submit(run_batch, study, nxt, pure=False))
+
+
+def _probe(address: str) -> None:
+    """Refuse an unreachable scheduler address quickly, before the output folder is touched."""
+    import socket
+
+    hostport = address[len("tcp://"):]
+    host, _, port = hostport.rpartition(":")
+    if not host or not port.isdigit():
+        raise TwinError(f"--scheduler {address}: expected tcp://HOST:PORT")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        raise TwinError(f"--scheduler {address}: cannot reach a Dask scheduler there ({exc.strerror or exc})") \
+            from None
+
+
+def final_table(out: Path) -> pa.Table:
+    """Every batch of ``out`` in one table sorted by (cell, trial); a duplicated trial is an error."""
+    files = batch_files(out)
+    if not files:
+        raise TwinError(f"{out}: no finished batch")
+    table = pa.concat_tables([pq.read_table(p) for p in files], promote_options="default")
+    table = table.sort_by([("cell", "ascending"), ("trial", "ascending")])
+    ids = list(zip(table.column("cell").to_pylist(), table.column("trial").to_pylist(), strict=True))
+    if len(set(ids)) != len(ids):
+        raise TwinError(f"{out}: a trial appears twice in the batch files")
+    return table
+
+
+def progress_printer(quiet: bool, stream=None) -> Callable[[int, int], None]:
+    """A progress callback: a tqdm bar on a terminal, plain lines elsewhere, nothing when quiet."""
+    stream = sys.stderr if stream is None else stream
+    if quiet:
+        return lambda done, total: None
+    if stream.isatty():
+        from tqdm import tqdm
+
+        bar: dict = {}
+
+        def on_bar(done: int, total: int) -> None:
+            if "bar" not in bar:
+                bar["bar"] = tqdm(total=total, initial=done, file=stream, unit="trial", desc="[twin study]")
+            else:
+                bar["bar"].update(done - bar["bar"].n)
+            if done >= total:
+                bar["bar"].close()
+        return on_bar
+
+    start = time.perf_counter()
+
+    def on_line(done: int, total: int) -> None:
+        print(f"[twin study] {done}/{total} trials ({time.perf_counter() - start:.1f} s)", file=stream, flush=True)
+    return on_line
