@@ -37,6 +37,7 @@ import multiprocessing
 import os
 import re
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -64,6 +65,11 @@ IN_FLIGHT_PER_WORKER = 2
 def batch_size(study: Study, workers: int) -> int:
     """Trials per batch: small enough that a kill loses little and work spreads over workers."""
     return max(1, min(16, study.n_trials // (4 * max(workers, 1)) or 1))
+
+
+def _ignore_sigint() -> None:
+    """Pool workers leave Ctrl-C to the command, which stops the study and keeps the finished batches."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def run_batch(study: Study, ids: list[tuple[int, int]]) -> list[dict]:
@@ -181,8 +187,15 @@ def executor(scheduler: str, workers: int) -> Iterator[tuple[str, object]]:
         yield "inline", None
         return
     if scheduler == "local":
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_ignore_sigint)
+        try:
             yield "pool", pool
+        except BaseException:
+            # an interrupt or an error: drop the queued batches instead of running them out
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
         return
     try:
         from distributed import Client, LocalCluster
