@@ -11,7 +11,8 @@ status, never a traceback (README, "Exit status"):
 - 3: finished, but the result cannot be trusted (printed and written all the same, saying so);
 - 4: a stage failed (``twin run``, ``twin locate``): what the finished stages made is written,
   the report says ``complete: false`` and why;
-- 130 / 143: interrupted by SIGINT / SIGTERM: temporary files removed, nothing written;
+- 130 / 143: interrupted by SIGINT / SIGTERM: temporary files removed, nothing written (a
+  study keeps its finished batches for ``--resume``);
 - 141: the reader of stdout went away (``twin ... | head``): ends quietly.
 """
 
@@ -53,6 +54,13 @@ def _on_signal(signum: int, frame: FrameType | None) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _left_behind(command: str) -> str:
+    """What an interrupted command leaves: a study keeps its finished batches for --resume."""
+    if command == "twin study":
+        return "the finished batches are kept (run again with --resume to finish the study)"
+    return "nothing written"
 
 
 def _quiet_stdout() -> None:
@@ -98,10 +106,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{command}: error: {_os_error_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        print(f"{command}: interrupted (SIGINT); nothing written", file=sys.stderr)
+        print(f"{command}: interrupted (SIGINT); {_left_behind(command)}", file=sys.stderr)
         return EXIT_SIGINT
     except Terminated:
-        print(f"{command}: terminated (SIGTERM); nothing written", file=sys.stderr)
+        print(f"{command}: terminated (SIGTERM); {_left_behind(command)}", file=sys.stderr)
         return EXIT_SIGTERM
     finally:
         if in_main_thread:
