@@ -20,11 +20,12 @@ def test_notebooks_are_committed_without_outputs():
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_runs_from_its_folder(path, tmp_path):
     nb = nbformat.read(path, as_version=4)
-    # a copy of the folder's notebook runs in a scratch folder beside a link to the scenarios,
+    # a copy of the folder's notebook runs in a scratch folder beside links to the scenarios and studies,
     # as it would in the notebook's own folder, so that its outputs land in the scratch folder
     work = tmp_path / "notebooks"
     work.mkdir()
-    (tmp_path / "scenarios").symlink_to(ROOT / "scenarios")
+    for folder in ("scenarios", "studies"):
+        (tmp_path / folder).symlink_to(ROOT / folder)
     NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(work)}}).execute()
     images = sum(1 for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])
                  if "image/png" in o.get("data", {}))
