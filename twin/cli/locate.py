@@ -21,6 +21,7 @@ from twin.cli.common import (
     reporting,
     yes_no,
 )
+from twin.cli.run import exit_code
 from twin.io.output import Staged
 from twin.io.report import locate_headline, locate_report, write_json
 from twin.io.scan_files import write_points_ply
@@ -99,12 +100,6 @@ def summary_rows(h: dict) -> list[tuple[str, str]]:
     if "wall_s" in h:
         rows.append(("wall time", number(h["wall_s"], "s", 3)))
     return rows
-
-
-def exit_code(report: dict) -> int:
-    if not report["complete"]:
-        return EXIT_STAGE_FAILED
-    return EXIT_OK if report["trusted"] else EXIT_UNTRUSTED
 
 
 def run(args: argparse.Namespace) -> int:
