@@ -26,7 +26,7 @@ from twin.realize import Realized
 from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH
 from twin.scenario import Scenario
 from twin.sensors import RaySensor
-from twin.sensors.base import RawRays, sensor_slice
+from twin.sensors.base import Measurement, RawRays, sensor_slice
 from twin.sensors.laser import RAY_THREADS
 from twin.sim import simulate
 
@@ -165,47 +165,20 @@ def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan 
     timings["ik_s"] = time.perf_counter() - t0
 
     sensor = true_cell.sensor
-    model = true_cell.model
-    n, b = len(q_ref), sensor.beams
-    dist = np.empty((n, b))
-    origin, direction, normal, receiver = (np.empty((n, b, 3)) for _ in range(4))
-    q_enc = np.empty((n, 6))
-    q_true = np.empty((n, 6))
-    enc_cols = [sensor_slice(model, f"enc_{j}").start for j in JOINT_NAMES]
-
-    def on_chunk(i0, sens, q_before):
-        i1 = i0 + len(sens)
-        q_enc[i0:i1] = sens[:, enc_cols]
-        q_true[i0:i1] = q_before
-        r = sensor.decode(model, sens)
-        dist[i0:i1], origin[i0:i1], direction[i0:i1] = r.dist, r.origin, r.direction
-        normal[i0:i1], receiver[i0:i1] = r.normal, r.receiver
-
+    log = SampleLog(true_cell, len(q_ref))
     t0 = time.perf_counter()
-    simulate(true_cell, q_ref, qd_ref, on_chunk)
+    simulate(true_cell, q_ref, qd_ref, log.on_chunk)
     timings["simulate_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    rays = RawRays(dist, origin, direction, normal, receiver)
-    batch = mujoco.batch.Batch(model, RAY_THREADS, nthread=RAY_THREADS)
-    meas = sensor.measure(rays, realized.streams.generator("sensor"), model, batch)
+    batch = mujoco.batch.Batch(true_cell.model, RAY_THREADS, nthread=RAY_THREADS)
+    meas, q_log, points = measure_samples(scenario, true_cell, plan.t, log.q_enc, log.rays(),
+                                          realized.streams.generator("sensor"),
+                                          realized.streams.generator("encoder"), batch)
     timings["sensor_model_s"] = time.perf_counter() - t0
-
-    # Robot-side error sources on what the controller logs.
+    q_true = log.q_true
     t = plan.t.copy()
-    q_log = q_enc.copy()
-    if scenario.noise.time_skew_s != 0.0:
-        # The distance at t pairs with the joints read at t - skew.
-        ts = np.clip(t - scenario.noise.time_skew_s, t[0], t[-1])
-        q_log = np.column_stack([np.interp(ts, t, q_log[:, j]) for j in range(6)])
-    if scenario.noise.encoder_sigma_rad > 0:
-        rng_enc = realized.streams.generator("encoder")
-        q_log = q_log + rng_enc.normal(0.0, scenario.noise.encoder_sigma_rad, q_log.shape)
-
-    t0 = time.perf_counter()
     T_fs_nominal = scenario.sensor.T_flange_sensor
-    points = sensor.reconstruct(q_log, meas.d, UR5E_DH, T_fs_nominal)
-    timings["reconstruct_s"] = time.perf_counter() - t0
 
     return Scan(
         scenario=scenario, t=t, q=q_log, d=meas.d, valid=meas.valid, status=meas.status,
@@ -215,6 +188,61 @@ def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan 
         T_flange_sensor_nominal=T_fs_nominal, beam_dirs_sensor=sensor.beam_dirs_sensor(), d_true=meas.d_true,
         sensor=sensor, timings_s=timings,
     )
+
+
+class SampleLog:
+    """Collects what a rollout's chunks carry for a ray sensor: encoder readings, true joints
+    and the ideal rays of ``n`` steps (``on_chunk`` is :func:`twin.sim.simulate`'s callback)."""
+
+    def __init__(self, true_cell: Cell, n: int):
+        self.cell = true_cell
+        b = true_cell.sensor.beams
+        self.dist = np.empty((n, b))
+        self.origin, self.direction, self.normal, self.receiver = (np.empty((n, b, 3)) for _ in range(4))
+        self.q_enc = np.empty((n, 6))
+        self.q_true = np.empty((n, 6))
+        self.enc_cols = [sensor_slice(true_cell.model, f"enc_{j}").start for j in JOINT_NAMES]
+
+    def on_chunk(self, i0: int, sens: np.ndarray, q_before: np.ndarray) -> None:
+        i1 = i0 + len(sens)
+        self.q_enc[i0:i1] = sens[:, self.enc_cols]
+        self.q_true[i0:i1] = q_before
+        r = self.cell.sensor.decode(self.cell.model, sens)
+        self.dist[i0:i1], self.origin[i0:i1], self.direction[i0:i1] = r.dist, r.origin, r.direction
+        self.normal[i0:i1], self.receiver[i0:i1] = r.normal, r.receiver
+
+    def rays(self, rows: slice | np.ndarray = slice(None)) -> RawRays:
+        """The ideal rays of the logged steps (``rows`` of them)."""
+        return RawRays(self.dist[rows], self.origin[rows], self.direction[rows], self.normal[rows],
+                       self.receiver[rows])
+
+
+def measure_samples(scenario: Scenario, true_cell: Cell, t: np.ndarray, q_enc: np.ndarray, rays: RawRays,
+                    rng_sensor: np.random.Generator, rng_encoder: np.random.Generator,
+                    batch: mujoco.batch.Batch | None = None) -> tuple[Measurement, np.ndarray, np.ndarray]:
+    """What the cell reports for simulated samples, and the points rebuilt from it.
+
+    The sensor's error model on the ideal rays, then the robot-side error sources on the
+    encoder readings the controller logs (time skew, encoder noise), then document 004's
+    reconstruction with the believed hand-eye transform.
+
+    Args:
+        t: (N,) sample times [s]; q_enc: (N, 6) ideal encoder readings [rad]; rays: (N, B).
+        rng_sensor, rng_encoder: the sensor's and the encoders' random streams.
+
+    Returns:
+        (measurement, q_log (N, 6) [rad] as logged, points (N, B, 3) [m] robot base frame).
+    """
+    meas = true_cell.sensor.measure(rays, rng_sensor, true_cell.model, batch)
+    q_log = q_enc.copy()
+    if scenario.noise.time_skew_s != 0.0:
+        # The distance at t pairs with the joints read at t - skew.
+        ts = np.clip(t - scenario.noise.time_skew_s, t[0], t[-1])
+        q_log = np.column_stack([np.interp(ts, t, q_log[:, j]) for j in range(6)])
+    if scenario.noise.encoder_sigma_rad > 0:
+        q_log = q_log + rng_encoder.normal(0.0, scenario.noise.encoder_sigma_rad, q_log.shape)
+    points = true_cell.sensor.reconstruct(q_log, meas.d, UR5E_DH, scenario.sensor.T_flange_sensor)
+    return meas, q_log, points
 
 
 def scan_scenario(scenario: Scenario, mesh=None) -> Scan:
