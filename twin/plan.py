@@ -210,7 +210,9 @@ def _segment(T_path: np.ndarray, s_path: np.ndarray, speed: float, dt: float) ->
     return _interp_poses(T_path, s_path, s)
 
 
-def _straight(T_a: np.ndarray, T_b: np.ndarray, speed: float, dt: float) -> np.ndarray:
+def straight_poses(T_a: np.ndarray, T_b: np.ndarray, speed: float, dt: float) -> np.ndarray:
+    """(K, 4, 4) poses every ``dt`` of a rest-to-rest straight move from ``T_a`` to ``T_b`` at
+    ``speed`` [m/s] (trapezoidal, ``ACCELERATION_M_S2``), rotation by slerp."""
     length = float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3]))
     # Rotation-only moves: give them a length so they take time (1 rad ~ 0.1 m).
     ang = float(np.linalg.norm(Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).as_rotvec()))
@@ -564,12 +566,12 @@ def _assemble(cell: Cell, lines: list[_Line], dt: float, infos: tuple[PassInfo, 
         elif ln.pass_index != prev_pass:
             height = max(safe_z, prev[2, 3], above_start[2, 3])
             up, down = _climb(prev, height), _climb(above_start, height)
-            seg = [_straight(prev, up, ln.transit_speed_m_s, dt)[1:],
-                   _straight(up, down, ln.transit_speed_m_s, dt)[1:],
-                   _straight(down, above_start, ln.transit_speed_m_s, dt)[1:]]
+            seg = [straight_poses(prev, up, ln.transit_speed_m_s, dt)[1:],
+                   straight_poses(up, down, ln.transit_speed_m_s, dt)[1:],
+                   straight_poses(down, above_start, ln.transit_speed_m_s, dt)[1:]]
         else:
-            seg = [_straight(prev, above_start, ln.transit_speed_m_s, dt)[1:]]
-        seg.append(_straight(above_start, start, ln.transit_speed_m_s, dt)[1:])
+            seg = [straight_poses(prev, above_start, ln.transit_speed_m_s, dt)[1:]]
+        seg.append(straight_poses(above_start, start, ln.transit_speed_m_s, dt)[1:])
         for s_ in seg:
             poses.append(s_)
             labels.append(np.full(len(s_), -1))
@@ -578,7 +580,7 @@ def _assemble(cell: Cell, lines: list[_Line], dt: float, infos: tuple[PassInfo, 
         labels.append(np.full(len(scan), ln.index))
         retract = end.copy()
         retract[:3, 3] -= ln.retract_m * end[:3, 2]
-        r = _straight(end, retract, ln.transit_speed_m_s, dt)[1:]
+        r = straight_poses(end, retract, ln.transit_speed_m_s, dt)[1:]
         poses.append(r)
         labels.append(np.full(len(r), -1))
         prev, prev_pass = retract, ln.pass_index

@@ -91,10 +91,22 @@ def _add_tool(spec: mujoco.MjSpec, scenario: Scenario) -> None:
     tool.add_site(name="tcp", pos=tip, quat=quat_wxyz(T_ft[:3, :3]), size=[0.001, 0, 0])
 
 
-def _add_height_field(spec: mujoco.MjSpec, mesh: trimesh.Trimesh) -> None:
+@dataclass(frozen=True)
+class HeightField:
+    """The part's collision shape: its top surface sampled every ``HFIELD_RES_M`` seen from
+    above (heights [m] above the part's lowest point, rows along y), in the workpiece frame."""
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    heights_m: np.ndarray
+    z0_m: float
+
+
+def height_field(mesh: trimesh.Trimesh) -> HeightField:
+    """Cast vertical rays over the part's footprint (one sample beyond it on every side, so the
+    walls drop to the table)."""
     lo, hi = mesh.bounds
     res = HFIELD_RES_M
-    # One sample beyond the footprint on every side so the walls drop to the table.
     nx = int(np.ceil((hi[0] - lo[0]) / res)) + 3
     ny = int(np.ceil((hi[1] - lo[1]) / res)) + 3
     xs = lo[0] - res + np.arange(nx) * res
@@ -102,14 +114,18 @@ def _add_height_field(spec: mujoco.MjSpec, mesh: trimesh.Trimesh) -> None:
     X, Y = np.meshgrid(xs, ys)  # row = y, column = x (MuJoCo's hfield layout)
     origins = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, hi[2] + 0.01)])
     hit, P, _ = raycast_parallel(mesh.vertices, mesh.faces, origins, [0.0, 0.0, -1.0])
-    z0 = lo[2]
-    Z = np.where(hit, P[:, 2], z0).reshape(X.shape) - z0
+    z0 = float(lo[2])
+    return HeightField(xs, ys, np.where(hit, P[:, 2], z0).reshape(X.shape) - z0, z0)
+
+
+def _add_height_field(spec: mujoco.MjSpec, field: HeightField) -> None:
+    xs, ys, Z = field.x_m, field.y_m, field.heights_m
     top = float(max(Z.max(), 1e-6))
     spec.add_hfield(name="workpiece_hfield", size=[(xs[-1] - xs[0]) / 2, (ys[-1] - ys[0]) / 2, top, 0.005],
-                    nrow=ny, ncol=nx, userdata=(Z / top).ravel().tolist())
+                    nrow=len(ys), ncol=len(xs), userdata=(Z / top).ravel().tolist())
     wp = spec.body("workpiece")
     wp.add_geom(name="workpiece_collision", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="workpiece_hfield",
-                pos=[(xs[0] + xs[-1]) / 2, (ys[0] + ys[-1]) / 2, z0], contype=0, conaffinity=1,
+                pos=[(xs[0] + xs[-1]) / 2, (ys[0] + ys[-1]) / 2, field.z0_m], contype=0, conaffinity=1,
                 group=GROUP_WORKPIECE, rgba=[0.75, 0.6, 0.35, 0.0])
     g = spec.geom("workpiece")
     g.contype = 0
@@ -133,10 +149,11 @@ def build_replay_cell(realized: Realized) -> Cell:
     return compile_cell(spec, realized, "true", poses)
 
 
-def add_collision_checks(spec: mujoco.MjSpec, mesh: trimesh.Trimesh) -> None:
-    """The part's height-field collision shape and a contact sensor for every colliding robot
-    geom against it and the table (named ``contact:GEOM:TARGET``; :func:`contact_records`)."""
-    _add_height_field(spec, mesh)
+def add_collision_checks(spec: mujoco.MjSpec, mesh: trimesh.Trimesh, hfield: HeightField | None = None) -> None:
+    """The part's height-field collision shape (``hfield``, or :func:`height_field` of ``mesh``)
+    and a contact sensor for every colliding robot geom against it and the table (named
+    ``contact:GEOM:TARGET``; :func:`contact_records`)."""
+    _add_height_field(spec, height_field(mesh) if hfield is None else hfield)
     for g in _checked_geoms(spec):
         for target in CONTACT_TARGETS:
             spec.add_sensor(name=f"contact:{g}:{target}", type=mujoco.mjtSensor.mjSENS_CONTACT,

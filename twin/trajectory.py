@@ -326,3 +326,40 @@ def solve_tool_path(cell: Cell, path: ProcessPath, T_flange_tool: np.ndarray, fe
     T_ball[:, :3, 3] += path.tip_radius_m * T_ball[:, :3, 2]
     return solve_path(cell, T_ball, q_start=q_start, dt=dt, on_problem="report", site=TOOL_BALL_SITE,
                       free_spin=True)
+
+
+def joint_move(q_a: np.ndarray, q_b: np.ndarray, dt: float,
+               velocity_limit_rad_s: np.ndarray = VELOCITY_LIMIT_RAD_S,
+               acceleration_limit_rad_s2: np.ndarray = ACCELERATION_LIMIT_RAD_S2) -> tuple[np.ndarray, np.ndarray]:
+    """A synchronised point-to-point joint move, rest to rest: every joint follows the same
+    trapezoidal profile in time, scaled so that the slowest joint meets its limits.
+
+    Args:
+        q_a, q_b: (6,) start and end joints [rad]; dt: sample period [s].
+
+    Returns:
+        (q_ref, qd_ref), each (K, 6), K >= 2 samples ``dt`` apart, from ``q_a`` to exactly ``q_b``.
+    """
+    q_a = np.asarray(q_a, dtype=np.float64)
+    delta = np.asarray(q_b, dtype=np.float64) - q_a
+    span = np.abs(delta)
+    if not np.any(span > 1e-12):
+        return np.stack([q_a, q_a]), np.zeros((2, 6))
+    moving = span > 1e-12
+    # the fraction of the move s in [0, 1]: its speed and acceleration limits from each joint's
+    v = float(np.min(velocity_limit_rad_s[moving] / span[moving]))
+    a = float(np.min(acceleration_limit_rad_s2[moving] / span[moving]))
+    t_acc = v / a
+    if a * t_acc**2 >= 1.0:  # triangle profile
+        t_acc = np.sqrt(1.0 / a)
+        v = a * t_acc
+    t_flat = (1.0 - a * t_acc**2) / v
+    total = 2 * t_acc + t_flat
+    t = np.arange(int(np.ceil(total / dt - 1e-9)) + 1) * dt
+    t = np.minimum(t, total)
+    t_dec = np.maximum(total - t, 0.0)
+    s = np.where(t < t_acc, 0.5 * a * t**2,
+                 np.where(t < t_acc + t_flat, 0.5 * a * t_acc**2 + v * (t - t_acc), 1.0 - 0.5 * a * t_dec**2))
+    sd = np.where(t < t_acc, a * t, np.where(t < t_acc + t_flat, v, a * t_dec))
+    s[-1], sd[-1] = 1.0, 0.0
+    return q_a + s[:, None] * delta, sd[:, None] * delta
