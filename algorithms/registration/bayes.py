@@ -111,6 +111,8 @@ class _Problem:
     incidence_noise: bool
     # each point's nearest faces, kept between the queries of one fit (MeshIndex.query_near)
     near: list = field(default_factory=lambda: [None])
+    # the residuals of the last (T, b) asked for: an accepted trial step is linearised next
+    last: dict = field(default_factory=dict)
 
 
 def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: float, init=None,
@@ -253,6 +255,14 @@ class _Linear:
 
 def _residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
     """Points (biases removed) in the workpiece frame, normals, residuals, dr/db and weights."""
+    key = (T.tobytes(), b.tobytes())
+    if prob.last.get("key") != key:
+        prob.last["key"] = key
+        prob.last["value"] = _compute_residuals(prob, T, b)
+    return prob.last["value"]
+
+
+def _compute_residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
     T_inv = inv_pose(T)
     U = prob.beams
     M = (prob.Y - b[prob.groups][:, None] * U) @ T_inv[:3, :3].T + T_inv[:3, 3]
