@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from algorithms.errors import AlgorithmError
+from algorithms.geometry.edges import SharpEdges
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, log_se3
 from algorithms.registration.robust import OUTLIER_COARSE_FLOOR_REL, OUTLIER_K_COARSE, inlier_mask
@@ -54,6 +55,8 @@ STEP_TOL_SIGMAS = 1e-4
 MAX_ITERATIONS = 50
 #: The outlier cut never goes below this many sigmas.
 FLOOR_SIGMAS = 4.0
+#: A point farther than this from its closest face's plane, sideways, lies beyond an edge [m].
+OFF_FACE_M = 1e-7
 #: The truncation of the objective reported for comparing starts [sigmas].
 OBJECTIVE_CUT_SIGMAS = 5.0
 #: Levenberg-Marquardt damping (relative to the diagonal of the normal matrix): start, give up.
@@ -78,6 +81,7 @@ class MapResult:
         iterations: Gauss-Newton updates made.
         rmse_m: RMS point-to-plane residual of the inliers [m] (biases removed).
         inliers: (N,) bool over the input rows.
+        near_edge: (N,) bool, the rows left out for lying near a sharp edge (``edge_band_m``).
         prior_mahalanobis: ``sqrt(xi^T P xi)`` of the estimate from the prior mean (4.74 is
             the 99.9 % bound of 6 DOF).
         objective: the objective at the estimate with every residual truncated at
@@ -93,6 +97,7 @@ class MapResult:
     iterations: int
     rmse_m: float
     inliers: np.ndarray = field(repr=False)
+    near_edge: np.ndarray = field(repr=False)
     prior_mahalanobis: float
     objective: float
 
@@ -113,10 +118,13 @@ class _Problem:
     near: list = field(default_factory=lambda: [None])
     # the residuals of the last (T, b) asked for: an accepted trial step is linearised next
     last: dict = field(default_factory=dict)
+    # (N,) points the fit may use (False: near a sharp edge at the start, see localize_map)
+    usable: np.ndarray = field(default_factory=lambda: np.ones(0, dtype=bool))
 
 
 def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: float, init=None,
                  groups=None, beams=None, bias_sigma_m: float = 0.0, incidence_noise: bool = False,
+                 edges: SharpEdges | None = None, edge_band_m: float = 0.0,
                  max_iterations: int = MAX_ITERATIONS) -> MapResult:
     """The maximum a posteriori ``T_world_workpiece`` (module docstring).
 
@@ -133,6 +141,9 @@ def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: 
             ``bias_sigma_m > 0`` or ``incidence_noise``).
         bias_sigma_m: prior sigma of each group's offset along the beams [m] (0: no bias).
         incidence_noise: scale each point's sigma by 1 / cos(incidence).
+        edges, edge_band_m: points whose closest point at the start pose lies within
+            ``edge_band_m`` of a sharp edge of the model are left out of the fit (outliers
+            for the whole call): with the pose unsure by that much, their face is unsure.
         max_iterations: cap on Gauss-Newton updates (>= 1).
 
     Raises:
@@ -143,6 +154,10 @@ def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: 
     if int(max_iterations) < 1:
         raise AlgorithmError(f"max_iterations must be >= 1, got {max_iterations}")
     T = inv_pose(prob.T_prior_inv) if init is None else as_pose(init, name="init")
+    if edges is not None and edge_band_m > 0 and len(prob.Y):
+        M, _, _, _, _ = _compute_residuals(prob, T, np.zeros(prob.n_groups))
+        cp = index.query(M)
+        prob.usable[:] = edges.distance(cp.foot) > edge_band_m
     b = np.zeros(prob.n_groups)
     converged = False
     iterations = 0
@@ -173,9 +188,12 @@ def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: 
     xi = log_se3(prob.T_prior_inv @ T)
     inliers = np.zeros(len(np.asarray(points, dtype=np.float64).reshape(-1, 3)), dtype=bool)
     inliers[rows[lin.mask]] = True
+    near_edge = np.zeros(len(inliers), dtype=bool)
+    near_edge[rows[~prob.usable]] = True
     r = lin.r[lin.mask]
     return MapResult(T, 0.5 * (covariance + covariance.T), S - prob.P, b, converged, iterations,
-                     float(np.sqrt(np.mean(r**2))) if len(r) else 0.0, inliers, float(np.sqrt(xi @ prob.P @ xi)),
+                     float(np.sqrt(np.mean(r**2))) if len(r) else 0.0, inliers, near_edge,
+                     float(np.sqrt(xi @ prob.P @ xi)),
                      _objective(prob, T, b, OBJECTIVE_CUT_SIGMAS * prob.sigma_m))
 
 
@@ -208,7 +226,7 @@ def _check(points, index, T_prior, prior_information, sigma_m, groups, beams, bi
             raise AlgorithmError(f"beams must be (N, 3) = ({len(Y)}, 3) unit vectors, one per point, got {U.shape}")
     rows = np.flatnonzero(np.all(np.isfinite(Y), axis=1))
     return _Problem(Y[rows], g[rows], U[rows], k, index, inv_pose(T_prior), P, float(sigma_m),
-                    float(bias_sigma_m), bool(incidence_noise)), rows
+                    float(bias_sigma_m), bool(incidence_noise), usable=np.ones(len(rows), dtype=bool)), rows
 
 
 class _Linear:
@@ -268,7 +286,12 @@ def _compute_residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
     M = (prob.Y - b[prob.groups][:, None] * U) @ T_inv[:3, :3].T + T_inv[:3, 3]
     cp, prob.near[0] = prob.index.query_near(M, prob.near[0])
     n = cp.normal
-    r = np.einsum("ij,ij->i", M - cp.foot, n)
+    e = M - cp.foot
+    r = np.einsum("ij,ij->i", e, n)
+    # a point whose closest point is on a face's boundary (beyond an edge) has no tangent
+    # plane: it counts as an outlier (the objective charges it the cut; it adds no information)
+    on_face = np.einsum("ij,ij->i", e, e) - r * r <= OFF_FACE_M**2
+    r = np.where(on_face & prob.usable, r, np.inf)
     u_wp = U @ T_inv[:3, :3].T
     c = -np.einsum("ij,ij->i", n, u_wp)
     sigma = prob.sigma_m / np.maximum(np.abs(c), MIN_COS_INCIDENCE) if prob.incidence_noise \
@@ -283,6 +306,8 @@ def _linearise(prob: _Problem, T: np.ndarray, b: np.ndarray, coarse: bool) -> _L
         return _Linear(prob, T, b, z, z, np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool), 0.0, xi)
     M, n, r, c, w = _residuals(prob, T, b)
     d = np.abs(r)
+    finite = np.isfinite(d)
+    d = np.where(finite, d, np.max(d[finite], initial=0.0) * 10 + 1.0)
     if coarse:
         mask = inlier_mask(d, "mad", max(OUTLIER_COARSE_FLOOR_REL * prob.index.extent, FLOOR_SIGMAS * prob.sigma_m),
                            OUTLIER_K_COARSE)
@@ -290,6 +315,7 @@ def _linearise(prob: _Problem, T: np.ndarray, b: np.ndarray, coarse: bool) -> _L
         mask = inlier_mask(d, "mad", FLOOR_SIGMAS * prob.sigma_m)
     if isinstance(mask, slice):
         mask = np.ones(len(M), dtype=bool)
+    mask = mask & finite
     cut = float(d[mask].max()) if mask.any() else FLOOR_SIGMAS * prob.sigma_m
     return _Linear(prob, T, b, M, n, r, c, w, mask, cut, xi)
 

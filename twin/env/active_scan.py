@@ -45,6 +45,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from algorithms.geometry.edges import SharpEdges
 from algorithms.geometry.kinematics import ur_inverse
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import exp_se3, inv_pose, log_se3
@@ -80,6 +81,11 @@ INNOVATION_GATE = 3.0
 #: The linearity error is estimated as one offset per bin of readings this wide [m] (the
 #: IL-065's +/-10 um curve over its 50 mm window changes by about 1.3 um across 1 mm).
 LINEARITY_BIN_M = 0.001
+#: Points nearer a sharp edge of the model than this many standard deviations of the
+#: estimate's position (at the part's size), and at least EDGE_BAND_MIN_M, are left out of
+#: the fit: their face is unsure (algorithms.geometry.edges).
+EDGE_BAND_SIGMAS = 3.0
+EDGE_BAND_MIN_M = 20e-6
 #: A fit that calls more of the points outliers is not trusted (the cell's sensor model
 #: gives no outliers on the part itself: its only misses are invalid readings).
 MAX_OUTLIER_FRACTION = 0.01
@@ -98,6 +104,7 @@ class EnvScenario:
     free_directions: np.ndarray
     length_m: float
     hfield: HeightField
+    edges: SharpEdges
 
 
 def _as_scenarios(scenarios) -> list[Scenario]:
@@ -128,7 +135,7 @@ def prepare(scenario: Scenario) -> EnvScenario:
     geometry = Geometry.of(workpiece, s.window_m, s.max_incidence_deg)
     extent = mesh.bounds[1] - mesh.bounds[0]
     return EnvScenario(scenario, workpiece, nominal, geometry, model_free_directions(workpiece),
-                       float(np.linalg.norm(extent) / 2), height_field(mesh))
+                       float(np.linalg.norm(extent) / 2), height_field(mesh), SharpEdges(mesh.vertices, mesh.faces))
 
 
 def _reachable_views(env_scenario: EnvScenario) -> int:
@@ -380,10 +387,12 @@ class ActiveScanEnv(gym.Env):
         ep = self.episode
         sensor, noise = ep["realized"].scenario.sensor, ep["realized"].scenario.noise
         bins = np.floor((ep["readings"] - sensor.window_m[0]) / LINEARITY_BIN_M).astype(np.int64)
+        std_rot, std_trans = self._worst_std()
+        band = max(EDGE_BAND_SIGMAS * (std_trans + ep["es"].length_m * std_rot), EDGE_BAND_MIN_M)
         return localize_map(ep["points"], ep["es"].workpiece.index, ep["realized"].T_base_workpiece_nominal,
                             self.prior, point_sigma_m(sensor, noise), init=init, groups=np.clip(bins, 0, None),
                             beams=ep["beams"], bias_sigma_m=bias_sigma_m(sensor, noise),
-                            incidence_noise=noise.incidence)
+                            incidence_noise=noise.incidence, edges=ep["es"].edges, edge_band_m=band)
 
     def _fit_verdict(self, res: MapResult) -> str:
         """"ok", or why the estimate cannot be trusted whatever its information says."""
@@ -393,11 +402,14 @@ class ActiveScanEnv(gym.Env):
             return "no points yet"
         if not res.converged:
             return f"not converged in {res.iterations} iterations"
-        poor = poor_fit_reason(res.rmse_m, int(res.inliers.sum()), len(ep["points"]),
-                               ep["es"].workpiece.index.extent, sigma, np.nan)
+        usable = int(len(ep["points"]) - res.near_edge.sum())
+        if usable < 6:
+            return f"only {usable} points away from the model's sharp edges"
+        poor = poor_fit_reason(res.rmse_m, int(res.inliers.sum()), usable, ep["es"].workpiece.index.extent, sigma,
+                               np.nan)
         if poor is not None:
             return f"poor fit: {poor}"
-        shed = 1.0 - res.inliers.sum() / len(ep["points"])
+        shed = 1.0 - res.inliers.sum() / usable
         if shed > MAX_OUTLIER_FRACTION:
             return (f"{shed:.1%} of the points are outliers (more than {MAX_OUTLIER_FRACTION:.0%}): a minimum that "
                     f"sheds the points it cannot fit")

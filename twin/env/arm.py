@@ -12,7 +12,8 @@ where the last one left the arm:
 The joints come from the nominal cell (what the controller believes): mink, started for a
 far pose from the nearest of the arm's closed-form solutions that keeps the links off the
 table. The motion comes from the true cell; the points are those the sensor reports on the
-line, rebuilt from the encoder readings (:func:`twin.scan.measure_samples`). Contact sensors on the arm and the sensor
+line, rebuilt from the encoder readings (:func:`twin.scan.measure_samples`), less those on
+the table top. Contact sensors on the arm and the sensor
 (:func:`twin.replay.add_collision_checks`) report any collision with the part's collision
 shape or the table along the whole motion.
 """
@@ -41,6 +42,9 @@ from twin.trajectory import TABLE_CLEARANCE_M, TableCheck, joint_move
 
 #: Iterations allowed to solve a pose from a nearby configuration.
 NEAR_POSE_ITERATIONS = 200
+#: Points this close to the table top (world z = 0) are the table's, not the part's: dropped,
+#: as a cell crops its known fixture before localizing [m].
+TABLE_CROP_M = 0.0005
 #: IK knots along a line every this many 1 ms steps. Sparser than the scan's (a straight line
 #: at constant orientation has smooth joints); the points come from the encoders, so the
 #: spline between knots moves the path by micrometres without biasing a point.
@@ -212,8 +216,10 @@ class ScanArm:
         contacts = contact_records(self.contact_names, cdata, t, self.T_base_world) if k else []
         self.q = motion.q_end
         self.t_s += n * self.dt
-        return SegmentResult(points[meas.valid], self.T_base_world[:3, :3] @ motion.beam_world, meas.d[meas.valid],
-                             n * self.dt, contacts)
+        P, d = points[meas.valid], meas.d[meas.valid]
+        z_world = P @ self.cell.T_world_base[2, :3] + self.cell.T_world_base[2, 3]
+        keep = z_world > TABLE_CROP_M
+        return SegmentResult(P[keep], self.T_base_world[:3, :3] @ motion.beam_world, d[keep], n * self.dt, contacts)
 
     def joints(self) -> np.ndarray:
         """(6,) the true joint positions now [rad]."""

@@ -36,6 +36,34 @@ def point_information(feet_wp: np.ndarray, normals_wp: np.ndarray, sigma_m: floa
     return fisher_information(feet_wp, normals_wp, sigma_m)
 
 
+def segment_information(feet_wp: np.ndarray, normals_wp: np.ndarray, beam_wp: np.ndarray, readings_m: np.ndarray,
+                        sigma_m: float, bias_sigma_m: float, incidence_noise: bool, bin_m: float) -> np.ndarray:
+    """(6, 6) information one line's points would bring: rows ``[p x n, n]`` weighted by
+    ``cos^2(incidence) / sigma^2`` (with ``incidence_noise``), one unknown linearity offset per
+    bin of readings (``bin_m`` wide, prior ``bias_sigma_m``) marginalised out (the same model
+    as :func:`algorithms.registration.bayes.localize_map`; the offsets of bins other lines
+    already saw are taken as unknown, so the prediction errs low).
+
+    Args:
+        feet_wp, normals_wp: (M, 3) predicted points and unit normals, workpiece frame.
+        beam_wp: (3,) the beam direction, workpiece frame; readings_m: (M,) distances [m].
+    """
+    if len(feet_wp) == 0:
+        return np.zeros((6, 6))
+    c = -(normals_wp @ beam_wp)
+    sigma = sigma_m / np.maximum(np.abs(c), 1e-3) if incidence_noise else np.full(len(c), sigma_m)
+    w = sigma**-2
+    J = np.hstack([np.cross(feet_wp, normals_wp), normals_wp])
+    F = (w[:, None] * J).T @ J
+    if bias_sigma_m > 0:
+        _, g = np.unique(np.floor(readings_m / bin_m), return_inverse=True)
+        Hxb = np.zeros((6, g.max() + 1))
+        np.add.at(Hxb.T, g, (w * c)[:, None] * J)
+        Hbb = np.bincount(g, w * c * c) + bias_sigma_m**-2
+        F = F - (Hxb / Hbb) @ Hxb.T
+    return 0.5 * (F + F.T)
+
+
 def log_det(F: np.ndarray) -> float:
     """log det of a symmetric positive-definite information matrix [nats]."""
     sign, value = np.linalg.slogdet(F)

@@ -151,10 +151,12 @@ class Prediction:
     Attributes:
         feet_wp: (M, 3) predicted points, workpiece frame [m].
         faces: (M,) their faces.
+        readings_m: (M,) the distances the sensor would read [m].
     """
 
     feet_wp: np.ndarray
     faces: np.ndarray
+    readings_m: np.ndarray
 
 
 def predict_segments(ends: list[tuple[np.ndarray, np.ndarray]], T_world_workpiece: np.ndarray,
@@ -179,4 +181,4 @@ def predict_segments(ends: list[tuple[np.ndarray, np.ndarray]], T_world_workpiec
     incidence = np.arccos(np.clip(-(n_face @ d), -1.0, 1.0))
     ok = hit & (dist >= geometry.window_m[0]) & (dist <= geometry.window_m[1]) & \
         (incidence <= geometry.max_incidence_rad)
-    return [Prediction(P[ok & (who == k)], face[ok & (who == k)]) for k in range(len(ends))]
+    return [Prediction(P[ok & (who == k)], face[ok & (who == k)], dist[ok & (who == k)]) for k in range(len(ends))]
