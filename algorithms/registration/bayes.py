@@ -114,6 +114,7 @@ class _Problem:
     sigma_m: float
     bias_sigma_m: float
     incidence_noise: bool
+    offset_m: float = 0.0
     # each point's nearest faces, kept between the queries of one fit (MeshIndex.query_near)
     near: list = field(default_factory=lambda: [None])
     # the residuals of the last (T, b) asked for: an accepted trial step is linearised next
@@ -124,7 +125,7 @@ class _Problem:
 
 def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: float, init=None,
                  groups=None, beams=None, bias_sigma_m: float = 0.0, incidence_noise: bool = False,
-                 edges: SharpEdges | None = None, edge_band_m: float = 0.0,
+                 edges: SharpEdges | None = None, edge_band_m: float = 0.0, offset_m: float = 0.0,
                  max_iterations: int = MAX_ITERATIONS) -> MapResult:
     """The maximum a posteriori ``T_world_workpiece`` (module docstring).
 
@@ -144,13 +145,17 @@ def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: 
         edges, edge_band_m: points whose closest point at the start pose lies within
             ``edge_band_m`` of a sharp edge of the model are left out of the fit (outliers
             for the whole call): with the pose unsure by that much, their face is unsure.
+        offset_m: the points lie this far outside the surface [m] (touch-probe ball centres:
+            the effective ball radius); the residual is ``n . (T^-1 y - f) - offset_m``.
         max_iterations: cap on Gauss-Newton updates (>= 1).
 
     Raises:
         AlgorithmError: a bad shape or value (the message says which and what is allowed).
     """
+    if not (np.isfinite(offset_m) and offset_m >= 0):
+        raise AlgorithmError(f"offset_m must be a finite number >= 0, got {offset_m!r}")
     prob, rows = _check(points, index, T_prior, prior_information, sigma_m, groups, beams, bias_sigma_m,
-                  incidence_noise)
+                        incidence_noise, offset_m)
     if int(max_iterations) < 1:
         raise AlgorithmError(f"max_iterations must be >= 1, got {max_iterations}")
     T = inv_pose(prob.T_prior_inv) if init is None else as_pose(init, name="init")
@@ -198,7 +203,7 @@ def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: 
 
 
 def _check(points, index, T_prior, prior_information, sigma_m, groups, beams, bias_sigma_m,
-           incidence_noise) -> tuple[_Problem, np.ndarray]:
+           incidence_noise, offset_m) -> tuple[_Problem, np.ndarray]:
     Y = np.asarray(points, dtype=np.float64)
     if Y.size == 0:
         Y = Y.reshape(0, 3)
@@ -226,7 +231,8 @@ def _check(points, index, T_prior, prior_information, sigma_m, groups, beams, bi
             raise AlgorithmError(f"beams must be (N, 3) = ({len(Y)}, 3) unit vectors, one per point, got {U.shape}")
     rows = np.flatnonzero(np.all(np.isfinite(Y), axis=1))
     return _Problem(Y[rows], g[rows], U[rows], k, index, inv_pose(T_prior), P, float(sigma_m),
-                    float(bias_sigma_m), bool(incidence_noise), usable=np.ones(len(rows), dtype=bool)), rows
+                    float(bias_sigma_m), bool(incidence_noise), float(offset_m),
+                    usable=np.ones(len(rows), dtype=bool)), rows
 
 
 class _Linear:
@@ -288,9 +294,10 @@ def _compute_residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
     n = cp.normal
     e = M - cp.foot
     r = np.einsum("ij,ij->i", e, n)
+    on_face = np.einsum("ij,ij->i", e, e) - r * r <= OFF_FACE_M**2
+    r = r - prob.offset_m
     # a point whose closest point is on a face's boundary (beyond an edge) has no tangent
     # plane: it counts as an outlier (the objective charges it the cut; it adds no information)
-    on_face = np.einsum("ij,ij->i", e, e) - r * r <= OFF_FACE_M**2
     r = np.where(on_face & prob.usable, r, np.inf)
     u_wp = U @ T_inv[:3, :3].T
     c = -np.einsum("ij,ij->i", n, u_wp)

@@ -4,7 +4,8 @@ Each segment the agent asks for becomes one motion, simulated at 1 ms in the tru
 where the last one left the arm:
 
 1. retract: the sensor backs off along its beam by ``retract_m`` (joint move);
-2. transit: a synchronised point-to-point joint move to ``retract_m`` before the new start;
+2. transit: a synchronised point-to-point joint move to ``retract_m`` before the new start
+   (by way of the home configuration when the direct move would bring a link near the table);
 3. approach along the new beam to the start of the line (joint move);
 4. the line itself: the sensor poses every 1 ms of a rest-to-rest straight move at the scan
    speed, joints by mink IK every ``LINE_KNOT_STEPS`` ms (a clamped cubic spline in between).
@@ -45,6 +46,8 @@ NEAR_POSE_ITERATIONS = 200
 #: Points this close to the table top (world z = 0) are the table's, not the part's: dropped,
 #: as a cell crops its known fixture before localizing [m].
 TABLE_CROP_M = 0.0005
+#: The transit's joint path is checked against the table every this many seconds.
+TRANSIT_CHECK_S = 0.02
 #: IK knots along a line every this many 1 ms steps. Sparser than the scan's (a straight line
 #: at constant orientation has smooth joints); the points come from the encoders, so the
 #: spline between knots moves the path by micrometres without biasing a point.
@@ -189,12 +192,25 @@ class ScanArm:
             return "the line leaves the arm's reach"
         t = np.arange(len(poses)) * self.dt
         spline = CubicSpline(t[knots], track.q, axis=0, bc_type="clamped")
-        legs = [joint_move(self.q, q_out, self.dt), joint_move(q_out, q_in, self.dt),
-                joint_move(q_in, q_start, self.dt)]
+        transit = self._transit(q_out, q_in)
+        if transit is None:
+            return "every transit to the view would take a link into the table"
+        legs = [joint_move(self.q, q_out, self.dt), *transit, joint_move(q_in, q_start, self.dt)]
         q_ref = np.vstack([leg[0][:-1] for leg in legs] + [spline(t)])
         qd_ref = np.vstack([leg[1][:-1] for leg in legs] + [spline(t, 1)])
         line_start = sum(len(leg[0]) - 1 for leg in legs)
         return Motion(q_ref, qd_ref, line_start, track.q[-1].copy(), T_line_start[:3, 2].copy())
+
+    def _transit(self, q_a: np.ndarray, q_b: np.ndarray) -> list | None:
+        """The joint moves from ``q_a`` to ``q_b``: direct, or by way of the home configuration
+        when the direct move would take a link within the table clearance (checked on the
+        nominal model every ``TRANSIT_CHECK_S``); None when both would."""
+        for via in ([q_a, q_b], [q_a, HOME_Q, q_b]):
+            legs = [joint_move(a, b, self.dt) for a, b in zip(via[:-1], via[1:], strict=True)]
+            step = max(1, int(round(TRANSIT_CHECK_S / self.dt)))
+            if all(self.table.nearest(q) is None for leg in legs for q in leg[0][::step]):
+                return legs
+        return None
 
     def execute(self, motion: Motion) -> SegmentResult:
         """Simulate a motion from the current state and measure its line."""

@@ -14,8 +14,8 @@ from algorithms.geometry.kinematics import ur_inverse
 from algorithms.geometry.se3 import inv_pose
 from twin.env.active_scan import LINEARITY_BIN_M, ActiveScanEnv, bias_sigma_m, point_sigma_m
 from twin.env.information import log_det, segment_information
-from twin.env.views import ACTION_SIZE, View, encode_view, predict_segments, sensor_line
-from twin.plan import plan_scan
+from twin.env.views import ACTION_SIZE, View, decode_action, encode_view, predict_segments, sensor_line
+from twin.plan import ACCELERATION_M_S2, plan_scan
 from twin.robot import UR5E_DH
 from twin.trajectory import joint_move
 
@@ -93,7 +93,9 @@ class GreedyInformationPolicy:
     motion time (the reward the environment will pay), predicted on the CAD model at the
     current estimate (:func:`twin.env.views.predict_segments`,
     :func:`twin.env.information.segment_information`); views the closed-form inverse
-    kinematics cannot reach within the joint ranges with the links off the table are skipped."""
+    kinematics cannot reach within the joint ranges, or only with a link near the table,
+    are passed over. The motion time is an estimate (the arm's retract and approach legs
+    are joint moves, taken here at scan speed)."""
 
     name = "greedy"
 
@@ -105,11 +107,18 @@ class GreedyInformationPolicy:
         pass
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
-        scores = self.scores()
+        scores, q = self.scores()
+        table = self.env.episode["arm"].table
+        for i in np.argsort(-scores):
+            if not np.isfinite(scores[i]):
+                break
+            if table.nearest(q[i, 0]) is None and table.nearest(q[i, 1]) is None:
+                return self.candidates[i].copy()
         return self.candidates[int(np.argmax(scores))].copy()
 
-    def scores(self) -> np.ndarray:
-        """(C,) predicted reward of every candidate (-inf where out of reach or blind)."""
+    def scores(self) -> tuple[np.ndarray, np.ndarray]:
+        """(C,) predicted reward of every candidate (-inf where out of reach or blind) and
+        (C, 2, 6) the joints of the nearest closed-form solutions at its approach and end."""
         env = self.env
         ep = env.episode
         es, sc, arm = ep["es"], ep["realized"].scenario, ep["arm"]
@@ -117,51 +126,59 @@ class GreedyInformationPolicy:
         R_wp_world = T_world_est[:3, :3].T
         sigma, bias, inc = point_sigma_m(sc.sensor, sc.noise), bias_sigma_m(sc.sensor, sc.noise), sc.noise.incidence
         base = log_det(env.prior + ep["F"])
-        scores = np.full(len(self.candidates), -np.inf)
+        n = len(self.candidates)
+        gain = np.full(n, -np.inf)
+        ends = np.zeros((n, 2, 4, 4))
         for idx in _by_direction(self.candidates):
-            views = [_decode(self.candidates[i], es) for i in idx]
+            views = [decode_action(self.candidates[i], es.geometry) for i in idx]
             centres = _centres(views, T_world_est, es)
-            ends, keep = [], []
-            for i, v, c in zip(idx, views, centres, strict=True):
-                if c is not None:
-                    ends.append(sensor_line(v, c, env.segment_length_m))
-                    keep.append(i)
+            keep = [(i, v, c) for i, v, c in zip(idx, views, centres, strict=True) if c is not None]
             if not keep:
                 continue
-            time_s = [self._motion_time(Ta, Tb, arm) for Ta, Tb in ends]
-            preds = predict_segments(ends, T_world_est, es.workpiece, es.geometry)
-            beam_wp = R_wp_world @ ends[0][0][:3, 2]
-            for i, t, pr in zip(keep, time_s, preds, strict=True):
-                if t is None or len(pr.feet_wp) == 0:
-                    continue
-                normals = es.workpiece.index.smooth_normals(pr.faces, pr.feet_wp)
-                dF = segment_information(pr.feet_wp, normals, beam_wp, pr.readings_m, sigma, bias, inc,
-                                         LINEARITY_BIN_M)
-                scores[i] = log_det(env.prior + ep["F"] + dF) - base - env.time_cost_per_s * t
-        return scores
+            lines = [sensor_line(v, c, env.segment_length_m) for _, v, c in keep]
+            preds = predict_segments(lines, T_world_est, es.workpiece, es.geometry)
+            beam_wp = R_wp_world @ lines[0][0][:3, 2]
+            for (i, _, _), line, pr in zip(keep, lines, preds, strict=True):
+                ends[i] = line
+                if len(pr.feet_wp):
+                    normals = es.workpiece.index.smooth_normals(pr.faces, pr.feet_wp)
+                    dF = segment_information(pr.feet_wp, normals, beam_wp, pr.readings_m, sigma, bias, inc,
+                                             LINEARITY_BIN_M)
+                    gain[i] = log_det(env.prior + ep["F"] + dF) - base
+        time_s, q = _motion_times(ends, np.isfinite(gain), arm)
+        return gain - env.time_cost_per_s * time_s, q
 
-    def _motion_time(self, T_start: np.ndarray, T_end: np.ndarray, arm) -> float | None:
-        """Predicted seconds of the motion to scan a line (retract and transit by the nearest
-        closed-form solution, the line at scan speed), or None when out of reach."""
-        T_in = T_start.copy()
-        T_in[:3, 3] -= arm.retract_m * T_start[:3, 2]
-        q = []
-        for T in (T_in, T_end):
-            T_base_flange = arm.T_base_world @ T @ arm.T_sensor_flange
-            sol = ur_inverse(T_base_flange, UR5E_DH)
-            seeds = sol.q[0][sol.valid[0]]
-            lo, hi = arm.joint_range[:, 0], arm.joint_range[:, 1]
-            seeds = seeds[np.all((seeds >= lo) & (seeds <= hi), axis=1)]
-            if not len(seeds):
-                return None
-            best = seeds[np.argmin(np.linalg.norm(seeds - arm.q, axis=1))]
-            if arm.table.nearest(best) is not None:
-                return None
-            q.append(best)
-        transit = len(joint_move(arm.q, q[0], 0.01)[0]) * 0.01
-        length = float(np.linalg.norm(T_end[:3, 3] - T_start[:3, 3]))
-        v = arm.speed_m_s
-        return transit + length / v + v / 0.5 + 2 * arm.retract_m / 0.1
+
+def _motion_times(ends: np.ndarray, wanted: np.ndarray, arm) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted seconds of each motion (retract and transit by the nearest closed-form
+    solution within the joint ranges, the line at scan speed; inf out of reach) and the
+    joints at its approach and end, for the ``wanted`` candidates of ``ends`` (C, 2, 4, 4)."""
+    n = len(ends)
+    time_s = np.full(n, np.inf)
+    q = np.zeros((n, 2, 6))
+    idx = np.flatnonzero(wanted)
+    if not len(idx):
+        return time_s, q
+    T_in = ends[idx, 0].copy()
+    T_in[:, :3, 3] -= arm.retract_m * T_in[:, :3, 2]
+    poses = np.concatenate([T_in, ends[idx, 1]])
+    sol = ur_inverse(arm.T_base_world @ poses @ arm.T_sensor_flange, UR5E_DH)
+    lo, hi = arm.joint_range[:, 0], arm.joint_range[:, 1]
+    ok = sol.valid & np.all((sol.q >= lo) & (sol.q <= hi), axis=-1)
+    dist = np.where(ok, np.linalg.norm(sol.q - arm.q, axis=-1), np.inf)
+    best = np.argmin(dist, axis=1)
+    reach = np.isfinite(dist[np.arange(len(poses)), best])
+    q_best = sol.q[np.arange(len(poses)), best]
+    m = len(idx)
+    v = arm.speed_m_s
+    for k, i in enumerate(idx):
+        if not (reach[k] and reach[m + k]):
+            continue
+        q[i] = q_best[k], q_best[m + k]
+        transit = (len(joint_move(arm.q, q_best[k], 0.01)[0]) - 1) * 0.01
+        length = float(np.linalg.norm(ends[i, 1, :3, 3] - ends[i, 0, :3, 3]))
+        time_s[i] = transit + length / v + v / ACCELERATION_M_S2 + 2 * arm.retract_m / v
+    return time_s, q
 
 
 def _candidate_actions() -> np.ndarray:
@@ -182,12 +199,6 @@ def _by_direction(candidates: np.ndarray) -> list[np.ndarray]:
     """Candidate indices grouped by view direction and line direction (one ray cast each)."""
     _, inverse = np.unique(candidates[:, [0, 1, 3]], axis=0, return_inverse=True)
     return [np.flatnonzero(inverse == k) for k in range(inverse.max() + 1)]
-
-
-def _decode(action: np.ndarray, es) -> View:
-    from twin.env.views import decode_action
-
-    return decode_action(action, es.geometry)
 
 
 def _centres(views: list[View], T_world_workpiece: np.ndarray, es) -> list:
