@@ -85,3 +85,11 @@ FACET_NORMAL_TOL = 1e-12        # reported normal vs the face normal
 BACKEND_DISTANCE_M = 1e-15      # the numba and numpy backends: distances ...
 BACKEND_FOOT_M = 1e-12          # ... and feet
 SMOOTH_NORMAL_TOL = 1e-12       # smooth normals of a tessellated cylinder: radial
+
+# tests/test_bayes.py and tests/test_env.py: localization with a prior, active scanning
+MAP_EXACT_M = 1e-8              # noise-free points: pose recovered (translation, and rotation x 1 m)
+MAP_PRIOR_HOLD_REL = 1e-6       # a direction the points leave free stays at the prior (relative)
+MAP_BIAS_M = 1e-8               # per-group offsets recovered from noise-free points
+INNOVATION_RMS_OK = 1.5         # right pose and covariance: RMS normalised innovation about 1
+INNOVATION_RMS_WRONG = 10.0     # a pose 0.5 mm off: far above
+ENV_CALIBRATION_SIGMAS = 5.0    # an active-scan episode's final error within this many posterior sigmas

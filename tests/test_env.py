@@ -1,0 +1,139 @@
+"""twin/ActiveScan-v0: gymnasium's conventions (checker, seeding, vector modes, rendering), bad
+input refused, and an episode that pins the part down to the tolerance with an honest
+uncertainty."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import twin.env  # noqa: F401  (registers the environments)
+from tests.helpers import scenario
+from tests.tolerances import ENV_CALIBRATION_SIGMAS
+from twin.env.active_scan import OBSERVATION_LAYOUT, ActiveScanEnv
+from twin.env.policies import GreedyInformationPolicy, RasterPolicy
+
+ID = "twin/ActiveScan-v0"
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = gym.make(ID, max_steps=6)
+    yield e
+    e.close()
+
+
+def _episode(env, seed, actions):
+    obs, info = env.reset(seed=seed)
+    out = [obs]
+    for a in actions:
+        obs, r, term, trunc, info = env.step(a)
+        out += [obs, np.array([r, term, trunc, info["motion_time_s"], info["points"]])]
+    return out
+
+
+def test_check_env_passes():
+    e = gym.make(ID, max_steps=3)
+    check_env(e.unwrapped, skip_render_check=True)
+    e.close()
+
+
+def test_same_seed_same_episode_bit_for_bit(env):
+    actions = np.random.default_rng(7).uniform(-1, 1, (3, 6))
+    actions[:, 4:] *= 0.3   # aim at the part so that the segments measure
+    a = _episode(env, 11, actions)
+    b = _episode(env, 11, actions)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+    assert a[-1][4] > 0, "the episode measured no point: the test would not test the sensor's noise"
+    c = _episode(env, 12, actions)
+    assert not np.array_equal(a[0], c[0]) or not np.array_equal(a[-2], c[-2])
+
+
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_vector_envs_run(mode):
+    envs = gym.make_vec(ID, num_envs=2, vectorization_mode=mode, max_steps=2)
+    obs, _ = envs.reset(seed=[3, 4])
+    assert obs.shape == (2, 20)
+    obs, reward, term, trunc, info = envs.step(np.zeros((2, 6)))
+    assert obs.shape == (2, 20) and reward.shape == (2,) and np.all(np.isfinite(reward))
+    envs.close()
+
+
+def test_renders_a_frame_headless():
+    e = gym.make(ID, render_mode="rgb_array", width=160, height=120)
+    e.reset(seed=0)
+    e.step(np.array([0.25, 0.5, 0.0, 0.0, 0.0, 0.0]))
+    frame = e.render()
+    e.close()
+    assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
+    assert frame.std() > 5, "a blank frame"
+
+
+def test_observation_layout(env):
+    obs, info = env.reset(seed=0)
+    assert obs[OBSERVATION_LAYOUT["points"]][0] == 0 and np.all(obs[OBSERVATION_LAYOUT["pose"]] == 0)
+    assert np.all(np.diff(obs[OBSERVATION_LAYOUT["log_eigenvalues"]]) >= 0)
+    assert info["std_translation_m"] == pytest.approx(1e-3)   # the placement prior
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(tolerance_m=0.0), ValueError, "tolerance_m must be a finite number > 0"),
+    (dict(tolerance_deg=-1.0), ValueError, "tolerance_deg"),
+    (dict(max_steps=0), ValueError, "max_steps"),
+    (dict(no_such_option=1), TypeError, "no_such_option"),
+    (dict(render_mode="human"), ValueError, "render_mode"),
+])
+def test_bad_kwargs_are_refused(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        ActiveScanEnv(**kwargs)
+
+
+def test_a_part_out_of_reach_is_refused_at_construction():
+    far = scenario("bracket", workpiece={"nominal_pose": {"xyz": [2.5, 0.0, 0.0]},
+                                         "true_pose": {"xyz": [2.5, 0.0, 0.0]}})
+    with pytest.raises(ValueError, match="reaches none of"):
+        ActiveScanEnv(scenarios=[far])
+
+
+def test_actions_outside_the_space(env):
+    env.reset(seed=1)
+    with pytest.raises(ValueError, match="6 finite numbers"):
+        env.step(np.array([0, 0, 0, 0, 0, np.nan]))
+    with pytest.raises(ValueError, match="6 finite numbers"):
+        env.step(np.zeros(5))
+    *_, info = env.step(np.array([3.0, 0, 0, 0, 0, 0]))
+    assert info["clipped"]
+
+
+def test_a_view_that_misses_the_part_costs_and_measures_nothing(env):
+    env.reset(seed=2)
+    _, reward, _, _, info = env.step(np.array([0.0, -1.0, 0.0, 0.0, 1.0, 1.0]))
+    assert info["unreachable"] and info["points"] == 0
+    assert reward == -env.unwrapped.unreachable_penalty
+
+
+def test_greedy_episode_reaches_the_tolerance_with_an_honest_uncertainty():
+    e = ActiveScanEnv(max_steps=12)
+    policy = GreedyInformationPolicy(e)
+    obs, info = e.reset(seed=0)
+    for _ in range(12):
+        obs, reward, term, trunc, info = e.step(policy(obs))
+        if term or trunc:
+            break
+    assert info["is_success"], info
+    assert info["std_translation_m"] <= 10e-6 and info["std_rotation_deg"] <= 0.01
+    # the claim is honest: the true error is within a few of the reported sigmas
+    assert info["translation_error_m"] <= ENV_CALIBRATION_SIGMAS * info["std_translation_m"] + 1e-6
+    assert info["rotation_error_deg"] <= ENV_CALIBRATION_SIGMAS * info["std_rotation_deg"]
+
+
+def test_raster_policy_replays_the_scenarios_scan_plan():
+    e = ActiveScanEnv(max_steps=3)
+    policy = RasterPolicy(e)
+    obs, _ = e.reset(seed=0)
+    policy.reset()
+    for _ in range(3):
+        obs, _, term, trunc, info = e.step(policy(obs))
+        assert "unreachable" not in info and info["segment_points"] > 0
+        if term or trunc:
+            break
