@@ -1,0 +1,456 @@
+"""What the active-localization environments share: episodes, the estimate, the stopping rule.
+
+An environment of this family places a part near its nominal pose, lets the agent choose one
+measurement per step with some sensor on the arm, re-localizes the part on every point so far
+(maximum a posteriori with the fixture's placement prior,
+:func:`algorithms.registration.bayes.localize_map`) and pays the information gained less the
+time spent. :class:`ActiveLocalizationEnv` holds all of that; a subclass supplies the sensor:
+
+- ``_start_episode``: the episode's measuring device (an arm in the true cell, ...);
+- ``_measure``: one action measured: the new points, their durations and contacts;
+- ``_append``: what the localization needs of the new points besides the points themselves;
+- ``_localize``: the ``localize_map`` call on every point so far;
+- ``_innovations``: the normalised innovations of new points at the current estimate;
+- ``_point_sigma_m``, ``_joints``, ``_render_scene``.
+
+Observation (float64, 20 values, ``OBSERVATION_LAYOUT``): the estimate relative to the nominal
+pose (the twist ``log(T_nom^-1 T_est)`` ``[omega (rad), v (m)]`` in the workpiece frame, 6),
+the ascending log-eigenvalues of the posterior pose information (rotations scaled by the part's
+size, 6), the number of points (1), the last step's information gain [nats] (1) and the arm's
+joint positions [rad] (6).
+
+Termination: the worst rotation and translation standard deviations (directions the shape
+cannot fix excepted) under the tolerances, for a fit that is trusted (``_fit_verdict``) and
+confirmed by new points it had not seen (``_confirm``); or a collision. Truncation after
+``max_steps`` steps. Episodes are drawn from the ``reset`` seed alone (scenario, placement
+twist, seeds of the cell's random streams): the same seed and actions give the same episode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from algorithms.geometry.edges import SharpEdges
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import exp_se3, inv_pose, log_se3
+from algorithms.registration.bayes import MapResult
+from algorithms.registration.fit_check import poor_fit_reason
+from twin.cell import Cell, build_cell
+from twin.env.information import (
+    log_det,
+    log_eigenvalues,
+    model_free_directions,
+    prior_information,
+    worst_std,
+)
+from twin.env.views import Geometry
+from twin.errors import TwinError
+from twin.evaluate import pose_errors
+from twin.realize import Realized, Streams, Workpiece, draw_truth, load_workpiece_mesh
+from twin.replay import HeightField, height_field
+from twin.scenario import Scenario, load_scenario
+
+SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
+OBSERVATION_LAYOUT = {"pose": slice(0, 6), "log_eigenvalues": slice(6, 12), "points": slice(12, 13),
+                      "last_gain": slice(13, 14), "joints": slice(14, 20)}
+OBSERVATION_SIZE = 20
+#: An estimate farther than this from the nominal pose, in prior standard deviations
+#: (sqrt of the Mahalanobis form; chi-square 6 DOF: 99.9 % below 4.74), is not trusted.
+PRIOR_MAHALANOBIS_MAX = 4.74
+#: The RMS normalised innovation of a new segment under which it confirms the estimate.
+INNOVATION_GATE = 3.0
+#: Points nearer a sharp edge of the model than this many standard deviations of the
+#: estimate's position (at the part's size), and at least EDGE_BAND_MIN_M, are left out of
+#: the fit: their face is unsure (algorithms.geometry.edges).
+EDGE_BAND_SIGMAS = 3.0
+EDGE_BAND_MIN_M = 20e-6
+#: A fit that calls more of the points outliers is not trusted (the cell's sensor model
+#: gives no outliers on the part itself: its only misses are invalid readings).
+MAX_OUTLIER_FRACTION = 0.01
+
+
+@dataclass(frozen=True)
+class EnvScenario:
+    """A scenario prepared once for many episodes: its mesh, index, nominal cell and views."""
+
+    scenario: Scenario
+    workpiece: Workpiece
+    nominal: Cell
+    geometry: Geometry
+    free_directions: np.ndarray
+    length_m: float
+    hfield: HeightField
+    edges: SharpEdges
+
+
+def as_scenarios(scenarios) -> list[Scenario]:
+    """The scenarios named by a file, a :class:`Scenario` or a list of them (names resolve in
+    the project's ``scenarios/`` folder)."""
+    if isinstance(scenarios, (str, Path, Scenario)):
+        scenarios = [scenarios]
+    out = []
+    for s in scenarios:
+        if isinstance(s, Scenario):
+            out.append(s)
+            continue
+        path = Path(s)
+        if not path.is_file() and (SCENARIOS_DIR / path).is_file():
+            path = SCENARIOS_DIR / path
+        out.append(load_scenario(path))
+    if not out:
+        raise ValueError("scenarios must name at least one scenario file")
+    return out
+
+
+def prepare(scenario: Scenario) -> EnvScenario:
+    """Mesh, index, nominal cell and view geometry of a scenario (once per environment)."""
+    mesh = load_workpiece_mesh(scenario)
+    workpiece = Workpiece(mesh, MeshIndex(mesh))
+    realized = Realized(scenario, workpiece, draw_truth(scenario, Streams(scenario.seed).generator("kinematics")),
+                        Streams(scenario.seed))
+    nominal = build_cell(realized, "nominal")
+    s = scenario.sensor
+    geometry = Geometry.of(workpiece, s.window_m, s.max_incidence_deg)
+    extent = mesh.bounds[1] - mesh.bounds[0]
+    return EnvScenario(scenario, workpiece, nominal, geometry, model_free_directions(workpiece),
+                       float(np.linalg.norm(extent) / 2), height_field(mesh), SharpEdges(mesh.vertices, mesh.faces))
+
+
+def _check_options(positive: dict, nonnegative: dict, counts: dict) -> None:
+    for name, v in positive.items():
+        if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+    for name, v in nonnegative.items():
+        if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+            raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
+    for name, v in counts.items():
+        if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+
+
+class ActiveLocalizationEnv(gym.Env):
+    """Active localization with some sensor on the arm (module docstring); subclasses set
+    ``action_size`` and implement the hooks.
+
+    Args:
+        scenarios: a scenario file, a :class:`Scenario`, or a list of them (names resolve in
+            the project's ``scenarios/`` folder); each episode draws one.
+        tolerance_m, tolerance_deg: the standard deviations that end an episode.
+        max_steps: the step budget (truncation).
+        time_cost_per_s: reward lost per second of motion.
+        unreachable_penalty: reward lost by a measurement that finds nothing or is out of reach.
+        collision_penalty: reward lost by a collision (the episode ends).
+        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis.
+        render_mode: None or ``"rgb_array"``; width, height: the rendered image [pixels].
+        positive, nonnegative, counts: the subclass's own options to check, by name: numbers
+            > 0 (checked after the tolerances), numbers >= 0 (before the costs) and integers
+            >= 1 (after ``max_steps``).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+    #: The number of values of an action (each in [-1, 1]).
+    action_size: int = 0
+
+    def __init__(self, scenarios, *, tolerance_m: float, tolerance_deg: float, max_steps: int,
+                 time_cost_per_s: float, unreachable_penalty: float, collision_penalty: float,
+                 placement_sigma_m: float, placement_sigma_deg: float, render_mode: str | None, width: int,
+                 height: int, positive: dict | None = None, nonnegative: dict | None = None,
+                 counts: dict | None = None):
+        _check_options(
+            {"tolerance_m": tolerance_m, "tolerance_deg": tolerance_deg, **(positive or {}),
+             "placement_sigma_m": placement_sigma_m, "placement_sigma_deg": placement_sigma_deg},
+            {**(nonnegative or {}), "time_cost_per_s": time_cost_per_s, "unreachable_penalty": unreachable_penalty,
+             "collision_penalty": collision_penalty},
+            {"max_steps": max_steps, **(counts or {})})
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.tolerance_m = float(tolerance_m)
+        self.tolerance_rad = float(np.radians(tolerance_deg))
+        self.max_steps = max_steps
+        self.time_cost_per_s = float(time_cost_per_s)
+        self.unreachable_penalty = float(unreachable_penalty)
+        self.collision_penalty = float(collision_penalty)
+        self.placement_sigma_m = float(placement_sigma_m)
+        self.placement_sigma_rad = float(np.radians(placement_sigma_deg))
+        self.render_mode = render_mode
+        self.width, self.height = int(width), int(height)
+        try:
+            self.scenarios = [self._prepare(s) for s in as_scenarios(scenarios)]
+        except TwinError as exc:
+            raise ValueError(str(exc)) from None
+        for es in self.scenarios:
+            self._check_scenario(es)
+        self.action_space = spaces.Box(-1.0, 1.0, (self.action_size,), dtype=np.float64)
+        low = np.full(OBSERVATION_SIZE, -np.inf)
+        high = np.full(OBSERVATION_SIZE, np.inf)
+        low[OBSERVATION_LAYOUT["points"]] = 0.0
+        self.observation_space = spaces.Box(low, high, (OBSERVATION_SIZE,), dtype=np.float64)
+        self.prior = prior_information(self.placement_sigma_m, self.placement_sigma_rad)
+        self._renderer: mujoco.Renderer | None = None
+        self._episode: dict | None = None
+
+    # ------------------------------------------------------------------ hooks
+    def _prepare(self, scenario: Scenario) -> EnvScenario:
+        """The scenario prepared for many episodes (may raise ValueError or TwinError)."""
+        return prepare(scenario)
+
+    def _check_scenario(self, es: EnvScenario) -> None:
+        """Raise ValueError, with the reason, for a scenario this environment cannot run."""
+
+    def _start_episode(self, es: EnvScenario, realized: Realized) -> dict:
+        """The episode's measuring device and per-point stores (merged into ``episode``)."""
+        raise NotImplementedError
+
+    def _measure(self, action: np.ndarray, events: dict):
+        """Measure one action (clipped to [-1, 1]) in the true cell.
+
+        Returns None when nothing moved (``events["unreachable"]`` says why), else an object
+        with ``points_base`` (M, 3) the new points [m] (robot base frame), ``duration_s`` the
+        motion's duration [s] and ``contacts`` (ContactRecord) the collisions found; a motion
+        that measured nothing sets ``events["unreachable"]`` too (its points are not used).
+        """
+        raise NotImplementedError
+
+    def _append(self, result) -> None:
+        """Keep what the localization needs of ``result``'s points besides the points."""
+
+    def _localize(self, init: np.ndarray | None) -> MapResult:
+        """Localize on every point so far from ``init`` (None: the prior mean)."""
+        raise NotImplementedError
+
+    def _innovations(self, result) -> np.ndarray:
+        """(M,) normalised innovations of ``result``'s points at the current estimate."""
+        raise NotImplementedError
+
+    def _point_sigma_m(self) -> float:
+        """A point's noise [m] (the fit's quality is judged against it)."""
+        raise NotImplementedError
+
+    def _joints(self) -> np.ndarray:
+        """(6,) the arm's true joint positions now [rad]."""
+        raise NotImplementedError
+
+    def _render_scene(self) -> tuple[Cell, np.ndarray]:
+        """The true cell and its full physics state now."""
+        raise NotImplementedError
+
+    def _info_totals(self) -> dict:
+        """The subclass's own episode totals for ``info``."""
+        return {}
+
+    # ------------------------------------------------------------------ episodes
+    def _draw_episode(self) -> tuple[EnvScenario, Realized]:
+        rng = self.np_random
+        es = self.scenarios[int(rng.integers(len(self.scenarios)))]
+        xi = np.concatenate([rng.normal(0.0, self.placement_sigma_rad, 3), rng.normal(0.0, self.placement_sigma_m, 3)])
+        seed = int(rng.integers(2**31 - 1))
+        sc = es.scenario
+        T_true = sc.workpiece.T_world_workpiece_nominal @ exp_se3(xi)
+        sc = replace(sc, seed=seed, workpiece=replace(sc.workpiece, T_world_workpiece_true=T_true))
+        streams = Streams(seed)
+        return es, Realized(sc, es.workpiece, draw_truth(sc, streams.generator("kinematics")), streams)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        es, realized = self._draw_episode()
+        self._episode = {
+            "es": es, "realized": realized,
+            "T_base_est": realized.T_base_workpiece_nominal.copy(),
+            "points": np.zeros((0, 3)),
+            "F": np.zeros((6, 6)), "last_gain": 0.0,
+            "was_within": False, "confirmed": False,
+            "steps": 0, "motion_s": 0.0, "unreachable": 0, "collisions": 0,
+        }
+        self._episode.update(self._start_episode(es, realized))
+        return self._observation(), self._info({})
+
+    @property
+    def episode(self) -> dict:
+        """The running episode's state (for policies and evaluation); reset() first."""
+        if self._episode is None:
+            raise RuntimeError("call reset() before step()")
+        return self._episode
+
+    # ------------------------------------------------------------------ steps
+    def step(self, action):
+        ep = self.episode
+        n = self.action_size
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (n,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be {n} finite numbers (values outside [-1, 1] are clipped), "
+                             f"got {np.asarray(action).tolist()!r}")
+        clipped = bool(np.any(np.abs(a) > 1.0))
+        a = np.clip(a, -1.0, 1.0)
+        ep["steps"] += 1
+        events: dict = {"clipped": clipped}
+        reward = 0.0
+        terminated = False
+        result = self._measure(a, events)
+        if result is not None:
+            ep["motion_s"] += result.duration_s
+            reward -= self.time_cost_per_s * result.duration_s
+            if result.contacts:
+                ep["collisions"] += 1
+                c = result.contacts[0]
+                events["collision"] = f"{c.geom} touched {c.other} at t = {c.first_t_s:.3f} s"
+                reward -= self.collision_penalty
+                terminated = True
+            if "unreachable" not in events:
+                self._confirm(result, events)
+                ep["points"] = np.vstack([ep["points"], result.points_base])
+                self._append(result)
+                gain = self._update_estimate(events)
+                reward += gain
+        if "unreachable" in events:
+            ep["unreachable"] += 1
+            ep["last_gain"] = 0.0
+            reward -= self.unreachable_penalty
+        within = self._within_tolerance()
+        success = within and ep["confirmed"]
+        ep["was_within"] = within
+        terminated = terminated or success
+        truncated = (not terminated) and ep["steps"] >= self.max_steps
+        events["is_success"] = bool(success and "collision" not in events)
+        return self._observation(), float(reward), bool(terminated), bool(truncated), self._info(events)
+
+    def _within_tolerance(self) -> bool:
+        """A trusted fit whose every standard deviation is within the tolerances."""
+        ep = self.episode
+        if "fit" not in ep or self._fit_verdict(ep["fit"]) != "ok":
+            return False
+        std_rot, std_trans = self._worst_std()
+        return std_rot <= self.tolerance_rad and std_trans <= self.tolerance_m
+
+    def _confirm(self, result, events: dict) -> None:
+        """Whether an estimate already within the tolerances predicted this step's new points
+        (RMS normalised innovation at most ``INNOVATION_GATE``): points it had not seen
+        confirm it. Any later step that it fails to predict withdraws the confirmation."""
+        ep = self.episode
+        if not ep["was_within"] or len(result.points_base) == 0:
+            ep["confirmed"] = False
+            return
+        z = self._innovations(result)
+        rms = float(np.sqrt(np.mean(z**2)))
+        events["innovation_rms"] = rms
+        ep["confirmed"] = rms <= INNOVATION_GATE
+
+    def _update_estimate(self, events: dict) -> float:
+        """Re-localize on every point so far (maximum a posteriori with the placement prior,
+        from the current estimate); keep the points' information at the estimate; return the
+        information gain."""
+        ep = self.episode
+        res = self._localize(ep["T_base_est"])
+        if self._fit_verdict(res) != "ok":
+            # the last estimate slid along directions the earlier points left weak: start over
+            # from the prior mean and keep the better of the two
+            again = self._localize(None)
+            if again.objective < res.objective:
+                res = again
+        ep["T_base_est"] = res.T_world_workpiece
+        ep["fit"] = res
+        events["localization"] = self._fit_verdict(res)
+        before = log_det(self.prior + ep["F"])
+        ep["F"] = res.information
+        gain = log_det(self.prior + res.information) - before
+        ep["last_gain"] = gain
+        return gain
+
+    def _edge_band_m(self) -> float:
+        """How near a sharp edge a point may lie and still enter the fit [m] (EDGE_BAND_SIGMAS)."""
+        std_rot, std_trans = self._worst_std()
+        return max(EDGE_BAND_SIGMAS * (std_trans + self.episode["es"].length_m * std_rot), EDGE_BAND_MIN_M)
+
+    def _fit_verdict(self, res: MapResult) -> str:
+        """"ok", or why the estimate cannot be trusted whatever its information says."""
+        ep = self.episode
+        sigma = self._point_sigma_m()
+        if len(ep["points"]) == 0:
+            return "no points yet"
+        if not res.converged:
+            return f"not converged in {res.iterations} iterations"
+        usable = int(len(ep["points"]) - res.near_edge.sum())
+        if usable < 6:
+            return f"only {usable} points away from the model's sharp edges"
+        poor = poor_fit_reason(res.rmse_m, int(res.inliers.sum()), usable, ep["es"].workpiece.index.extent, sigma,
+                               np.nan)
+        if poor is not None:
+            return f"poor fit: {poor}"
+        shed = 1.0 - res.inliers.sum() / usable
+        if shed > MAX_OUTLIER_FRACTION:
+            return (f"{shed:.1%} of the points are outliers (more than {MAX_OUTLIER_FRACTION:.0%}): a minimum that "
+                    f"sheds the points it cannot fit")
+        if res.prior_mahalanobis > PRIOR_MAHALANOBIS_MAX:
+            return (f"the estimate lies {res.prior_mahalanobis:.1f} prior sigmas from the nominal pose "
+                    f"(more than {PRIOR_MAHALANOBIS_MAX:g}): a wrong minimum, or a part placed off its fixture")
+        return "ok"
+
+    def _worst_std(self) -> tuple[float, float]:
+        ep = self.episode
+        return worst_std(self.prior + ep["F"], ep["es"].free_directions, ep["es"].length_m)
+
+    # ------------------------------------------------------------------ observation
+    def _observation(self) -> np.ndarray:
+        ep = self.episode
+        obs = np.empty(OBSERVATION_SIZE)
+        obs[OBSERVATION_LAYOUT["pose"]] = log_se3(inv_pose(ep["realized"].T_base_workpiece_nominal) @ ep["T_base_est"])
+        obs[OBSERVATION_LAYOUT["log_eigenvalues"]] = log_eigenvalues(self.prior + ep["F"], ep["es"].length_m)
+        obs[OBSERVATION_LAYOUT["points"]] = len(ep["points"])
+        obs[OBSERVATION_LAYOUT["last_gain"]] = ep["last_gain"]
+        obs[OBSERVATION_LAYOUT["joints"]] = self._joints()
+        return obs
+
+    def _info(self, events: dict) -> dict:
+        """What happened this step, the episode's totals and its errors against the truth
+        (for evaluation: not part of the observation)."""
+        ep = self.episode
+        err = pose_errors(ep["T_base_est"], ep["realized"])
+        std_rot, std_trans = self._worst_std()
+        info = {
+            "scenario": ep["realized"].scenario.name,
+            "steps": ep["steps"], "motion_time_s": ep["motion_s"], "points": int(len(ep["points"])),
+            "unreachable_total": ep["unreachable"], "collisions_total": ep["collisions"],
+            "std_rotation_deg": float(np.degrees(std_rot)), "std_translation_m": std_trans,
+            "rotation_error_deg": float(np.degrees(err.rotation_rad)), "translation_error_m": err.translation_m,
+        }
+        info.update(self._info_totals())
+        info.update(events)
+        return info
+
+    # ------------------------------------------------------------------ rendering
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        ep = self.episode
+        cell, state = self._render_scene()
+        if self._renderer is None or self._renderer_model is not cell.model:
+            if self._renderer is not None:
+                self._renderer.close()
+            self._renderer = mujoco.Renderer(cell.model, self.height, self.width)
+            self._renderer_model = cell.model
+        mujoco.mj_setState(cell.model, cell.data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        mujoco.mj_forward(cell.model, cell.data)
+        camera = mujoco.MjvCamera()
+        camera.lookat[:] = cell.T_world_workpiece[:3, 3]
+        camera.distance, camera.azimuth, camera.elevation = 1.1, 200.0, -30.0
+        self._renderer.update_scene(cell.data, camera)
+        scene = self._renderer.scene
+        pts = ep["points"] @ cell.T_world_base[:3, :3].T + cell.T_world_base[:3, 3]
+        step = max(1, -(-len(pts) // max(scene.maxgeom - scene.ngeom, 1)))
+        for p in pts[::step]:
+            if scene.ngeom >= scene.maxgeom:
+                break
+            mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE, [0.0015, 0, 0], p,
+                                np.eye(3).ravel(), np.array([0.1, 0.5, 1.0, 1.0], dtype=np.float32))
+            scene.ngeom += 1
+        return self._renderer.render()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
