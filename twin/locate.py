@@ -403,7 +403,7 @@ def plan_fine_points(realized: Realized, nominal: Cell, T_coarse: np.ndarray, m:
     rejected = {k: int(v) for k, v in feas.counts.items() if k != "ok"}
     rejected["below_table"] = int(low.sum())
     rejected["unreachable"] = 0   # or the laser's housing beside the probe would come too near the part
-    reach = _ReachCheck(nominal, realized)
+    reach = ReachCheck(nominal, realized)
     chosen = np.zeros(0, dtype=np.int64)
     spins: dict[int, float | None] = {}
     for _ in range(MAX_PLANNING_ROUNDS):
@@ -455,7 +455,7 @@ def _tour(points: np.ndarray) -> np.ndarray:
     return np.asarray(order)
 
 
-class _ReachCheck:
+class ReachCheck:
     """Whether the arm reaches a probe point's approach and search-end positions with the
     stylus straight down, and at which spin about the stylus: a closed-form solution of the
     UR geometry (:func:`algorithms.geometry.kinematics.ur_inverse`) away from the wrist

@@ -210,6 +210,11 @@ class ProbingProgram:
         nominal: the nominal cell (IK); cell: :func:`build_probe_cell` (simulation).
         rng: the probe's random stream (pre-travel repeatability).
         t_offset_s: where the program starts on the recording's timeline [s].
+
+    Attributes:
+        logs: the 1 ms samples simulated so far, per key (``t``, ``q``, ``q_ref``, ``ball``,
+            ``module`` (world frame), ``phase``, ``cdata``) a list of chunks in time order, as
+            :meth:`log` joins them.
     """
 
     def __init__(self, realized: Realized, nominal: Cell, cell: Cell, rng: np.random.Generator,
@@ -236,7 +241,7 @@ class ProbingProgram:
         self.t0 = t_offset_s
         self.state: np.ndarray | None = None
         self.q_start = np.asarray(q_start, dtype=np.float64)
-        self._logs: dict[str, list] = {k: [] for k in ("t", "q", "q_ref", "ball", "module", "phase", "cdata")}
+        self.logs: dict[str, list] = {k: [] for k in ("t", "q", "q_ref", "ball", "module", "phase", "cdata")}
         self.wall_s = 0.0
 
     # ------------------------------------------------------------------ motion
@@ -277,7 +282,7 @@ class ProbingProgram:
         """Simulate references from the current state; ``stop(ball, t)`` sees the move's
         samples so far after each chunk and ends the rollout when it returns True. Returns the
         number of steps simulated and the states after each step."""
-        n_before = sum(len(x) for x in self._logs["t"])
+        n_before = sum(len(x) for x in self.logs["t"])
         t_base = self.t0 + n_before * self.dt
         balls: list = []
         times: list = []
@@ -287,13 +292,13 @@ class ProbingProgram:
             n = len(sens)
             t = t_base + (i0 + np.arange(n)) * self.dt
             ball_w = sens[:, self.ball_cols]
-            self._logs["t"].append(t)
-            self._logs["q"].append(q_before.copy())
-            self._logs["q_ref"].append(q_ref[i0:i0 + n])
-            self._logs["ball"].append(ball_w.copy())
-            self._logs["module"].append(sens[:, self.module_cols].copy())
-            self._logs["phase"].append(np.full(n, phase, dtype=np.int8))
-            self._logs["cdata"].append(sens[:, self.contact_cols].reshape(n, len(self.contact_names), 5)
+            self.logs["t"].append(t)
+            self.logs["q"].append(q_before.copy())
+            self.logs["q_ref"].append(q_ref[i0:i0 + n])
+            self.logs["ball"].append(ball_w.copy())
+            self.logs["module"].append(sens[:, self.module_cols].copy())
+            self.logs["phase"].append(np.full(n, phase, dtype=np.int8))
+            self.logs["cdata"].append(sens[:, self.contact_cols].reshape(n, len(self.contact_names), 5)
                                        if len(self.contact_names) else np.zeros((n, 0, 5)))
             balls.append(ball_w)
             times.append(t)
@@ -308,11 +313,11 @@ class ProbingProgram:
     def _truncate(self, n_keep_total: int) -> None:
         """Keep only the first ``n_keep_total`` logged steps (the controller reacted there)."""
         total = 0
-        for i, t in enumerate(self._logs["t"]):
+        for i, t in enumerate(self.logs["t"]):
             if total + len(t) >= n_keep_total:
                 cut = n_keep_total - total
-                for key in self._logs:
-                    self._logs[key] = self._logs[key][:i] + [self._logs[key][i][:cut]]
+                for key in self.logs:
+                    self.logs[key] = self.logs[key][:i] + [self.logs[key][i][:cut]]
                 return
             total += len(t)
 
@@ -385,7 +390,7 @@ class ProbingProgram:
                 return True
             return False
 
-        n_before = sum(len(x) for x in self._logs["t"])
+        n_before = sum(len(x) for x in self.logs["t"])
         n_sim, states = self._run(q_ref, qd_ref, 1, stop=stop, chunk_steps=PROBE_CHUNK_STEPS)
         trig = found.get("trigger")
         if trig is None:
@@ -414,7 +419,7 @@ class ProbingProgram:
         q_b, qd_b = self._ik_references(P_brake, qd_start=qd0)
         self._run(q_b, qd_b, 2)
         stop_at = P_brake[-1]
-        overtravel = float(np.linalg.norm(self._logs["ball"][-1][-1] - trig.centre_trigger))
+        overtravel = float(np.linalg.norm(self.logs["ball"][-1][-1] - trig.centre_trigger))
         self.transit_line(stop_at, c0, p.transit_speed_m_s, 2)
         to_base = self.T_base_world
         truth = Trigger(trig.touch_t_s, trig.trigger_t_s, transform_points(to_base, trig.centre_touch[None])[0],
@@ -430,15 +435,15 @@ class ProbingProgram:
     # ------------------------------------------------------------------ readings
     def _R_world_probe_true(self) -> np.ndarray:
         """The probe frame's rotation in the world at the latest simulated step (true cell)."""
-        q = self._logs["q"][-1][-1]
+        q = self.logs["q"][-1][-1]
         T_bf = dh_forward(q, UR5E_DH)
         return self.T_world_base[:3, :3] @ T_bf[:3, :3] @ self.scenario.probe.T_flange_probe[:3, :3]
 
     def _latched_joints(self, t_s: float) -> np.ndarray:
         """Joint encoder readings latched at ``t_s`` (true positions interpolated between the
         1 ms samples, plus the encoders' noise)."""
-        t = np.concatenate(self._logs["t"])
-        q = np.vstack(self._logs["q"])
+        t = np.concatenate(self.logs["t"])
+        q = np.vstack(self.logs["q"])
         q_t = np.array([np.interp(t_s, t, q[:, j]) for j in range(6)])
         sigma = self.scenario.noise.encoder_sigma_rad
         if sigma > 0:
@@ -454,7 +459,7 @@ class ProbingProgram:
     def run(self, targets: list[ProbeTarget], safe_z_world: float,
             say: Callable[[str], None] = lambda m: None) -> tuple[ProbeHit, ...]:
         """Probe every target in order (from rest at the start configuration the first time)."""
-        if self.state is None and not self._logs["t"]:
+        if self.state is None and not self.logs["t"]:
             self.start()
         hits = []
         for i, tg in enumerate(targets):
@@ -468,19 +473,21 @@ class ProbingProgram:
         self.transit(np.r_[here[:2], max(safe_z_world, here[2])], safe_z_world)
 
     def log(self, hits: tuple) -> ProbingLog:
-        t = np.concatenate(self._logs["t"])
-        ball_w = np.vstack(self._logs["ball"])
-        module_w = np.vstack(self._logs["module"])
-        phase = np.concatenate(self._logs["phase"])
-        cdata = np.concatenate(self._logs["cdata"], axis=0)
+        t = np.concatenate(self.logs["t"])
+        ball_w = np.vstack(self.logs["ball"])
+        module_w = np.vstack(self.logs["module"])
+        phase = np.concatenate(self.logs["phase"])
+        cdata = np.concatenate(self.logs["cdata"], axis=0)
         contacts = contact_records(self.contact_names, cdata, t, self.T_base_world)
-        probe_contacts, clearance = self._probe_contacts(t, ball_w, module_w, phase)
-        return ProbingLog(t, np.vstack(self._logs["q"]), np.vstack(self._logs["q_ref"]),
+        probe_contacts, clearance = self.probe_contacts(t, ball_w, module_w, phase)
+        return ProbingLog(t, np.vstack(self.logs["q"]), np.vstack(self.logs["q_ref"]),
                           transform_points(self.T_base_world, ball_w), phase, hits,
                           tuple(contacts + probe_contacts), clearance, self.wall_s, self.state)
 
-    def _probe_contacts(self, t, ball_w, module_w, phase) -> tuple[list, float]:
-        """Exact contacts of the ball (outside probing moves), the stylus and the body."""
+    def probe_contacts(self, t, ball_w, module_w, phase) -> tuple[list, float]:
+        """Exact contacts of the ball (outside probing moves), the stylus and the body, over the
+        samples ``t`` (n,) [s], ``ball_w`` and ``module_w`` (n, 3) (world frame) and ``phase``
+        (n,) (any stretch of :attr:`logs`), and the smallest clearance of the stylus and body [m]."""
         p = self.spec
         axis = ball_w - module_w
         axis /= np.linalg.norm(axis, axis=1, keepdims=True)

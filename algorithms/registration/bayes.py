@@ -340,7 +340,8 @@ def _objective(prob: _Problem, T: np.ndarray, b: np.ndarray, cut: float) -> floa
 
 
 def normalized_innovations(points, beams, index: MeshIndex, T_world_workpiece, covariance, sigma_m: float,
-                           bias_sigma_m: float = 0.0, incidence_noise: bool = False) -> np.ndarray:
+                           bias_sigma_m: float = 0.0, incidence_noise: bool = False,
+                           offset_m: float = 0.0) -> np.ndarray:
     """How well an estimate predicts points it has not seen: each point's point-to-plane
     residual at ``T_world_workpiece`` divided by its predicted spread (noise, the reading's
     unknown linearity offset and the pose's ``covariance`` carried to the point). About 1 in
@@ -352,10 +353,17 @@ def normalized_innovations(points, beams, index: MeshIndex, T_world_workpiece, c
         covariance: (6, 6) of the twist ``[omega, v]`` (workpiece frame), e.g.
             :attr:`MapResult.covariance`.
         sigma_m, bias_sigma_m, incidence_noise: as for :func:`localize_map`.
+        offset_m: the points lie this far outside the surface [m] (touch-probe ball centres),
+            as for :func:`localize_map`: the residual is ``n . (T^-1 y - f) - offset_m``.
 
     Returns:
         (N,) normalised residuals (dimensionless).
+
+    Raises:
+        AlgorithmError: beams that do not match the points, or a negative or non-finite offset.
     """
+    if not (np.isfinite(offset_m) and offset_m >= 0):
+        raise AlgorithmError(f"offset_m must be a finite number >= 0, got {offset_m!r}")
     Y = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     U = np.asarray(beams, dtype=np.float64).reshape(-1, 3)
     if U.shape != Y.shape:
@@ -364,7 +372,7 @@ def normalized_innovations(points, beams, index: MeshIndex, T_world_workpiece, c
     M = Y @ T_inv[:3, :3].T + T_inv[:3, 3]
     cp = index.query(M)
     n = cp.normal
-    r = np.einsum("ij,ij->i", M - cp.foot, n)
+    r = np.einsum("ij,ij->i", M - cp.foot, n) - offset_m
     cos_inc = np.abs(np.einsum("ij,ij->i", n, U @ T_inv[:3, :3].T))
     sigma = sigma_m / np.maximum(cos_inc, MIN_COS_INCIDENCE) if incidence_noise else np.full(len(Y), sigma_m)
     J = np.hstack([np.cross(M, n), n])

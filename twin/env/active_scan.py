@@ -207,7 +207,7 @@ class ActiveScanEnv(ActiveLocalizationEnv):
         return localize_map(ep["points"], ep["es"].workpiece.index, ep["realized"].T_base_workpiece_nominal,
                             self.prior, point_sigma_m(sensor, noise), init=init, groups=np.clip(bins, 0, None),
                             beams=ep["beams"], bias_sigma_m=bias_sigma_m(sensor, noise),
-                            incidence_noise=noise.incidence, edges=ep["es"].edges, edge_band_m=self._edge_band_m())
+                            incidence_noise=noise.incidence, edges=ep["es"].edges, edge_band_m=self.edge_band_m())
 
     def _point_sigma_m(self) -> float:
         sc = self.episode["realized"].scenario

@@ -361,7 +361,7 @@ class ActiveLocalizationEnv(gym.Env):
         ep["last_gain"] = gain
         return gain
 
-    def _edge_band_m(self) -> float:
+    def edge_band_m(self) -> float:
         """How near a sharp edge a point may lie and still enter the fit [m] (EDGE_BAND_SIGMAS)."""
         std_rot, std_trans = self._worst_std()
         return max(EDGE_BAND_SIGMAS * (std_trans + self.episode["es"].length_m * std_rot), EDGE_BAND_MIN_M)

@@ -216,3 +216,106 @@ def _centres(views: list[View], T_world_workpiece: np.ndarray, es) -> list:
 
 
 POLICIES = {"random": RandomPolicy, "raster": RasterPolicy, "greedy": GreedyInformationPolicy}
+
+
+# ---------------------------------------------------------------------- twin/ActiveProbe-v0
+#: The greedy probe policy's candidates: elevations [deg], azimuths every
+#: PROBE_AZIMUTH_STEP_DEG (four looking straight down) and aim offsets per view.
+PROBE_ELEVATIONS_DEG = (90.0, 65.0, 40.0)
+PROBE_AZIMUTH_STEP_DEG = 30.0
+PROBE_AIM_OFFSETS = (-0.5, 0.0, 0.5)
+#: Candidates checked for feasibility and reach per step, best predicted gain first.
+PROBE_MAX_CHECKS = 20
+
+
+class RandomProbePolicy:
+    """Uniform actions for ``twin/ActiveProbe-v0`` from its own seeded stream."""
+
+    name = "random"
+
+    def __init__(self, env, seed: int = 0):
+        self.rng = np.random.default_rng(seed)
+        self.size = int(env.unwrapped.action_space.shape[0])
+
+    def reset(self) -> None:
+        pass
+
+    def __call__(self, observation: np.ndarray) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, self.size)
+
+
+class GreedyProbePolicy:
+    """For ``twin/ActiveProbe-v0``: the candidate target with the best predicted information
+    gain, ``log(1 + g^T (P + F)^-1 g / sigma^2)`` with ``g = [p x n, n]`` at the point the line
+    of sight meets the CAD model at the current estimate (smooth normal), ``sigma`` the probe's
+    (:func:`twin.locate.probe_sigma_m`). The best ``PROBE_MAX_CHECKS`` are checked in that
+    order as the environment checks a target (:func:`twin.env.active_probe.probe_target`:
+    feasibility, the table, the arm's reach); the first that passes is taken. The motion time
+    is left out (every probing move takes a few seconds)."""
+
+    name = "greedy"
+
+    def __init__(self, env, seed: int = 0):
+        self.env = env.unwrapped
+        self.candidates = _probe_candidate_actions()
+
+    def reset(self) -> None:
+        pass
+
+    def __call__(self, observation: np.ndarray) -> np.ndarray:
+        from twin.env.active_probe import probe_target
+
+        ep = self.env.episode
+        es = ep["es"]
+        gain = self.gains()
+        for i in np.argsort(-gain)[:PROBE_MAX_CHECKS]:
+            if not np.isfinite(gain[i]):
+                break
+            if not isinstance(probe_target(self.candidates[i], es, es.reach, ep["T_base_est"]), str):
+                return self.candidates[i].copy()
+        return self.candidates[int(np.argmax(gain))].copy()
+
+    def gains(self) -> np.ndarray:
+        """(C,) predicted information gain of each candidate [nats] (-inf where the line of
+        sight misses the part)."""
+        from twin.env.active_probe import view_action
+        from twin.locate import probe_sigma_m
+
+        env = self.env
+        ep = env.episode
+        es, realized = ep["es"], ep["realized"]
+        T_world_est = realized.scenario.T_world_base @ ep["T_base_est"]
+        C = np.linalg.inv(env.prior + ep["F"])
+        sigma = probe_sigma_m(realized)
+        band = env.edge_band_m()
+        gain = np.full(len(self.candidates), -np.inf)
+        for idx in _by_direction(np.column_stack([self.candidates[:, :2], np.zeros((len(self.candidates), 2))])):
+            views = [decode_action(view_action(self.candidates[i]), es.geometry) for i in idx]
+            hits = [(i, c) for i, c in zip(idx, _centres(views, T_world_est, es), strict=True) if c is not None]
+            if not hits:
+                continue
+            p_world = np.array([c for _, c in hits])
+            p_wp = (p_world - T_world_est[:3, 3]) @ T_world_est[:3, :3]
+            cp = es.workpiece.index.query(p_wp)
+            n_wp = es.workpiece.index.smooth_normals(cp.face, cp.foot)
+            g = np.hstack([np.cross(cp.foot, n_wp), n_wp])
+            # a point in the band around a sharp edge is left out of the fit: it brings nothing
+            kept = es.edges.distance(cp.foot) > band
+            gain[[i for i, _ in hits]] = np.where(kept, np.log1p(np.einsum("ij,jk,ik->i", g, C, g) / sigma**2), 0.0)
+        return gain
+
+
+def _probe_candidate_actions() -> np.ndarray:
+    from twin.env.views import ELEVATION_MIN_DEG
+
+    out = []
+    for el in PROBE_ELEVATIONS_DEG:
+        a1 = 2 * (el - ELEVATION_MIN_DEG) / (90.0 - ELEVATION_MIN_DEG) - 1
+        for az in np.arange(-180.0, 180.0, 90.0 if el == 90.0 else PROBE_AZIMUTH_STEP_DEG):
+            for o1 in PROBE_AIM_OFFSETS:
+                for o2 in PROBE_AIM_OFFSETS:
+                    out.append([az / 180.0, a1, o1, o2])
+    return np.array(out)
+
+
+PROBE_POLICIES = {"random": RandomProbePolicy, "greedy": GreedyProbePolicy}
