@@ -11,8 +11,7 @@ from algorithms.geometry.edges import SharpEdges
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import exp_se3, inv_pose, log_se3
 from algorithms.registration.bayes import localize_map, normalized_innovations
-from tests.tolerances import (INNOVATION_RMS_OK, INNOVATION_RMS_WRONG, MAP_BIAS_M, MAP_EXACT_M,
-                              MAP_PRIOR_HOLD_REL)
+from tests.tolerances import INNOVATION_RMS_OK, INNOVATION_RMS_WRONG, MAP_BIAS_M, MAP_EXACT_M, MAP_PRIOR_HOLD_REL
 
 PRIOR = np.diag([np.radians(0.5) ** -2] * 3 + [1e-3 ** -2] * 3)
 T_NOMINAL = np.array([[1, 0, 0, 0.45], [0, 1, 0, 0.12], [0, 0, 1, 0.0], [0, 0, 0, 1.0]])
