@@ -94,6 +94,29 @@ def test_ball_centres_fit_the_offset_surface(block):
     assert np.linalg.norm(err[3:]) < MAP_EXACT_M * 10
 
 
+def test_ball_centres_touching_convex_edges_of_a_tessellation_fit(block):
+    # a ball on a tessellated dome touches edges as often as faces: its centre lies off every
+    # face's normal, and the residual is the distance to the edge, not to a face's plane
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.04)
+    index = MeshIndex(mesh)
+    rng = np.random.default_rng(5)
+    pick = rng.choice(len(mesh.face_adjacency), 300, replace=False)
+    a, b = mesh.vertices[mesh.face_adjacency_edges[pick]].transpose(1, 0, 2)
+    n0, n1 = mesh.face_normals[mesh.face_adjacency[pick]].transpose(1, 0, 2)
+    q = a + rng.uniform(0.1, 0.9, (300, 1)) * (b - a)
+    d = n0 + rng.uniform(0.2, 0.8, (300, 1)) * (n1 - n0)
+    radius = 0.002
+    C = q + radius * d / np.linalg.norm(d, axis=1, keepdims=True)
+    T_true = T_NOMINAL @ exp_se3(XI_TRUE)
+    res = localize_map(_world(C, T_true), index, T_NOMINAL, PRIOR, 1e-6, offset_m=radius)
+    err = log_se3(inv_pose(T_true) @ res.T_world_workpiece)
+    assert res.converged and res.inliers.all()
+    assert np.linalg.norm(err[3:]) < MAP_EXACT_M * 10
+    r = normalized_innovations(_world(C, T_true), np.zeros_like(C) + [0, 0, -1.0], index, T_true,
+                               np.zeros((6, 6)), 1e-6, offset_m=radius)
+    assert np.abs(r).max() < 1e-3
+
+
 def test_points_near_sharp_edges_are_left_out(block):
     mesh, index = block
     edges = SharpEdges(mesh.vertices, mesh.faces)

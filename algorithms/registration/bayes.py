@@ -146,7 +146,8 @@ def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: 
             ``edge_band_m`` of a sharp edge of the model are left out of the fit (outliers
             for the whole call): with the pose unsure by that much, their face is unsure.
         offset_m: the points lie this far outside the surface [m] (touch-probe ball centres:
-            the effective ball radius); the residual is ``n . (T^-1 y - f) - offset_m``.
+            the effective ball radius); the residual is ``n . (T^-1 y - f) - offset_m``, with
+            ``n`` along ``T^-1 y - f`` where the closest point ``f`` is on an edge or a vertex.
         max_iterations: cap on Gauss-Newton updates (>= 1).
 
     Raises:
@@ -291,19 +292,32 @@ def _compute_residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
     U = prob.beams
     M = (prob.Y - b[prob.groups][:, None] * U) @ T_inv[:3, :3].T + T_inv[:3, 3]
     cp, prob.near[0] = prob.index.query_near(M, prob.near[0])
-    n = cp.normal
-    e = M - cp.foot
-    r = np.einsum("ij,ij->i", e, n)
-    on_face = np.einsum("ij,ij->i", e, e) - r * r <= OFF_FACE_M**2
-    r = r - prob.offset_m
-    # a point whose closest point is on a face's boundary (beyond an edge) has no tangent
-    # plane: it counts as an outlier (the objective charges it the cut; it adds no information)
-    r = np.where(on_face & prob.usable, r, np.inf)
+    n, r, fits = _offset_residuals(M - cp.foot, cp.normal, prob.offset_m)
+    # a surface point whose closest point is on a face's boundary (beyond an edge) has no
+    # tangent plane: it counts as an outlier (the objective charges it the cut; it adds no
+    # information)
+    r = np.where(fits & prob.usable, r, np.inf)
     u_wp = U @ T_inv[:3, :3].T
     c = -np.einsum("ij,ij->i", n, u_wp)
     sigma = prob.sigma_m / np.maximum(np.abs(c), MIN_COS_INCIDENCE) if prob.incidence_noise \
         else np.full(len(M), prob.sigma_m)
     return M, n, r, c, sigma**-2
+
+
+def _offset_residuals(e: np.ndarray, face_normal: np.ndarray, offset_m: float):
+    """Signed distances of points to the surface offset by ``offset_m``, from their offsets
+    ``e`` to their closest points on the model and those points' face normals: (normals, residuals
+    [m], usable). With no offset a point must lie over its face (``OFF_FACE_M``); with one (ball
+    centres) a closest point on an edge or a vertex is where the ball touches a convex edge of
+    the tessellation, and the distance to it along ``e`` is the exact residual."""
+    r = np.einsum("ij,ij->i", e, face_normal)
+    on_face = np.einsum("ij,ij->i", e, e) - r * r <= OFF_FACE_M**2
+    if offset_m == 0:
+        return face_normal, r, on_face
+    dist = np.linalg.norm(e, axis=1)
+    beyond = ~on_face & (dist > 0)
+    n = np.where(beyond[:, None], e / np.where(dist > 0, dist, 1.0)[:, None], face_normal)
+    return n, np.where(beyond, dist, r) - offset_m, np.ones(len(e), dtype=bool)
 
 
 def _linearise(prob: _Problem, T: np.ndarray, b: np.ndarray, coarse: bool) -> _Linear:
@@ -371,8 +385,7 @@ def normalized_innovations(points, beams, index: MeshIndex, T_world_workpiece, c
     T_inv = inv_pose(as_pose(T_world_workpiece, name="T_world_workpiece"))
     M = Y @ T_inv[:3, :3].T + T_inv[:3, 3]
     cp = index.query(M)
-    n = cp.normal
-    r = np.einsum("ij,ij->i", M - cp.foot, n) - offset_m
+    n, r, _ = _offset_residuals(M - cp.foot, cp.normal, offset_m)
     cos_inc = np.abs(np.einsum("ij,ij->i", n, U @ T_inv[:3, :3].T))
     sigma = sigma_m / np.maximum(cos_inc, MIN_COS_INCIDENCE) if incidence_noise else np.full(len(Y), sigma_m)
     J = np.hstack([np.cross(M, n), n])
