@@ -2,6 +2,8 @@
 input refused, and an episode that pins the part down to the tolerance with an honest
 uncertainty."""
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -32,10 +34,14 @@ def _episode(env, seed, actions):
     return out
 
 
-def test_check_env_passes():
+def test_check_env_passes_without_a_warning():
     e = gym.make(ID, max_steps=3)
-    check_env(e.unwrapped, skip_render_check=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(e.unwrapped, skip_render_check=True)
     e.close()
+    gym_warnings = [str(w.message) for w in caught if "WARN" in str(w.message)]
+    assert not gym_warnings, gym_warnings
 
 
 def test_same_seed_same_episode_bit_for_bit(env):
@@ -67,6 +73,9 @@ def test_renders_a_frame_headless():
     e.close()
     assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
     assert frame.std() > 5, "a blank frame"
+    rgb = frame.astype(float)
+    part = (rgb[..., 0] - rgb[..., 2] > 70).mean()   # the part's tan colour, not the grey table
+    assert part > 0.02, f"the part fills {part:.1%} of the frame: hidden or out of view"
 
 
 def test_observation_layout(env):

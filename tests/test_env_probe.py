@@ -3,6 +3,8 @@ truth with the probe's points, a greedy episode that pins the part down with an 
 uncertainty, bad input refused (options, actions, scenarios), and the innovations of ball
 centres (the effective radius off the surface)."""
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -43,8 +45,12 @@ def _episode(env, seed, actions):
     return out
 
 
-def test_check_env_passes(env):
-    check_env(env.unwrapped)
+def test_check_env_passes_without_a_warning(env):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    gym_warnings = [str(w.message) for w in caught if "WARN" in str(w.message)]
+    assert not gym_warnings, gym_warnings
 
 
 def test_same_seed_same_episode_bit_for_bit(env):

@@ -144,7 +144,8 @@ class ActiveScanEnv(ActiveLocalizationEnv):
                          time_cost_per_s=time_cost_per_s, unreachable_penalty=unreachable_penalty,
                          collision_penalty=collision_penalty, placement_sigma_m=placement_sigma_m,
                          placement_sigma_deg=placement_sigma_deg, render_mode=render_mode, width=width,
-                         height=height, positive={"segment_length_m": segment_length_m},
+                         height=height, points_per_step=points_per_segment,
+                         positive={"segment_length_m": segment_length_m},
                          nonnegative={"retract_m": retract_m}, counts={"points_per_segment": points_per_segment})
         self.points_per_segment = points_per_segment
         self.segment_length_m = float(segment_length_m)

@@ -60,6 +60,13 @@ SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 OBSERVATION_LAYOUT = {"pose": slice(0, 6), "log_eigenvalues": slice(6, 12), "points": slice(12, 13),
                       "last_gain": slice(13, 14), "joints": slice(14, 20)}
 OBSERVATION_SIZE = 20
+#: The rendering camera looks at the part from this many part sizes plus this distance [m].
+RENDER_DISTANCE_PARTS, RENDER_DISTANCE_M = 3.0, 0.25
+#: The observed translation from the nominal pose is clipped to this [m] (the placement prior
+#: keeps estimates within millimetres).
+MAX_OFFSET_M = 0.1
+#: The largest |log| of a positive float64 (the bound of the observed log-eigenvalues).
+LOG_MAX = float(np.log(np.finfo(np.float64).max))
 #: An estimate farther than this from the nominal pose, in prior standard deviations
 #: (sqrt of the Mahalanobis form; chi-square 6 DOF: 99.9 % below 4.74), is not trusted.
 PRIOR_MAHALANOBIS_MAX = 4.74
@@ -148,6 +155,7 @@ class ActiveLocalizationEnv(gym.Env):
         collision_penalty: reward lost by a collision (the episode ends).
         placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis.
         render_mode: None or ``"rgb_array"``; width, height: the rendered image [pixels].
+        points_per_step: the most points one step adds (bounds the observation's point count).
         positive, nonnegative, counts: the subclass's own options to check, by name: numbers
             > 0 (checked after the tolerances), numbers >= 0 (before the costs) and integers
             >= 1 (after ``max_steps``).
@@ -160,8 +168,8 @@ class ActiveLocalizationEnv(gym.Env):
     def __init__(self, scenarios, *, tolerance_m: float, tolerance_deg: float, max_steps: int,
                  time_cost_per_s: float, unreachable_penalty: float, collision_penalty: float,
                  placement_sigma_m: float, placement_sigma_deg: float, render_mode: str | None, width: int,
-                 height: int, positive: dict | None = None, nonnegative: dict | None = None,
-                 counts: dict | None = None):
+                 height: int, points_per_step: int = 1, positive: dict | None = None,
+                 nonnegative: dict | None = None, counts: dict | None = None):
         _check_options(
             {"tolerance_m": tolerance_m, "tolerance_deg": tolerance_deg, **(positive or {}),
              "placement_sigma_m": placement_sigma_m, "placement_sigma_deg": placement_sigma_deg},
@@ -187,13 +195,26 @@ class ActiveLocalizationEnv(gym.Env):
         for es in self.scenarios:
             self._check_scenario(es)
         self.action_space = spaces.Box(-1.0, 1.0, (self.action_size,), dtype=np.float64)
-        low = np.full(OBSERVATION_SIZE, -np.inf)
-        high = np.full(OBSERVATION_SIZE, np.inf)
-        low[OBSERVATION_LAYOUT["points"]] = 0.0
-        self.observation_space = spaces.Box(low, high, (OBSERVATION_SIZE,), dtype=np.float64)
+        self.observation_space = self._observation_space(points_per_step)
         self.prior = prior_information(self.placement_sigma_m, self.placement_sigma_rad)
         self._renderer: mujoco.Renderer | None = None
         self._episode: dict | None = None
+
+    def _observation_space(self, points_per_step: int) -> spaces.Box:
+        """Finite bounds that every observation meets by construction: a rotation of at most
+        pi, a translation within ``MAX_OFFSET_M`` (clipped), log-eigenvalues of float64 numbers,
+        at most ``max_steps * points_per_step`` points, a gain between two such log-determinants
+        and the joints within their ranges (over all the scenarios)."""
+        low, high = np.empty(OBSERVATION_SIZE), np.empty(OBSERVATION_SIZE)
+        low[0:3], high[0:3] = -np.pi, np.pi
+        low[3:6], high[3:6] = -MAX_OFFSET_M, MAX_OFFSET_M
+        low[OBSERVATION_LAYOUT["log_eigenvalues"]], high[OBSERVATION_LAYOUT["log_eigenvalues"]] = -LOG_MAX, LOG_MAX
+        low[OBSERVATION_LAYOUT["points"]], high[OBSERVATION_LAYOUT["points"]] = 0.0, self.max_steps * points_per_step
+        low[OBSERVATION_LAYOUT["last_gain"]], high[OBSERVATION_LAYOUT["last_gain"]] = -12 * LOG_MAX, 12 * LOG_MAX
+        ranges = np.array([es.nominal.model.jnt_range[:6] for es in self.scenarios])
+        low[OBSERVATION_LAYOUT["joints"]] = ranges[:, :, 0].min(axis=0)
+        high[OBSERVATION_LAYOUT["joints"]] = ranges[:, :, 1].max(axis=0)
+        return spaces.Box(low, high, (OBSERVATION_SIZE,), dtype=np.float64)
 
     # ------------------------------------------------------------------ hooks
     def _prepare(self, scenario: Scenario) -> EnvScenario:
@@ -403,7 +424,7 @@ class ActiveLocalizationEnv(gym.Env):
         obs[OBSERVATION_LAYOUT["points"]] = len(ep["points"])
         obs[OBSERVATION_LAYOUT["last_gain"]] = ep["last_gain"]
         obs[OBSERVATION_LAYOUT["joints"]] = self._joints()
-        return obs
+        return np.clip(obs, self.observation_space.low, self.observation_space.high)
 
     def _info(self, events: dict) -> dict:
         """What happened this step, the episode's totals and its errors against the truth
@@ -437,8 +458,12 @@ class ActiveLocalizationEnv(gym.Env):
         mujoco.mj_forward(cell.model, cell.data)
         camera = mujoco.MjvCamera()
         camera.lookat[:] = cell.T_world_workpiece[:3, 3]
-        camera.distance, camera.azimuth, camera.elevation = 1.1, 200.0, -30.0
-        self._renderer.update_scene(cell.data, camera)
+        camera.distance = RENDER_DISTANCE_PARTS * ep["es"].length_m + RENDER_DISTANCE_M
+        camera.azimuth, camera.elevation = 200.0, -35.0
+        option = mujoco.MjvOption()
+        option.geomgroup[:] = 1   # the workpiece and fixtures sit in groups the default hides
+        option.flags[mujoco.mjtVisFlag.mjVIS_RANGEFINDER] = 0   # its marker would hide the part
+        self._renderer.update_scene(cell.data, camera, scene_option=option)
         scene = self._renderer.scene
         pts = ep["points"] @ cell.T_world_base[:3, :3].T + cell.T_world_base[:3, 3]
         step = max(1, -(-len(pts) // max(scene.maxgeom - scene.ngeom, 1)))
