@@ -1,9 +1,11 @@
-"""``twin/ActiveScan-v0``: the baselines compared, and the environment's speed.
+"""``twin/ActiveScan-v0`` and ``twin/ActiveProbe-v0``: the baselines compared, and the
+environments' speed.
 
 Sections:
 
-* ``policies``: per scenario and policy (random, raster, greedy information gain; PPO when
-  ``--ppo MODEL.zip`` names a model trained by ``benchmarks/train_ppo.py``), ``--seeds`` x
+* ``policies``: per scenario and policy (laser segments, ``--env scan``: random, raster,
+  greedy information gain, and PPO when ``--ppo MODEL.zip`` names a model trained by
+  ``benchmarks/train_ppo.py``; probe points, ``--env probe``: random, greedy), ``--seeds`` x
   ``--episodes`` episodes: environment seed s resets the first of its episodes with ``s``,
   the others continue its stream. Per seed the mean over its episodes; the table gives the
   mean and standard deviation of those means over the seeds: success rate (tolerance reached
@@ -16,7 +18,8 @@ Sections:
   steps that moved the arm and measured.
 
 Run from the repository root: ``python -m benchmarks.bench_env`` (writes
-``benchmarks/results_env.md``; ``--section``, ``--scenarios``, ``--policies``, ``--seeds``,
+``benchmarks/results_env.md``; ``--env probe`` writes ``benchmarks/results_env_probe.md``;
+``--section``, ``--scenarios``, ``--policies``, ``--seeds``,
 ``--episodes`` and ``--workers`` narrow or spread it). Each (scenario, policy, seed) runs in a
 worker process; its numbers depend only on its seed.
 """
@@ -34,29 +37,44 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-RESULTS = ROOT / "benchmarks" / "results_env.md"
-SCENARIOS = ("bracket.toml", "cast_blank.toml")
-POLICIES = ("random", "raster", "greedy")
+#: Per environment: its id, default scenarios and policies, and the results file.
+ENVS = {
+    "scan": ("twin/ActiveScan-v0", ("bracket.toml", "cast_blank.toml"), ("random", "raster", "greedy"),
+             ROOT / "benchmarks" / "results_env.md"),
+    "probe": ("twin/ActiveProbe-v0", ("locate_hemisphere_punch.toml",), ("random", "greedy"),
+              ROOT / "benchmarks" / "results_env_probe.md"),
+}
 K_STEPS = 5
 
 
-def _policy(name: str, env, seed: int, ppo: str | None):
-    from twin.env.policies import POLICIES as BASELINES
+def _make_env(env_kind: str, scenario: str, max_steps: int):
+    if env_kind == "probe":
+        from twin.env.active_probe import ActiveProbeEnv
+
+        return ActiveProbeEnv(scenarios=scenario, max_steps=max_steps)
+    from twin.env.active_scan import ActiveScanEnv
+
+    return ActiveScanEnv(scenarios=scenario, max_steps=max_steps)
+
+
+def _policy(env_kind: str, name: str, env, seed: int, ppo: str | None):
+    from twin.env.policies import POLICIES, PROBE_POLICIES
 
     if name == "ppo":
         from benchmarks.train_ppo import PPOPolicy
 
         return PPOPolicy(ppo)
-    return BASELINES[name](env, seed=seed)
+    baselines = PROBE_POLICIES if env_kind == "probe" else POLICIES
+    if name not in baselines:
+        raise SystemExit(f"--policies: {name!r} is not a policy of --env {env_kind}; choose from {sorted(baselines)}")
+    return baselines[name](env, seed=seed)
 
 
 def run_seed(args: tuple) -> list[dict]:
     """Every episode of one (scenario, policy, seed): one dict of numbers each."""
-    scenario, policy_name, seed, episodes, max_steps, ppo = args
-    from twin.env.active_scan import ActiveScanEnv
-
-    env = ActiveScanEnv(scenarios=scenario, max_steps=max_steps)
-    policy = _policy(policy_name, env, seed, ppo)
+    env_kind, scenario, policy_name, seed, episodes, max_steps, ppo = args
+    env = _make_env(env_kind, scenario, max_steps)
+    policy = _policy(env_kind, policy_name, env, seed, ppo)
     out = []
     for e in range(episodes):
         obs, info = env.reset(seed=seed if e == 0 else None)
@@ -87,8 +105,9 @@ def _mean_std(per_seed: list[float]) -> str:
     return f"{a.mean():.3g} ± {a.std():.2g}"
 
 
-def policies_section(scenarios, policies, seeds, episodes, max_steps, workers, ppo) -> str:
-    jobs = [(sc, p, s, episodes, max_steps, ppo) for sc in scenarios for p in policies for s in range(seeds)]
+def policies_section(env_kind, scenarios, policies, seeds, episodes, max_steps, workers, ppo) -> str:
+    jobs = [(env_kind, sc, p, s, episodes, max_steps, ppo) for sc in scenarios for p in policies
+            for s in range(seeds)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(workers) as pool:
         results = list(pool.map(run_seed, jobs))
@@ -104,7 +123,7 @@ def policies_section(scenarios, policies, seeds, episodes, max_steps, workers, p
              "|---|---|---|---|---|---|---|---|---|---|"]
     by: dict = {}
     for job, res in zip(jobs, results, strict=True):
-        by.setdefault((job[0], job[1]), []).append(res)
+        by.setdefault((job[1], job[2]), []).append(res)
     for (sc, p), seeds_res in by.items():
         def per_seed(key, only_success=False, runs=seeds_res):
             vals = []
@@ -125,17 +144,14 @@ def policies_section(scenarios, policies, seeds, episodes, max_steps, workers, p
     return "\n".join(lines) + "\n"
 
 
-def speed_section(scenario: str, steps: int) -> str:
+def speed_section(env_kind: str, scenario: str, steps: int) -> str:
     """Steps per second on one core (this process pinned to CPU 0), policy time excluded."""
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {0})
-    from twin.env.active_scan import ActiveScanEnv
-    from twin.env.policies import GreedyInformationPolicy, RandomPolicy
-
-    env = ActiveScanEnv(scenarios=scenario, max_steps=30)
+    env = _make_env(env_kind, scenario, 30)
     rows = []
-    for name, cls in (("random", RandomPolicy), ("greedy", GreedyInformationPolicy)):
-        policy = cls(env, seed=0)
+    for name in ("random", "greedy"):
+        policy = _policy(env_kind, name, env, 0, None)
         obs, _ = env.reset(seed=100)
         policy.reset()
         env.step(policy(obs))  # first-call compilation out of the timing
@@ -161,26 +177,31 @@ def speed_section(scenario: str, steps: int) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--env", choices=tuple(ENVS), default="scan")
     ap.add_argument("--section", choices=("all", "policies", "speed"), default="all")
-    ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
-    ap.add_argument("--policies", nargs="+", default=list(POLICIES))
+    ap.add_argument("--scenarios", nargs="+", default=None)
+    ap.add_argument("--policies", nargs="+", default=None)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--max-steps", type=int, default=30)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--speed-steps", type=int, default=200)
     ap.add_argument("--ppo", default=None, help="a PPO model (.zip) from benchmarks/train_ppo.py to add to the table")
-    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--out", default=None, help="the results file (default: per environment, see ENVS)")
     a = ap.parse_args()
-    policies = list(a.policies) + (["ppo"] if a.ppo and "ppo" not in a.policies else [])
-    parts = [f"# twin/ActiveScan-v0 baselines\n\n`python -m benchmarks.bench_env {' '.join(sys.argv[1:])}` on "
+    env_id, default_scenarios, default_policies, default_out = ENVS[a.env]
+    scenarios = a.scenarios or list(default_scenarios)
+    policies = list(a.policies or default_policies)
+    policies += ["ppo"] if a.ppo and "ppo" not in policies else []
+    parts = [f"# {env_id} baselines\n\n`python -m benchmarks.bench_env {' '.join(sys.argv[1:])}` on "
              f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}.\n"]
     if a.section in ("all", "policies"):
-        parts.append(policies_section(a.scenarios, policies, a.seeds, a.episodes, a.max_steps, a.workers, a.ppo))
+        parts.append(policies_section(a.env, scenarios, policies, a.seeds, a.episodes, a.max_steps, a.workers,
+                                      a.ppo))
     if a.section in ("all", "speed"):
-        parts.append(speed_section(a.scenarios[0], a.speed_steps))
+        parts.append(speed_section(a.env, scenarios[0], a.speed_steps))
     text = "\n".join(parts)
-    Path(a.out).write_text(text)
+    Path(a.out or default_out).write_text(text)
     print(text)
 
 

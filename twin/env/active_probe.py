@@ -42,13 +42,9 @@ cell with the scenario's own seed, and the result is kept for every episode (con
 takes a few seconds per scenario). With robot-side errors switched on in a scenario (kinematic
 or hand-eye errors, drawn per episode), an episode's true arm differs from the qualified one.
 
-A known limit of the fit: ``localize_map`` leaves out, as an outlier, a point whose closest
-point on the model lies on the boundary of a face. A ball that touches a tessellated curved
-surface on an edge or a vertex of its facets gives such a centre (of ball centres 1 mm off
-random points of the model: about 2 % on the hemisphere and bottle punches, 0.4 % on the
-S-surface part, none on flat faces); with one of them among
-fewer than 100 points the fit sheds more than ``MAX_OUTLIER_FRACTION`` and is not trusted, so
-that episode cannot end in success.
+A ball that touches a tessellated curved surface on an edge or a vertex of its facets (about
+2 % of ball centres 1 mm off random points of the hemisphere and bottle punches) is fitted by
+its distance to that edge or vertex (``localize_map`` with ``offset_m``), as the ball touches it.
 
 Observation (float64, 20 values, ``OBSERVATION_LAYOUT``): as ``ActiveScan-v0``'s: the estimate
 relative to the nominal pose (twist, 6), the log-eigenvalues of the posterior information (6),

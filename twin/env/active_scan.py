@@ -3,9 +3,10 @@
 Each step the agent names a short scan segment (:mod:`twin.env.views`); the environment
 solves the joints with mink, simulates the motion and the line in the true cell at 1 ms with
 the scenario's sensor model and arm (:mod:`twin.env.arm`), adds the points and re-localizes
-(Hong-Tan, from the current estimate). The estimate moves only when the points fix every
-direction the part's shape can fix (before that, localization would wander along the free
-directions); the information is counted from the first segment on.
+on every point so far (:func:`algorithms.registration.bayes.localize_map`: maximum a posteriori
+with the placement prior, so directions the points do not fix yet stay at the prior; one
+linearity offset per ``LINEARITY_BIN_M`` of readings; points near sharp edges left out; from
+the current estimate, falling back to the prior mean when that fit is not trusted).
 
 Observation (float64, 20 values, ``OBSERVATION_LAYOUT``):
 
@@ -22,7 +23,8 @@ motion; a view that misses the part or that the arm cannot reach measures nothin
 ``unreachable_penalty``; a collision costs ``collision_penalty`` and ends the episode.
 
 Terminated when the largest standard deviation of any rotation is under ``tolerance_deg``
-and of any translation under ``tolerance_m`` (directions the shape cannot fix excepted), or
+and of any translation under ``tolerance_m`` (directions the shape cannot fix excepted), for a
+trusted fit (:mod:`twin.env.base`) confirmed by a segment it had not seen (``is_success``), or
 on a collision; truncated after ``max_steps`` steps.
 
 Episodes: ``reset(seed=...)`` draws, from that seed alone, the scenario (one of
