@@ -13,7 +13,10 @@ import twin.env  # noqa: F401  (registers the environments)
 from tests.helpers import scenario
 from tests.tolerances import ENV_CALIBRATION_SIGMAS
 from twin.env.active_scan import OBSERVATION_LAYOUT, ActiveScanEnv
+from twin.env.arm import PART_CLEARANCE_M
 from twin.env.policies import GreedyInformationPolicy, RasterPolicy
+from twin.robot import HOME_Q
+from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
 
 ID = "twin/ActiveScan-v0"
 
@@ -146,3 +149,42 @@ def test_raster_policy_replays_the_scenarios_scan_plan():
         assert "unreachable" not in info and info["segment_points"] > 0
         if term or trunc:
             break
+
+
+def test_a_motion_near_the_part_is_refused_before_it_moves(env):
+    # the sensor 2 mm over the part's top, beam down: its housing would come within the part's
+    # clearance; the table check alone would let it pass; at the sensor's stand-off it plans
+    env.reset(seed=0)
+    ep = env.unwrapped.episode
+    arm, es = ep["arm"], ep["es"]
+    lo, hi = es.workpiece.mesh.bounds
+    T_wp = es.scenario.workpiece.T_world_workpiece_nominal
+    top = T_wp[:3, :3] @ np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]]) + T_wp[:3, 3]
+    plans = {}
+    for standoff_m in (0.002, es.scenario.sensor.reference_m):
+        T_start = np.eye(4)
+        T_start[:3, :3] = np.diag([1.0, -1.0, -1.0])
+        T_start[:3, 3] = top + [0.0, 0.0, standoff_m]
+        T_end = T_start.copy()
+        T_end[0, 3] += 0.01
+        arm.solver.set_q(HOME_Q)
+        arm.solver.solve(T_start, 0.05, 300, velocity_limited=False)
+        q = arm.solver.q.copy()
+        checks = (arm.clearance.nearest(q), TableCheck(es.nominal, TABLE_CLEARANCE_M).nearest(q))
+        plans[standoff_m] = (arm.plan(T_start, T_end), *checks)
+    refused, near, table_only = plans[0.002]
+    assert isinstance(refused, str) and "laser_housing" in refused
+    assert near is not None and near[1] < PART_CLEARANCE_M and table_only is None
+    planned, near, _ = plans[es.scenario.sensor.reference_m]
+    assert not isinstance(planned, str) and near is None
+
+
+def test_greedy_does_not_choose_again_what_measured_nothing(env):
+    obs, _ = env.reset(seed=2)
+    policy = GreedyInformationPolicy(env)
+    policy.reset()
+    first = policy(obs)
+    env.unwrapped.episode["arm"].plan = lambda *args: "refused by the test"
+    obs, _, _, _, info = env.step(first)
+    assert info["unreachable"] == "refused by the test"
+    assert not np.array_equal(policy(obs), first)

@@ -196,28 +196,42 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
 
 
 class TableCheck:
-    """Whether the arm's links keep a clearance from the table at a joint configuration:
-    MuJoCo's collision detection on a copy of the nominal model with a margin on the table
-    plane (the base and the shoulder turret, which stand on the table, are left out)."""
+    """Whether the arm's links keep a clearance from the table (and, given ``part_clearance_m``,
+    from the part's collision shape) at a joint configuration: MuJoCo's collision detection on
+    a copy of the model with a margin on each obstacle (the base and the shoulder turret, which
+    stand on the table, are left out).
 
-    def __init__(self, cell: Cell, clearance_m: float):
+    Args:
+        cell: the nominal cell; with ``part_clearance_m``, one built with the part's collision
+            shape (geom ``workpiece_collision``, :func:`twin.replay.add_collision_checks`).
+        clearance_m: from the table [m]; part_clearance_m: from the part [m] (None: unchecked).
+    """
+
+    def __init__(self, cell: Cell, clearance_m: float, part_clearance_m: float | None = None):
         self.model = copy.copy(cell.model)
         self.table = self.model.geom("table").id
-        self.model.geom_margin[self.table] = clearance_m
         self.clearance_m = clearance_m
+        # each obstacle's clearance, by geom id (-inf: not an obstacle)
+        self.limit_m = np.full(self.model.ngeom, -np.inf)
+        self.limit_m[self.table] = clearance_m
+        if part_clearance_m is not None:
+            self.limit_m[self.model.geom("workpiece_collision").id] = part_clearance_m
+        obstacles = np.isfinite(self.limit_m)
+        self.model.geom_margin[obstacles] = self.limit_m[obstacles]
         self.data = mujoco.MjData(self.model)
         self.adr = cell.qpos_adr
         self.standing = np.array([g for g in range(self.model.ngeom)
                                   if self.model.body(self.model.geom_bodyid[g]).name in ("base", "shoulder_pan_link")])
 
     def nearest(self, q: np.ndarray) -> tuple[str, float] | None:
-        """(geom name, distance [m]) of the link nearest the table within the clearance, or None."""
+        """(geom name, distance [m]) of the link nearest an obstacle within its clearance, or None."""
         self.data.qpos[self.adr] = q
         mujoco.mj_fwdPosition(self.model, self.data)
         c = self.data.contact[: self.data.ncon]
-        other = np.where(c.geom1 == self.table, c.geom2, c.geom1)
-        hit = ((c.geom1 == self.table) | (c.geom2 == self.table)) & ~np.isin(other, self.standing) \
-            & (c.dist < self.clearance_m)
+        first = np.isfinite(self.limit_m[c.geom1])
+        obstacle, other = np.where(first, c.geom1, c.geom2), np.where(first, c.geom2, c.geom1)
+        hit = np.isfinite(self.limit_m[obstacle]) & ~np.isfinite(self.limit_m[other]) \
+            & ~np.isin(other, self.standing) & (c.dist < self.limit_m[obstacle])
         if not hit.any():
             return None
         k = int(np.flatnonzero(hit)[np.argmin(c.dist[hit])])

@@ -39,6 +39,8 @@ with a non-finite value is refused with ``ValueError``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
+
 import numpy as np
 
 from algorithms.geometry.kinematics import ur_inverse
@@ -60,9 +62,9 @@ from twin.env.base import (
     prepare,
 )
 from twin.env.views import ACTION_SIZE, View, decode_action, segment_centre, sensor_line
-from twin.realize import Realized
+from twin.realize import Realized, Streams, draw_truth
 from twin.robot import UR5E_DH
-from twin.scenario import NoiseSpec, SensorSpec
+from twin.scenario import NoiseSpec, Scenario, SensorSpec
 
 # The episodes, the estimate and the stopping rule live in twin.env.base (shared with the
 # touch-probe sibling); its constants stay importable from here.
@@ -74,6 +76,14 @@ DEFAULT_SCENARIOS = ("bracket.toml",)
 #: The linearity error is estimated as one offset per bin of readings this wide [m] (the
 #: IL-065's +/-10 um curve over its 50 mm window changes by about 1.3 um across 1 mm).
 LINEARITY_BIN_M = 0.001
+@dataclass(frozen=True)
+class ScanScenario(EnvScenario):
+    """A scenario prepared for scanning: :class:`twin.env.base.EnvScenario` and the nominal
+    cell with the part's collision shape (the arm's planning checks)."""
+
+    clearance: Cell
+
+
 #: Views tried at construction to check that the arm reaches the part at all.
 _CHECK_VIEWS = [(az, el) for el in (90.0, 60.0, 35.0) for az in range(-180, 180, 30)]
 
@@ -163,9 +173,17 @@ class ActiveScanEnv(ActiveLocalizationEnv):
                              f"move the part or the robot base")
 
     # ------------------------------------------------------------------ episodes
-    def _start_episode(self, es: EnvScenario, realized: Realized) -> dict:
+    def _prepare(self, scenario: Scenario) -> ScanScenario:
+        es = prepare(scenario)
+        streams = Streams(scenario.seed)
+        realized = Realized(scenario, es.workpiece, draw_truth(scenario, streams.generator("kinematics")), streams)
+        return ScanScenario(**{f.name: getattr(es, f.name) for f in fields(es)},
+                            clearance=build_scan_cell(realized, es.hfield, "nominal"))
+
+    def _start_episode(self, es: ScanScenario, realized: Realized) -> dict:
         true_cell = build_scan_cell(realized, es.hfield)
-        arm = ScanArm(realized, es.nominal, true_cell, realized.scenario.scan.speed_m_s, self.retract_m)
+        arm = ScanArm(realized, es.nominal, true_cell, es.clearance, realized.scenario.scan.speed_m_s,
+                      self.retract_m)
         return {"arm": arm, "readings": np.zeros(0), "beams": np.zeros((0, 3))}
 
     # ------------------------------------------------------------------ steps

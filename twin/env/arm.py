@@ -5,16 +5,21 @@ where the last one left the arm:
 
 1. retract: the sensor backs off along its beam by ``retract_m`` (joint move);
 2. transit: a synchronised point-to-point joint move to ``retract_m`` before the new start
-   (by way of the home configuration when the direct move would bring a link near the table);
+   (by way of the home configuration when the direct move would bring a link near the table
+   or the part);
 3. approach along the new beam to the start of the line (joint move);
 4. the line itself: the sensor poses every 1 ms of a rest-to-rest straight move at the scan
    speed, joints by mink IK every ``LINE_KNOT_STEPS`` ms (a clamped cubic spline in between).
 
 The joints come from the nominal cell (what the controller believes): mink, started for a
 far pose from the nearest of the arm's closed-form solutions that keeps the links off the
-table. The motion comes from the true cell; the points are those the sensor reports on the
-line, rebuilt from the encoder readings (:func:`twin.scan.measure_samples`), less those on
-the table top. Contact sensors on the arm and the sensor
+table and the part. A motion whose transit, approach or line would bring a link (or the
+sensor's housing) within ``TABLE_CLEARANCE_M`` of the table or ``PART_CLEARANCE_M`` of the
+part's collision shape at its nominal pose (checked every ``TRANSIT_CHECK_S``) is refused, as a
+cell's motion planner would refuse it. The motion comes from the true cell; the points are
+those the sensor reports on the line, rebuilt from the encoder readings
+(:func:`twin.scan.measure_samples`), less those on the table top. Contact sensors on the arm
+and the sensor
 (:func:`twin.replay.add_collision_checks`) report any collision with the part's collision
 shape or the table along the whole motion.
 """
@@ -46,20 +51,24 @@ NEAR_POSE_ITERATIONS = 200
 #: Points this close to the table top (world z = 0) are the table's, not the part's: dropped,
 #: as a cell crops its known fixture before localizing [m].
 TABLE_CROP_M = 0.0005
-#: The transit's joint path is checked against the table every this many seconds.
+#: The planned joint path is checked against the table and the part every this many seconds.
 TRANSIT_CHECK_S = 0.02
+#: Links keep this far from the part's collision shape at its nominal pose in a planned motion:
+#: the placement's spread (3 x 1 mm, 3 x 0.5 deg at the part's size) and the servo's tracking
+#: error [m].
+PART_CLEARANCE_M = 0.005
 #: IK knots along a line every this many 1 ms steps. Sparser than the scan's (a straight line
 #: at constant orientation has smooth joints); the points come from the encoders, so the
 #: spline between knots moves the path by micrometres without biasing a point.
 LINE_KNOT_STEPS = 50
 
 
-def build_scan_cell(realized: Realized, hfield: HeightField | None = None) -> Cell:
-    """The true cell with the part's collision shape (``hfield``, made once per part) and
-    contact sensors on the arm."""
-    spec, poses = build_spec(realized, "true")
+def build_scan_cell(realized: Realized, hfield: HeightField | None = None, which: str = "true") -> Cell:
+    """The true (or nominal) cell with the part's collision shape (``hfield``, made once per
+    part) and contact sensors on the arm."""
+    spec, poses = build_spec(realized, which)
     add_collision_checks(spec, realized.workpiece.mesh, hfield)
-    return compile_cell(spec, realized, "true", poses)
+    return compile_cell(spec, realized, which, poses)
 
 
 @dataclass(frozen=True)
@@ -111,11 +120,14 @@ class ScanArm:
 
     Args:
         realized: the episode's realized scenario (truth and random streams).
-        nominal: the nominal cell (IK); true_cell: :func:`build_scan_cell`.
+        nominal: the nominal cell (IK); true_cell: :func:`build_scan_cell`;
+        clearance_cell: the nominal cell with the part's collision shape (``build_scan_cell(...,
+        which="nominal")``: the planning checks).
         speed_m_s: scan speed along a line; retract_m: back-off along the beam between lines.
     """
 
-    def __init__(self, realized: Realized, nominal: Cell, true_cell: Cell, speed_m_s: float, retract_m: float):
+    def __init__(self, realized: Realized, nominal: Cell, true_cell: Cell, clearance_cell: Cell, speed_m_s: float,
+                 retract_m: float):
         self.realized = realized
         self.nominal = nominal
         self.cell = true_cell
@@ -128,7 +140,7 @@ class ScanArm:
         self.batch = mujoco.batch.Batch(true_cell.model, RAY_THREADS, nthread=RAY_THREADS)
         self.contact_names, self.contact_cols = contact_columns(true_cell.model)
         self.T_base_world = inv_pose(true_cell.T_world_base)
-        self.table = TableCheck(nominal, TABLE_CLEARANCE_M)
+        self.clearance = TableCheck(clearance_cell, TABLE_CLEARANCE_M, PART_CLEARANCE_M)
         self.joint_range = nominal.model.jnt_range[:6].copy()
         # the sensor site in the flange's DH frame, as the nominal model has it (closed-form seeds)
         data = mujoco.MjData(nominal.model)
@@ -163,7 +175,7 @@ class ScanArm:
         seeds = seeds[np.all((seeds >= lo) & (seeds <= hi), axis=1)]
         for q in seeds[np.argsort(np.linalg.norm(seeds - q_near, axis=1))]:
             q_sol = self._solve_near(T_world_target, q)
-            if q_sol is not None and self.table.nearest(q_sol) is None:
+            if q_sol is not None and self.clearance.nearest(q_sol) is None:
                 return q_sol
         return None
 
@@ -194,8 +206,13 @@ class ScanArm:
         spline = CubicSpline(t[knots], track.q, axis=0, bc_type="clamped")
         transit = self._transit(q_out, q_in)
         if transit is None:
-            return "every transit to the view would take a link into the table"
-        legs = [joint_move(self.q, q_out, self.dt), *transit, joint_move(q_in, q_start, self.dt)]
+            return "every transit to the view would take a link near the table or the part"
+        approach = joint_move(q_in, q_start, self.dt)
+        near = self._first_near([approach[0], spline(t)])
+        if near is not None:
+            return (f"the approach or the line would take {near[0]} within {1e3 * near[1]:.1f} mm of the table "
+                    "or the part")
+        legs = [joint_move(self.q, q_out, self.dt), *transit, approach]
         q_ref = np.vstack([leg[0][:-1] for leg in legs] + [spline(t)])
         qd_ref = np.vstack([leg[1][:-1] for leg in legs] + [spline(t, 1)])
         line_start = sum(len(leg[0]) - 1 for leg in legs)
@@ -203,13 +220,24 @@ class ScanArm:
 
     def _transit(self, q_a: np.ndarray, q_b: np.ndarray) -> list | None:
         """The joint moves from ``q_a`` to ``q_b``: direct, or by way of the home configuration
-        when the direct move would take a link within the table clearance (checked on the
-        nominal model every ``TRANSIT_CHECK_S``); None when both would."""
+        when the direct move would take a link within the clearance of the table or the part;
+        None when both would."""
         for via in ([q_a, q_b], [q_a, HOME_Q, q_b]):
             legs = [joint_move(a, b, self.dt) for a, b in zip(via[:-1], via[1:], strict=True)]
-            step = max(1, int(round(TRANSIT_CHECK_S / self.dt)))
-            if all(self.table.nearest(q) is None for leg in legs for q in leg[0][::step]):
+            if self._first_near([leg[0] for leg in legs]) is None:
                 return legs
+        return None
+
+    def _first_near(self, paths: list[np.ndarray]) -> tuple[str, float] | None:
+        """(link, distance [m]) at the first configuration of the joint paths, sampled every
+        ``TRANSIT_CHECK_S``, where a link comes within its clearance of the table or the part
+        (the nominal model); None when none does."""
+        step = max(1, int(round(TRANSIT_CHECK_S / self.dt)))
+        for path in paths:
+            for q in path[::step]:
+                near = self.clearance.nearest(q)
+                if near is not None:
+                    return near
         return None
 
     def execute(self, motion: Motion) -> SegmentResult:

@@ -93,28 +93,40 @@ class GreedyInformationPolicy:
     motion time (the reward the environment will pay), predicted on the CAD model at the
     current estimate (:func:`twin.env.views.predict_segments`,
     :func:`twin.env.information.segment_information`); views the closed-form inverse
-    kinematics cannot reach within the joint ranges, or only with a link near the table,
-    are passed over. The motion time is an estimate (the arm's retract and approach legs
-    are joint moves, taken here at scan speed)."""
+    kinematics cannot reach within the joint ranges, or only with a link near the table or the
+    part, are passed over, and so are those that measured nothing earlier in the episode. The
+    motion time is an estimate (the arm's retract and approach legs are joint moves, taken here
+    at scan speed)."""
 
     name = "greedy"
 
     def __init__(self, env, seed: int = 0):
         self.env: ActiveScanEnv = env.unwrapped
         self.candidates = _candidate_actions()
+        self.reset()
 
     def reset(self) -> None:
-        pass
+        # candidates that measured nothing this episode (out of reach, blind): their state
+        # and so their score would not change, and they would be chosen again and again
+        self.failed: set[int] = set()
+        self.last: tuple[int, int] | None = None   # (candidate, points before it)
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
+        points = len(self.env.episode["points"])
+        if self.last is not None and points == self.last[1]:
+            self.failed.add(self.last[0])
         scores, q = self.scores()
-        table = self.env.episode["arm"].table
+        scores[list(self.failed)] = -np.inf
+        clearance = self.env.episode["arm"].clearance
+        best = int(np.argmax(scores))
         for i in np.argsort(-scores):
             if not np.isfinite(scores[i]):
                 break
-            if table.nearest(q[i, 0]) is None and table.nearest(q[i, 1]) is None:
-                return self.candidates[i].copy()
-        return self.candidates[int(np.argmax(scores))].copy()
+            if clearance.nearest(q[i, 0]) is None and clearance.nearest(q[i, 1]) is None:
+                best = int(i)
+                break
+        self.last = (best, points)
+        return self.candidates[best].copy()
 
     def scores(self) -> tuple[np.ndarray, np.ndarray]:
         """(C,) predicted reward of every candidate (-inf where out of reach or blind) and
