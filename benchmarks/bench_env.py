@@ -122,9 +122,9 @@ def policies_section(env_kind, scenarios, policies, seeds, episodes, max_steps, 
              "| scenario | policy | success | steps to tol | motion to tol (s) | trans. err. after 5 (um) | "
              "rot. err. after 5 (deg) | final err. / std (trans, rot) | unreachable / ep | collisions / ep |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    by: dict = {}
+    by: dict = {(sc, p): [] for sc in scenarios for p in policies}   # the table's row order
     for job, res in zip(jobs, results, strict=True):
-        by.setdefault((job[1], job[2]), []).append(res)
+        by[job[1], job[2]].append(res)
     for (sc, p), seeds_res in by.items():
         def per_seed(key, only_success=False, runs=seeds_res):
             vals = []
