@@ -25,6 +25,9 @@ GREEDY_ELEVATIONS_DEG = (90.0, 65.0, 40.0)
 GREEDY_AZIMUTH_STEP_DEG = 30.0
 GREEDY_AIM_OFFSETS = (-0.5, 0.0, 0.5)
 GREEDY_LINE_ACTIONS = (-1.0, 0.0)   # 0 and 90 deg from the azimuth tangent
+#: A candidate whose segment gained less than this fraction of its predicted information is
+#: not chosen again in the episode.
+GAIN_SHORTFALL = 0.1
 
 
 class RandomPolicy:
@@ -106,16 +109,18 @@ class GreedyInformationPolicy:
         self.reset()
 
     def reset(self) -> None:
-        # candidates that measured nothing this episode (out of reach, blind): their state
-        # and so their score would not change, and they would be chosen again and again
+        # candidates that measured nothing this episode (out of reach, blind) or gained far
+        # less than predicted: their score would hardly change, and they would be chosen again
+        # and again
         self.failed: set[int] = set()
-        self.last: tuple[int, int] | None = None   # (candidate, points before it)
+        self.last: tuple[int, int, float] | None = None   # (candidate, points before it, predicted gain)
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
-        points = len(self.env.episode["points"])
-        if self.last is not None and points == self.last[1]:
+        ep = self.env.episode
+        points = len(ep["points"])
+        if self.last is not None and (points == self.last[1] or ep["last_gain"] < GAIN_SHORTFALL * self.last[2]):
             self.failed.add(self.last[0])
-        scores, q = self.scores()
+        scores, q, gain = self.scores()
         scores[list(self.failed)] = -np.inf
         clearance = self.env.episode["arm"].clearance
         best = int(np.argmax(scores))
@@ -125,12 +130,14 @@ class GreedyInformationPolicy:
             if clearance.nearest(q[i, 0]) is None and clearance.nearest(q[i, 1]) is None:
                 best = int(i)
                 break
-        self.last = (best, points)
+        self.last = (best, points, float(gain[best]))
         return self.candidates[best].copy()
 
-    def scores(self) -> tuple[np.ndarray, np.ndarray]:
-        """(C,) predicted reward of every candidate (-inf where out of reach or blind) and
-        (C, 2, 6) the joints of the nearest closed-form solutions at its approach and end."""
+    def scores(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(C,) predicted reward of every candidate (-inf where out of reach or blind),
+        (C, 2, 6) the joints of the nearest closed-form solutions at its approach and end, and
+        (C,) the predicted information gain [nats]. Predicted points within the environment's
+        edge band of a sharp edge are left out, as the fit will leave them out."""
         env = self.env
         ep = env.episode
         es, sc, arm = ep["es"], ep["realized"].scenario, ep["arm"]
@@ -138,6 +145,7 @@ class GreedyInformationPolicy:
         R_wp_world = T_world_est[:3, :3].T
         sigma, bias, inc = point_sigma_m(sc.sensor, sc.noise), bias_sigma_m(sc.sensor, sc.noise), sc.noise.incidence
         base = log_det(env.prior + ep["F"])
+        band_m = env.edge_band_m()
         n = len(self.candidates)
         gain = np.full(n, -np.inf)
         ends = np.zeros((n, 2, 4, 4))
@@ -152,13 +160,15 @@ class GreedyInformationPolicy:
             beam_wp = R_wp_world @ lines[0][0][:3, 2]
             for (i, _, _), line, pr in zip(keep, lines, preds, strict=True):
                 ends[i] = line
-                if len(pr.feet_wp):
-                    normals = es.workpiece.index.smooth_normals(pr.faces, pr.feet_wp)
-                    dF = segment_information(pr.feet_wp, normals, beam_wp, pr.readings_m, sigma, bias, inc,
+                usable = es.edges.distance(pr.feet_wp) > band_m
+                if usable.any():
+                    feet = pr.feet_wp[usable]
+                    normals = es.workpiece.index.smooth_normals(pr.faces[usable], feet)
+                    dF = segment_information(feet, normals, beam_wp, pr.readings_m[usable], sigma, bias, inc,
                                              LINEARITY_BIN_M)
                     gain[i] = log_det(env.prior + ep["F"] + dF) - base
         time_s, q = _motion_times(ends, np.isfinite(gain), arm)
-        return gain - env.time_cost_per_s * time_s, q
+        return gain - env.time_cost_per_s * time_s, q, gain
 
 
 def _motion_times(ends: np.ndarray, wanted: np.ndarray, arm) -> tuple[np.ndarray, np.ndarray]:
