@@ -62,6 +62,8 @@ OBSERVATION_LAYOUT = {"pose": slice(0, 6), "log_eigenvalues": slice(6, 12), "poi
 OBSERVATION_SIZE = 20
 #: The rendering camera looks at the part from this many part sizes plus this distance [m].
 RENDER_DISTANCE_PARTS, RENDER_DISTANCE_M = 3.0, 0.25
+#: ... from this elevation [deg] (negative: looking down).
+RENDER_ELEVATION_DEG = -65.0
 #: The observed translation from the nominal pose is clipped to this [m] (the placement prior
 #: keeps estimates within millimetres).
 MAX_OFFSET_M = 0.1
@@ -459,7 +461,11 @@ class ActiveLocalizationEnv(gym.Env):
         camera = mujoco.MjvCamera()
         camera.lookat[:] = cell.T_world_workpiece[:3, 3]
         camera.distance = RENDER_DISTANCE_PARTS * ep["es"].length_m + RENDER_DISTANCE_M
-        camera.azimuth, camera.elevation = 200.0, -35.0
+        # from the far side of the part, looking towards the robot: the arm reaches over the
+        # part from behind it instead of standing between the camera and the part
+        to_base = cell.T_world_base[:3, 3] - cell.T_world_workpiece[:3, 3]
+        camera.azimuth = float(np.degrees(np.arctan2(to_base[1], to_base[0])))
+        camera.elevation = RENDER_ELEVATION_DEG
         option = mujoco.MjvOption()
         option.geomgroup[:] = 1   # the workpiece and fixtures sit in groups the default hides
         option.flags[mujoco.mjtVisFlag.mjVIS_RANGEFINDER] = 0   # its marker would hide the part
