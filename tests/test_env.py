@@ -71,7 +71,7 @@ def test_vector_envs_run(mode):
 def test_renders_a_frame_headless():
     e = gym.make(ID, render_mode="rgb_array", width=160, height=120)
     e.reset(seed=0)
-    e.step(np.array([0.25, 0.5, 0.0, 0.0, 0.0, 0.0]))
+    e.step(np.array([0.25, -0.5, 0.0, 0.0, 0.0, 0.0]))   # a view from 37.5 deg: 100 points
     frame = e.render()
     e.close()
     assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8

@@ -54,6 +54,7 @@ from twin.errors import TwinError
 from twin.evaluate import pose_errors
 from twin.realize import Realized, Streams, Workpiece, draw_truth, load_workpiece_mesh
 from twin.replay import HeightField, height_field
+from twin.robot import GROUP_ARM
 from twin.scenario import Scenario, load_scenario
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
@@ -62,8 +63,9 @@ OBSERVATION_LAYOUT = {"pose": slice(0, 6), "log_eigenvalues": slice(6, 12), "poi
 OBSERVATION_SIZE = 20
 #: The rendering camera looks at the part from this many part sizes plus this distance [m].
 RENDER_DISTANCE_PARTS, RENDER_DISTANCE_M = 3.0, 0.25
-#: ... from this elevation [deg] (negative: looking down).
+#: ... from this elevation [deg] (negative: looking down), the arm drawn with this opacity.
 RENDER_ELEVATION_DEG = -65.0
+RENDER_ARM_ALPHA = 0.3
 #: The observed translation from the nominal pose is clipped to this [m] (the placement prior
 #: keeps estimates within millimetres).
 MAX_OFFSET_M = 0.1
@@ -471,6 +473,9 @@ class ActiveLocalizationEnv(gym.Env):
         option.flags[mujoco.mjtVisFlag.mjVIS_RANGEFINDER] = 0   # its marker would hide the part
         self._renderer.update_scene(cell.data, camera, scene_option=option)
         scene = self._renderer.scene
+        for g in scene.geoms[: scene.ngeom]:   # the arm see-through: it must not hide the part
+            if g.objtype == mujoco.mjtObj.mjOBJ_GEOM and cell.model.geom_group[g.objid] == GROUP_ARM:
+                g.rgba[3] = RENDER_ARM_ALPHA
         pts = ep["points"] @ cell.T_world_base[:3, :3].T + cell.T_world_base[:3, 3]
         step = max(1, -(-len(pts) // max(scene.maxgeom - scene.ngeom, 1)))
         for p in pts[::step]:
