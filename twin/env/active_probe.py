@@ -78,7 +78,14 @@ from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.probing.point_planning import REASONS, feasible_candidates
 from algorithms.registration.bayes import MapResult, localize_map, normalized_innovations
 from twin.cell import Cell
-from twin.env.base import OBSERVATION_LAYOUT, OBSERVATION_SIZE, ActiveLocalizationEnv, EnvScenario, prepare
+from twin.env.base import (
+    OBSERVATION_LAYOUT,
+    OBSERVATION_SIZE,
+    ActiveLocalizationEnv,
+    EnvScenario,
+    prepare,
+    seed_realized,
+)
 from twin.env.views import ELEVATION_MIN_DEG, decode_action, segment_centre
 from twin.errors import TwinError
 from twin.locate import Qualification, ReachCheck, probe_sigma_m, qualification_targets, qualify
@@ -91,7 +98,7 @@ from twin.probing import (
     joint_state_of,
     safe_height_world,
 )
-from twin.realize import Realized, Streams, draw_truth
+from twin.realize import Realized
 from twin.replay import contact_records
 from twin.scenario import Scenario
 
@@ -229,9 +236,7 @@ class ActiveProbeEnv(ActiveLocalizationEnv):
             raise ValueError(f"scenario {scenario.name!r} has no [probe] table: ActiveProbe-v0 needs the touch "
                              "probe on the flange")
         es = prepare(scenario)
-        # the scenario as its own seed realizes it: the qualification's cell and streams
-        streams = Streams(scenario.seed)
-        realized = Realized(scenario, es.workpiece, draw_truth(scenario, streams.generator("kinematics")), streams)
+        realized = seed_realized(scenario, es.workpiece)   # the qualification's cell and streams
         reach = ReachCheck(es.nominal, realized)
         reasons: dict[str, int] = {}
         for az, el in CHECK_VIEWS_DEG:

@@ -60,9 +60,10 @@ from twin.env.base import (
     ActiveLocalizationEnv,
     EnvScenario,
     prepare,
+    seed_realized,
 )
 from twin.env.views import ACTION_SIZE, View, decode_action, segment_centre, sensor_line
-from twin.realize import Realized, Streams, draw_truth
+from twin.realize import Realized
 from twin.robot import UR5E_DH
 from twin.scenario import NoiseSpec, Scenario, SensorSpec
 
@@ -76,6 +77,8 @@ DEFAULT_SCENARIOS = ("bracket.toml",)
 #: The linearity error is estimated as one offset per bin of readings this wide [m] (the
 #: IL-065's +/-10 um curve over its 50 mm window changes by about 1.3 um across 1 mm).
 LINEARITY_BIN_M = 0.001
+
+
 @dataclass(frozen=True)
 class ScanScenario(EnvScenario):
     """A scenario prepared for scanning: :class:`twin.env.base.EnvScenario` and the nominal
@@ -175,10 +178,8 @@ class ActiveScanEnv(ActiveLocalizationEnv):
     # ------------------------------------------------------------------ episodes
     def _prepare(self, scenario: Scenario) -> ScanScenario:
         es = prepare(scenario)
-        streams = Streams(scenario.seed)
-        realized = Realized(scenario, es.workpiece, draw_truth(scenario, streams.generator("kinematics")), streams)
         return ScanScenario(**{f.name: getattr(es, f.name) for f in fields(es)},
-                            clearance=build_scan_cell(realized, es.hfield, "nominal"))
+                            clearance=build_scan_cell(seed_realized(scenario, es.workpiece), es.hfield, "nominal"))
 
     def _start_episode(self, es: ScanScenario, realized: Realized) -> dict:
         true_cell = build_scan_cell(realized, es.hfield)

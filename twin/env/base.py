@@ -119,6 +119,13 @@ def as_scenarios(scenarios) -> list[Scenario]:
     return out
 
 
+def seed_realized(scenario: Scenario, workpiece: Workpiece) -> Realized:
+    """The scenario as its own seed realizes it (the cells and streams prepared once per
+    scenario, e.g. the probe's qualification, the scan arm's clearance cell)."""
+    streams = Streams(scenario.seed)
+    return Realized(scenario, workpiece, draw_truth(scenario, streams.generator("kinematics")), streams)
+
+
 def prepare(scenario: Scenario) -> EnvScenario:
     """Mesh, index, nominal cell and view geometry of a scenario (once per environment)."""
     mesh = load_workpiece_mesh(scenario)
