@@ -462,6 +462,39 @@ class LocateSpec:
     planner: str = "d_optimal"
 
 
+@dataclass(frozen=True)
+class CmmSpec:
+    """The coordinate measuring machine of a ``machine = "cmm"`` scenario (``[cmm]``).
+
+    The machine itself (axes, ranges, servos, speed and acceleration limits) is the model in
+    ``models/cmm``; the probe on its head is the scenario's ``[probe]`` (body, stylus, ball,
+    trigger). These keys say how a program runs on it.
+
+    Attributes:
+        styli: stylus name -> (A, B) head angles [deg]: A tilts the probe from straight down,
+            B turns it about the vertical; the probe points along
+            (sin A cos B, sin A sin B, -cos A) in the machine frame.
+        transit_speed_m_s: speed of the GOTO and approach moves [m/s] (at most the machine's).
+        acceleration_m_s2: acceleration of every move [m/s^2] (at most the machine's).
+        index_time_s: time the head takes to index to another stylus [s].
+        clearance_m: every solid of the probe keeps this far from the part on planned moves [m].
+        encoder_sigma_m: noise of the scale readings latched at a trigger [m] (1 sigma).
+    """
+
+    styli: dict
+    transit_speed_m_s: float = 0.15
+    acceleration_m_s2: float = 1.0
+    index_time_s: float = 1.5
+    clearance_m: float = 0.001
+    encoder_sigma_m: float = 1e-7
+
+    def direction(self, name: str) -> np.ndarray:
+        """The unit probe direction of a stylus in the machine frame."""
+        a, b = np.radians(self.styli[name])
+        return np.array([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), -np.cos(a)])
+
+
+MACHINES = ("arm", "cmm")
 COARSE_METHODS = ("multistart", "ga", "ga_restarts")
 PROBE_PLANNERS = ("d_optimal", "spread", "random")
 
@@ -480,6 +513,8 @@ class Scenario:
     path: PathSpec = field(default_factory=lambda: _parse_path(_Section({}, "path")))
     probe: ProbeSpec | None = None
     locate: LocateSpec = field(default_factory=LocateSpec)
+    machine: str = "arm"
+    cmm: CmmSpec | None = None
 
     def to_dict(self) -> dict:
         """A JSON-ready copy (numpy arrays as nested lists)."""
@@ -494,7 +529,7 @@ class Scenario:
         return conv(asdict(self))
 
 
-def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
+def load_scenario(path: str | Path, overrides: dict | None = None, machine: str | None = None) -> Scenario:
     """Read and validate a scenario TOML file; raise TwinError with one clear line on any problem.
 
     Args:
@@ -502,6 +537,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         overrides: nested tables merged over the file before validation, e.g.
             ``{"scan": {"max_lines": 3}, "noise": {"gaussian": False}}``; a pose table
             replaces the file's pose as a whole.
+        machine: "arm" or "cmm": refuse a scenario for the other machine.
     """
     path = Path(path)
     if not path.is_file():
@@ -512,7 +548,12 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise TwinError(f"scenario {path} is not valid TOML: {exc}") from None
     if overrides:
         raw = merge_tables(raw, overrides)
-    return parse_scenario(raw, name=path.stem, base_dir=path.parent, source=str(path))
+    scenario = parse_scenario(raw, name=path.stem, base_dir=path.parent, source=str(path))
+    if machine is not None and scenario.machine != machine:
+        other = "twin cmm" if scenario.machine == "cmm" else "twin run, scan, demo, locate or study"
+        raise TwinError(f"scenario {path} is for machine = {scenario.machine!r}; this command needs machine = "
+                        f"{machine!r} (use {other})")
+    return scenario
 
 
 def merge_tables(base: dict, over: dict) -> dict:
@@ -542,8 +583,18 @@ def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = No
     probe_table = top._get("probe", None)
     probe = None if probe_table is None else _parse_probe(_Section(probe_table, "probe"))
     locate = _parse_locate(_Section(top.table_value("locate"), "locate"))
+    machine = str(top.choice("machine", "arm", MACHINES))
+    cmm_table = top._get("cmm", None)
     top.done()
-    return Scenario(title, seed, wp, T_world_base, sensor, noise, scan, source, raw, path, probe, locate)
+    cmm = None
+    if machine == "cmm":
+        cmm = _parse_cmm(_Section({} if cmm_table is None else cmm_table, "cmm"))
+        if probe is None:
+            probe = _parse_probe(_Section({}, "probe"))
+    elif cmm_table is not None:
+        raise TwinError('[cmm] applies to machine = "cmm" only; this scenario\'s machine is the arm')
+    return Scenario(title, seed, wp, T_world_base, sensor, noise, scan, source, raw, path, probe, locate,
+                    machine, cmm)
 
 
 def _parse_workpiece(s: _Section, base_dir: Path | None) -> WorkpieceSpec:
@@ -848,6 +899,34 @@ def _parse_probe(s: _Section) -> ProbeSpec:
     return ProbeSpec(T, body_r, body_len, stylus, stylus_r, ball, lateral, lobe, phase, axial, ref_stylus, rep,
                      approach, search, speed, transit, stop, clearance, safe, sphere, sphere_r, qual, points, edge,
                      spacing)
+
+
+#: The head's A range (tilt from straight down) [deg], as a PH10M indexes (models/cmm/README.md).
+HEAD_A_RANGE_DEG = (0.0, 105.0)
+
+
+def _parse_cmm(s: _Section) -> CmmSpec:
+    raw = s._get("styli", {"S1": [0.0, 0.0]})
+    if not isinstance(raw, dict) or not raw:
+        raise TwinError("cmm.styli must be a table of stylus name = [A_deg, B_deg], e.g. { S1 = [0, 0] }")
+    styli = {}
+    for name, ab in raw.items():
+        if not (name[:1].isalpha() and name.replace("_", "").isalnum() and len(name) <= 20):
+            raise TwinError(f"cmm.styli: {name!r} is not a stylus label (a letter, then letters, digits, underscores)")
+        v = _vector(ab, 2, f"cmm.styli.{name}")
+        if not (HEAD_A_RANGE_DEG[0] <= v[0] <= HEAD_A_RANGE_DEG[1]) or not (-180.0 <= v[1] <= 180.0):
+            raise TwinError(f"cmm.styli.{name} = {list(ab)}: A must lie in [0, 105] deg and B in [-180, 180] deg")
+        styli[name] = (float(v[0]), float(v[1]))
+    spec = CmmSpec(
+        styli=styli,
+        transit_speed_m_s=s.number("transit_speed_m_s", 0.15, 0.0, 1.0, lo_open=True),
+        acceleration_m_s2=s.number("acceleration_m_s2", 1.0, 0.0, 20.0, lo_open=True),
+        index_time_s=s.number("index_time_s", 1.5, 0.1, 10.0),
+        clearance_m=s.number("clearance_m", 0.001, 0.0, 0.05, lo_open=True),
+        encoder_sigma_m=s.number("encoder_sigma_m", 1e-7, 0.0, 1e-4),
+    )
+    s.done()
+    return spec
 
 
 def _parse_locate(s: _Section) -> LocateSpec:

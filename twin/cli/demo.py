@@ -36,7 +36,7 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.no_rrd and args.rrd:
         raise TwinError("--rrd and --no-rrd exclude each other; give one")
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario, machine="arm")
     out, rrd = checked_outputs(args, default_rrd_name=None if args.no_rrd else "demo.rrd")
     with reporting(args, "demo") as say, Staged(out) as stage:
         result, report = run_and_report(scenario, stage, rrd, command="demo", say=say)

@@ -105,7 +105,7 @@ def summary_rows(h: dict) -> list[tuple[str, str]]:
 def run(args: argparse.Namespace) -> int:
     from twin.locate import locate
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario, machine="arm")
     if scenario.probe is None:
         from twin.errors import TwinError
 

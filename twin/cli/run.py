@@ -137,7 +137,7 @@ def summary_rows(h: dict, files: str | None = None) -> list[tuple[str, str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario, machine="arm")
     out, rrd = checked_outputs(args)
     placement = None
     with reporting(args, "run") as say:

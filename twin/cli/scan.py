@@ -32,7 +32,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario, machine="arm")
     if args.noise_off:
         scenario = dataclasses.replace(scenario, noise=scenario.noise.all_off())
     out, rrd = checked_outputs(args)

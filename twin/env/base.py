@@ -113,7 +113,7 @@ def as_scenarios(scenarios) -> list[Scenario]:
         path = Path(s)
         if not path.is_file() and (SCENARIOS_DIR / path).is_file():
             path = SCENARIOS_DIR / path
-        out.append(load_scenario(path))
+        out.append(load_scenario(path, machine="arm"))
     if not out:
         raise ValueError("scenarios must name at least one scenario file")
     return out

@@ -103,7 +103,7 @@ class Study:
         return over, loc
 
     def cell_scenario(self, cell: int) -> Scenario:
-        return load_scenario(self.scenario_path, self.cell_settings(cell)[0])
+        return load_scenario(self.scenario_path, self.cell_settings(cell)[0], machine="arm")
 
     @property
     def content_hash(self) -> str:
@@ -180,7 +180,7 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
         scenario_text = scenario_path.read_text()
     except (OSError, UnicodeDecodeError):
         raise TwinError(f"study scenario not found or unreadable: {scenario_path}") from None
-    load_scenario(scenario_path, overrides)  # the base overrides alone
+    load_scenario(scenario_path, overrides, machine="arm")  # the base overrides alone
     for key, values in zip(factors, levels, strict=True):
         _check_factor(key, values, kind, scenario_path, overrides)
     return Study(name, seed, scenario_path, trials, kind, copy.deepcopy(overrides), loc, tuple(factors),
@@ -210,6 +210,6 @@ def _check_factor(key: str, values: tuple, kind: str, scenario_path: Path, overr
         raise TwinError("grid key 'seed' is not a factor: every trial draws its own random stream")
     for v in values:
         try:
-            load_scenario(scenario_path, merge_tables(overrides, _nested(key, v)))
+            load_scenario(scenario_path, merge_tables(overrides, _nested(key, v)), machine="arm")
         except TwinError as exc:
             raise TwinError(f"grid {key!r} value {v!r} is refused: {' '.join(str(exc).split())}") from None

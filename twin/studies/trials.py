@@ -158,7 +158,7 @@ def run_trial(study: Study, cell: int, trial: int) -> dict:
 
 def fast_trial(study: Study, cell: int, trial: int) -> dict:
     over, loc = study.cell_settings(cell)
-    scenario = load_scenario(study.scenario_path, over)
+    scenario = load_scenario(study.scenario_path, over, machine="arm")
     geo = noise_free_scan(scenario)
     rng_init, rng_err = trial_streams(study.seed, cell, trial)
     T_true = geo.realized.T_base_workpiece_true
@@ -187,7 +187,7 @@ def full_trial(study: Study, cell: int, trial: int) -> dict:
     over, _ = study.cell_settings(cell)
     _, rng_err = trial_streams(study.seed, cell, trial)
     seed = int(rng_err.integers(0, 2**63 - 1))
-    scenario = load_scenario(study.scenario_path, merge_tables(over, {"seed": seed}))
+    scenario = load_scenario(study.scenario_path, merge_tables(over, {"seed": seed}), machine="arm")
     realized = realize(scenario)
     try:
         result = run_loop(realized)
