@@ -26,12 +26,12 @@ import numpy as np
 from algorithms.errors import AlgorithmError
 
 #: A DMIS label: letters, digits and underscores, starting with a letter (at most 20 characters).
-LABEL_PATTERN = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,19}$")
+LABEL_PATTERN = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,19}")
 
 
 def check_label(label: str, what: str) -> str:
     """``label`` if it is a valid DMIS label, else an AlgorithmError naming ``what``."""
-    if not isinstance(label, str) or not LABEL_PATTERN.match(label):
+    if not isinstance(label, str) or not LABEL_PATTERN.fullmatch(label):
         raise AlgorithmError(f"{what} label {label!r} is not a DMIS label (a letter, then up to 19 letters, "
                              "digits or underscores)")
     return label
@@ -92,8 +92,10 @@ class MeasurePoint:
         norm = float(np.linalg.norm(n))
         if norm == 0.0:
             raise AlgorithmError(f"normal of {self.label} must be a unit vector, got a zero vector")
-        n = n / norm
-        object.__setattr__(self, "normal", tuple(round(float(x), NORMAL_DECIMALS) for x in n))
+        on_grid = np.all(np.round(n, NORMAL_DECIMALS) == n) and abs(norm - 1.0) <= 2e-9
+        if not on_grid:  # a normal already unit on the 9-decimal grid is kept as it is
+            n = np.round(n / norm, NORMAL_DECIMALS)
+        object.__setattr__(self, "normal", tuple(float(x) for x in n))
 
     def approach_centre(self, ball_radius_m: float, approach_m: float) -> np.ndarray:
         """The ball centre at the start of the probing move [m]."""
@@ -125,7 +127,10 @@ class ProbeSettings:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise AlgorithmError(f"probe setting {name} must be a positive number of metres, got {v!r}")
-            object.__setattr__(self, name, float(v))
+            snapped = round(float(v) * 1e3, POSITION_DECIMALS_MM) / 1e3  # the DMIS grid, as positions
+            if snapped <= 0:
+                raise AlgorithmError(f"probe setting {name} must be at least 1 nm, got {v!r}")
+            object.__setattr__(self, name, snapped)
 
 
 @dataclass(frozen=True)
