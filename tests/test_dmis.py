@@ -122,14 +122,13 @@ def test_file_round_trip(tmp_path: Path) -> None:
     assert read_dmis(str(path)) == example_program()
 
 
-def test_writer_refuses_a_label_with_a_trailing_newline() -> None:
-    """LABEL_PATTERN's "$" lets "A\\n" into a Program; it would break the file, so the writer refuses it."""
-    program = Program("p", ProbeSettings(), (SelectStylus("S1\n"),))
+def test_a_label_with_a_trailing_newline_is_refused() -> None:
+    """A label must match whole: "S1\\n" would break the file."""
     with pytest.raises(AlgorithmError, match="stylus label"):
-        write_dmis(program)
+        Program("p", ProbeSettings(), (SelectStylus("S1\n"),))
 
 
-def test_writer_refuses_a_setting_below_the_grid() -> None:
+def test_a_setting_below_the_grid_is_refused() -> None:
     """A setting that would be written as 0.000000 mm is refused, not written as a file the parser refuses."""
     with pytest.raises(AlgorithmError, match="approach_m"):
         write_dmis(Program("p", ProbeSettings(approach_m=1e-13), ()))
