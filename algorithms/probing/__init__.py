@@ -1,11 +1,14 @@
 """Touch probing: the trigger model of a kinematic probe, probe qualification and radius
-compensation, and planned fine probe points.
+compensation, planned fine probe points, and CMM measurement programs (document 002).
 
-Pure numerics (numpy, scipy, trimesh): no simulator, IK or viewer imports. Modules:
+Pure numerics (numpy, scipy, trimesh, python-fcl): no simulator, IK or viewer imports. Modules:
 ``pretravel`` (direction-dependent pre-travel and repeatability), ``qualification``
-(reference-sphere qualification, compensation along the normal, cosine error) and
+(reference-sphere qualification, compensation along the normal, cosine error),
 ``point_planning`` (candidate points, reachability by a probe with a fixed stylus direction,
-D-optimal choice of the points).
+D-optimal choice of the points), ``program`` (a measurement program's statements),
+``dmis`` (DMIS 5 text out and in), ``safety_plane`` (document 002's definitions and a taught
+path's penetrations), ``sweep`` (a probe's straight moves swept against the exact mesh) and
+``cmm_planning`` (the safe-plane baseline, document 002's planner, the full-check variant).
 """
 
 from algorithms.probing.point_planning import (
