@@ -217,18 +217,20 @@ class ProbeSweep:
         gap = np.maximum(np.maximum(self._part_lo - (centre + half), (centre - half) - self._part_hi), 0.0)
         return float(np.linalg.norm(gap))
 
-    def inside(self, ball_centre, probe: ProbeGeometry) -> str | None:
-        """The first solid whose centre line lies inside the material, or None."""
+    def inside_all(self, ball_centre, probe: ProbeGeometry) -> list[str]:
+        """The solids whose centre lies inside the material."""
         c = np.asarray(ball_centre, dtype=np.float64)
         d = probe.direction
         h = probe.head_centre(c)
         pts = {"ball": c, "stylus": c - 0.5 * probe.stylus_length_m * d,
                "body": c - (probe.stylus_length_m + 0.5 * probe.body_length_m) * d, "head": h}
         sd = self.index.signed_distance(np.array(list(pts.values())))
-        for name, s in zip(pts, sd, strict=True):
-            if s < 0:
-                return name
-        return None
+        return [name for name, s in zip(pts, sd, strict=True) if s < 0]
+
+    def inside(self, ball_centre, probe: ProbeGeometry) -> str | None:
+        """The first solid whose centre lies inside the material, or None."""
+        found = self.inside_all(ball_centre, probe)
+        return found[0] if found else None
 
     def check_position(self, ball_centre, probe: ProbeGeometry) -> MoveCheck:
         """Is the probe at rest at ``ball_centre`` at least the clearance away from the part?"""

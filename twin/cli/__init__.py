@@ -30,7 +30,7 @@ from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_
 from twin.errors import TwinError
 
 #: Subcommands; each is the module of its name with "-" as "_" (``export-mesh``: ``export_mesh.py``).
-COMMANDS = ["scan", "demo", "localize", "run", "locate", "view", "export-mesh", "warmup", "study"]
+COMMANDS = ["scan", "demo", "localize", "run", "locate", "view", "export-mesh", "warmup", "study", "cmm"]
 
 
 class Terminated(BaseException):

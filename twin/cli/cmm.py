@@ -1,0 +1,207 @@
+"""``twin cmm plan|run|compare``: document 002's measurement programs on the CMM (:mod:`twin.cmm`).
+
+* ``twin cmm plan TEACH SCENARIO --out DIR``: plan a teach file with the safe-plane baseline,
+  document 002's algorithm and the full-check variant; write each program as DMIS and
+  ``plan.json`` (every GOTO with its reason, the penetrations, the moves the swept check finds
+  colliding, the moves a planner could not clear).
+* ``twin cmm run PROGRAM.dmi SCENARIO --out DIR``: execute a DMIS program in the twin at 1 ms;
+  write ``report.json`` (hits, misses, every unintended contact located, path length, cycle
+  time) and ``hits.csv``.
+* ``twin cmm compare TEACH SCENARIO --out DIR``: both for all three planners, with the table
+  side by side (``report.md``) and one recording with each program on its own entity.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from twin.cli.common import (
+    EXIT_OK,
+    EXIT_UNTRUSTED,
+    add_output_options,
+    checked_outputs,
+    non_negative_int,
+    number,
+    print_result,
+    reporting,
+)
+from twin.io.output import Staged
+from twin.io.report import write_json
+from twin.scenario import load_scenario
+
+PLAN_FILE = "plan.json"
+REPORT_FILE = "report.json"
+TABLE_FILE = "report.md"
+HITS_FILE = "hits.csv"
+PLANNER_CHOICES = ("all", "baseline", "document", "full_check")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "cmm", help="document 002: plan, write and run CMM measurement programs (GOTO planning, DMIS)",
+        description="CMM measurement programs (document 002): teach files planned into DMIS programs by the "
+                    "safe-plane baseline, the document's algorithm and a full-check variant, and DMIS programs "
+                    "run in the twin's CMM with every contact of the probe with the part counted and located.",
+    )
+    cmd = p.add_subparsers(dest="cmm_command", required=True, metavar="SUBCOMMAND")
+    common_epilog = (f"exit status: {EXIT_OK} done and safe; 2 bad input (nothing written); {EXIT_UNTRUSTED} done, "
+                     "but a program hits the part, misses a point or a move could not be cleared")
+    pp = cmd.add_parser("plan", help="plan a teach file with the three planners and write DMIS programs",
+                        description="Plan TEACH (a teach file) on SCENARIO's part (machine = \"cmm\"): "
+                                    f"DIR/<planner>.dmi for each planner and DIR/{PLAN_FILE}.",
+                        epilog=f"exit status: {EXIT_OK} planned; 2 bad input; {EXIT_UNTRUSTED} a requested "
+                               "planner could not clear a move, or its program's swept check collides")
+    pp.add_argument("teach", help="teach file (TOML): the operator's moves, touches and stylus changes")
+    pp.add_argument("scenario", help='scenario TOML file with machine = "cmm"')
+    pp.add_argument("--planner", choices=PLANNER_CHOICES, default="all", help="which planner (default: all three)")
+    add_output_options(pp, "output folder (created; refused if it exists, unless --force)")
+    pp.set_defaults(run=run_plan)
+
+    pr = cmd.add_parser("run", help="execute a DMIS program in the twin's CMM at 1 ms",
+                        description=f"Execute PROGRAM (DMIS) on SCENARIO's CMM: DIR/{REPORT_FILE}, DIR/{HITS_FILE}.",
+                        epilog=common_epilog)
+    pr.add_argument("program", help="DMIS program (.dmi)")
+    pr.add_argument("scenario", help='scenario TOML file with machine = "cmm"')
+    pr.add_argument("--seed", type=non_negative_int, help="random stream of the probe and scales (default: scenario)")
+    add_output_options(pr, "output folder (created; refused if it exists, unless --force)")
+    pr.set_defaults(run=run_program)
+
+    pc = cmd.add_parser("compare", help="plan a teach file three ways, run each program, table them side by side",
+                        description=f"Plan TEACH with the three planners, write the DMIS programs, run each in "
+                                    f"the twin, and write DIR/{TABLE_FILE}, DIR/{REPORT_FILE} and DIR/cmm.rrd.",
+                        epilog=f"exit status: {EXIT_OK} the full-check program ran without contact or miss; 2 bad "
+                               f"input; {EXIT_UNTRUSTED} it did not, or it has a move it could not clear")
+    pc.add_argument("teach", help="teach file (TOML)")
+    pc.add_argument("scenario", help='scenario TOML file with machine = "cmm"')
+    pc.add_argument("--seed", type=non_negative_int, help="random stream of the probe and scales (default: scenario)")
+    pc.add_argument("--no-rrd", action="store_true", help="do not write DIR/cmm.rrd")
+    add_output_options(pc, "output folder (created; refused if it exists, unless --force)")
+    pc.set_defaults(run=run_compare)
+
+
+def _setup(path: str):
+    from twin.cmm import cmm_setup
+
+    return cmm_setup(load_scenario(path, machine="cmm"))
+
+
+def _methods(choice: str) -> tuple[str, ...]:
+    from algorithms.probing.cmm_planning import PLANNERS
+
+    return PLANNERS if choice == "all" else (choice,)
+
+
+def run_plan(args: argparse.Namespace) -> int:
+    from algorithms.probing.dmis import write_dmis_file
+    from twin.cmm import plan_programs
+    from twin.formats.teach import load_teach
+    from twin.io.cmm_files import plan_report
+
+    teach = load_teach(args.teach)
+    setup = _setup(args.scenario)
+    out, _ = checked_outputs(args)
+    with reporting(args, "cmm plan") as say, Staged(out) as stage:
+        plans = plan_programs(teach, setup, _methods(args.planner))
+        say(f"planned {', '.join(plans)}")
+        report = {"teach": str(args.teach), "scenario": str(args.scenario), "plans": {}}
+        for m, p in plans.items():
+            write_dmis_file(p.program, stage.folder / f"{m}.dmi")
+            report["plans"][m] = plan_report(p) | {"program": str(out / f"{m}.dmi")}
+        write_json(stage.folder / PLAN_FILE, report)
+        stage.commit()
+    rows = [(m, f"{len(r['gotos'])} GOTOs, {len(r['predicted_collisions'])} predicted collisions"
+             + (f", {len(r['unresolved'])} moves not cleared" if r["unresolved"] else ""))
+            for m, r in report["plans"].items()]
+    print_result(args, report, rows, indent=2)
+    bad = any(r["unresolved"] or (m != "baseline" and m != "document" and r["predicted_collisions"])
+              for m, r in report["plans"].items())
+    return EXIT_UNTRUSTED if bad else EXIT_OK
+
+
+def _rng(setup, seed: int | None) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(setup.scenario.seed if seed is None else seed))
+
+
+def run_program(args: argparse.Namespace) -> int:
+    from algorithms.errors import AlgorithmError
+    from algorithms.probing.dmis import read_dmis
+    from twin.cmm import execute
+    from twin.errors import TwinError
+    from twin.io.cmm_files import run_report, write_hits_csv
+
+    try:
+        program = read_dmis(args.program)
+    except AlgorithmError as exc:
+        raise TwinError(str(exc)) from None
+    setup = _setup(args.scenario)
+    out, rrd = checked_outputs(args)
+    t0 = time.perf_counter()
+    with reporting(args, "cmm run") as say, Staged(out) as stage:
+        run = execute(program, setup, _rng(setup, args.seed))
+        say(f"ran {program.name!r}: {run.cycle_time_s:.1f} s, {len(run.contacts)} contacts")
+        report = run_report(run) | {"scenario": str(args.scenario), "dmis": str(args.program)}
+        write_hits_csv(stage.folder / HITS_FILE, run)
+        if rrd is not None:
+            from twin.viz.cmm import save_cmm_recording
+
+            save_cmm_recording(stage.file(rrd), setup, {"program": run})
+            report["recording"] = str(rrd)
+        report["wall_s"] = round(time.perf_counter() - t0, 2)
+        write_json(stage.folder / REPORT_FILE, report)
+        stage.commit()
+    print_result(args, report, _run_rows(report), indent=2)
+    return EXIT_UNTRUSTED if report["contacts"] or report["misses"] else EXIT_OK
+
+
+def _run_rows(r: dict) -> list[tuple[str, str]]:
+    rows = [("program", r["program"]), ("contacts", str(r["contacts"])), ("misses", str(r["misses"])),
+            ("path length", number(1e3 * r["path_length_m"], "mm", 5)), ("cycle time", number(r["cycle_time_s"], "s"))]
+    for c in r["contact_list"][:5]:
+        rows.append(("  contact", f"{c['solid']} in statement {c['statement']} ({c['move']}) at t = "
+                                  f"{c['first_t_s']:.3f} s, part point " +
+                     "(" + ", ".join(f"{1e3 * x:.1f}" for x in c["part_point_m"]) + ") mm"))
+    return rows
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    from algorithms.probing.dmis import write_dmis_file
+    from twin.cmm import execute, plan_programs
+    from twin.formats.teach import load_teach
+    from twin.io.cmm_files import comparison_table, plan_report, run_report
+
+    teach = load_teach(args.teach)
+    setup = _setup(args.scenario)
+    out, rrd = checked_outputs(args, "cmm.rrd")
+    t0 = time.perf_counter()
+    with reporting(args, "cmm compare") as say, Staged(out) as stage:
+        plans = plan_programs(teach, setup)
+        rows, runs = [], {}
+        for m, p in plans.items():
+            write_dmis_file(p.program, stage.folder / f"{m}.dmi")
+            run = execute(p.program, setup, _rng(setup, args.seed))
+            runs[m] = run
+            say(f"{m}: {len(run.contacts)} contacts, {run.cycle_time_s:.1f} s")
+            rows.append({"method": m, "plan": plan_report(p), "run": run_report(run)})
+        table = comparison_table(rows)
+        (stage.folder / TABLE_FILE).write_text(f"# {teach.name} on {setup.scenario.name}\n\n{table}")
+        report = {"teach": str(args.teach), "scenario": str(args.scenario), "programs": rows}
+        if rrd is not None:
+            from twin.viz.cmm import save_cmm_recording
+
+            save_cmm_recording(stage.file(rrd), setup, runs)
+            report["recording"] = str(rrd)
+        report["wall_s"] = round(time.perf_counter() - t0, 2)
+        write_json(stage.folder / REPORT_FILE, report)
+        stage.commit()
+    summary = {r["method"]: {"contacts": r["run"]["contacts"], "predicted_collisions":
+                             len(r["plan"]["predicted_collisions"]), "path_length_m": r["run"]["path_length_m"],
+                             "cycle_time_s": r["run"]["cycle_time_s"], "misses": r["run"]["misses"],
+                             "unresolved": len(r["plan"]["unresolved"])} for r in rows}
+    print_result(args, summary, [(m, f"{s['contacts']} contacts, {s['predicted_collisions']} predicted, "
+                                     f"{1e3 * s['path_length_m']:.0f} mm, {s['cycle_time_s']:.1f} s, "
+                                     f"{s['misses']} misses") for m, s in summary.items()], indent=2)
+    full = summary["full_check"]
+    return EXIT_UNTRUSTED if full["contacts"] or full["misses"] or full["unresolved"] else EXIT_OK

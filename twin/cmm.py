@@ -1,0 +1,633 @@
+"""A measurement program on the coordinate measuring machine, in the twin (document 002).
+
+The cell: the bridge CMM of ``models/cmm`` (three servo axes and an indexable head, 1 ms),
+the scenario's touch probe on its head, the part at its true pose on the table. A program's
+coordinates are the part's, as aligned at the scenario's nominal pose (the alignment a
+measurement program starts from); the part lies at the true pose.
+
+* :func:`cmm_setup`: the static things of a scenario: the part, its index, the styli as the
+  planners see them (part frame), the swept clearance check, the machine's limits.
+* :func:`check_teach` and :func:`plan_programs`: a teach file checked against the CAD model
+  (touches on the part, the operator's moves clear of it), then planned by the three planners
+  of :mod:`algorithms.probing.cmm_planning`.
+* :func:`execute`: a program run at 1 ms: every move a straight line of the head with a
+  trapezoidal speed law (the transit speed and acceleration of ``[cmm]``), stylus changes as
+  head indexing moves, probing moves at the probing speed until the probe triggers (the
+  trigger model of :mod:`twin.sensors.touch_probe`, on the exact part) or the search distance
+  is spent (a miss); the scales latched at the trigger give the hit. Then every 1 ms sample is
+  checked for contact of the ball, stylus, body, head or ram with the exact part (python-fcl
+  distances; samples skipped only where the probe cannot have reached the part since the last
+  checked one); a ball contact inside a probing move is the measurement, anything else is a
+  collision, counted and located.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+import trimesh
+
+from algorithms.errors import AlgorithmError
+from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.se3 import inv_pose, transform_points
+from algorithms.probing.cmm_planning import (
+    PLANNERS,
+    Move,
+    Plan,
+    StylusReach,
+    plan,
+    program_moves,
+    taught_path_collisions,
+)
+from algorithms.probing.pretravel import PretravelModel
+from algorithms.probing.program import MeasurePoint, Program, SelectStylus
+from algorithms.probing.safety_plane import Station, Teach, taught_path
+from algorithms.probing.sweep import PROBE_PARTS, ProbeGeometry, ProbeSweep
+from twin.errors import TwinError
+from twin.realize import load_workpiece_mesh
+from twin.robot import MODELS_DIR
+from twin.scenario import Scenario
+from twin.sensors.touch_probe import BALL_SITE, TouchProbe, find_trigger
+
+CMM_SCENE_XML = MODELS_DIR / "cmm" / "scene.xml"
+AXES = ("axis_x", "axis_y", "axis_z")
+HEAD_JOINTS = ("head_a", "head_b")
+#: A taught touch must lie this close to the CAD surface [m].
+TOUCH_ON_PART_M = 1e-4
+#: ... and its normal within this angle of the surface's [deg].
+TOUCH_NORMAL_DEG = 30.0
+#: Contacts are checked on every sample where the probe may have come this close [m].
+CONTACT_MARGIN_M = 0.0
+
+
+@dataclass(frozen=True)
+class MachineLimits:
+    """What the CMM model says about itself (``models/cmm``)."""
+
+    lo_m: np.ndarray
+    hi_m: np.ndarray
+    max_speed_m_s: float
+    max_accel_m_s2: float
+    head_radius_m: float
+    ram_half_width_m: float
+
+
+def _numeric(model: mujoco.MjModel, name: str) -> float:
+    try:
+        return float(model.numeric(name).data[0])
+    except KeyError:
+        raise TwinError(f"the CMM model lacks its numeric {name!r} (models/cmm/cmm.xml)") from None
+
+
+def machine_limits(model: mujoco.MjModel) -> MachineLimits:
+    rng = np.array([model.jnt_range[model.joint(a).id] for a in AXES])
+    return MachineLimits(rng[:, 0].copy(), rng[:, 1].copy(), _numeric(model, "cmm_max_speed_m_s"),
+                         _numeric(model, "cmm_max_accel_m_s2"), _numeric(model, "cmm_head_radius_m"),
+                         _numeric(model, "cmm_ram_half_width_m"))
+
+
+@dataclass
+class CmmSetup:
+    """A CMM scenario's static things (part frame = the nominal alignment)."""
+
+    scenario: Scenario
+    mesh: trimesh.Trimesh
+    T_world_part_nominal: np.ndarray
+    T_world_part_true: np.ndarray
+    limits: MachineLimits
+    styli: dict[str, StylusReach]
+    probes: dict[str, ProbeGeometry]
+    sweep: ProbeSweep
+    index: MeshIndex
+
+    def check(self, a: np.ndarray, b: np.ndarray, stylus: str):
+        return self.sweep.check_move(a, b, self.probes[stylus])
+
+
+def _cmm_spec(scenario: Scenario) -> mujoco.MjSpec:
+    if not CMM_SCENE_XML.is_file():
+        raise TwinError(f"the CMM model is missing: {CMM_SCENE_XML}")
+    return mujoco.MjSpec.from_file(str(CMM_SCENE_XML))
+
+
+def probe_geometry(scenario: Scenario, limits: MachineLimits, direction: np.ndarray, up: np.ndarray) -> ProbeGeometry:
+    p = scenario.probe
+    assert p is not None
+    return ProbeGeometry(direction, p.ball_radius_m, p.stylus_radius_m, p.stylus_length_m, p.body_radius_m,
+                         p.body_length_m, limits.head_radius_m, limits.ram_half_width_m, up)
+
+
+def cmm_setup(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> CmmSetup:
+    """The static things of a ``machine = "cmm"`` scenario."""
+    if scenario.machine != "cmm" or scenario.cmm is None or scenario.probe is None:
+        raise TwinError(f"scenario {scenario.name!r} is for machine = {scenario.machine!r}; twin cmm needs "
+                        "machine = \"cmm\"")
+    mesh = load_workpiece_mesh(scenario) if mesh is None else mesh
+    model = _cmm_spec(scenario).compile()
+    limits = machine_limits(model)
+    wp = scenario.workpiece
+    R_part_world = wp.T_world_workpiece_nominal[:3, :3].T
+    up = R_part_world @ np.array([0.0, 0.0, 1.0])
+    probes, styli = {}, {}
+    for name in scenario.cmm.styli:
+        d = R_part_world @ scenario.cmm.direction(name)
+        probes[name] = probe_geometry(scenario, limits, d, up)
+        styli[name] = StylusReach(d, probes[name].reach_m, scenario.probe.ball_radius_m)
+    sweep = ProbeSweep(mesh.vertices, mesh.faces, scenario.cmm.clearance_m)
+    return CmmSetup(scenario, mesh, wp.T_world_workpiece_nominal, wp.T_world_workpiece_true, limits, styli, probes,
+                    sweep, sweep.index)
+
+
+# ----------------------------------------------------------------------------- teaching and planning
+def check_teach(teach: Teach, setup: CmmSetup) -> list[Station]:
+    """The teach's path, after checking it against the CAD model.
+
+    Raises:
+        TwinError: a stylus the machine lacks, a touch off the part or with a wrong normal, or
+            a taught move that passes through the part (an operator cannot have made it).
+    """
+    try:
+        stations = taught_path(teach, {k: (v.direction, v.reach_m) for k, v in setup.styli.items()},
+                               {k: v.ball_radius_m for k, v in setup.styli.items()})
+    except AlgorithmError as exc:
+        raise TwinError(f"teach {teach.name!r}: {exc}") from None
+    touches = teach.touches
+    pts = np.array([t.point_m for t in touches])
+    cp = setup.index.query(pts)
+    sd = setup.index.signed_distance(pts)
+    normals = setup.index.smooth_normals(cp.face, cp.foot)
+    for t, d, n in zip(touches, sd, normals, strict=True):
+        if abs(d) > TOUCH_ON_PART_M:
+            raise TwinError(f"teach {teach.name!r}: touch {t.label} at {_mm(t.point_m)} does not lie on the part "
+                            f"({1e3 * d:+.3f} mm from its surface; allowed {1e3 * TOUCH_ON_PART_M:.1f} mm)")
+        tn = np.asarray(t.measure().normal)
+        if float(tn @ n) < np.cos(np.radians(TOUCH_NORMAL_DEG)):
+            ang = np.degrees(np.arccos(np.clip(tn @ n, -1, 1)))
+            raise TwinError(f"teach {teach.name!r}: touch {t.label}'s normal is {ang:.0f} deg from the surface "
+                            f"normal there (allowed {TOUCH_NORMAL_DEG:.0f} deg): the probe would not approach "
+                            "the surface from outside")
+    bad = taught_path_collisions(stations, setup.check)
+    if bad:
+        raise TwinError(f"teach {teach.name!r}: {bad[0]}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "")
+                        + f"; the operator's moves must keep {1e3 * setup.sweep.clearance_m:.1f} mm from the part")
+    return stations
+
+
+def plan_programs(teach: Teach, setup: CmmSetup, methods: tuple[str, ...] = PLANNERS) -> dict[str, Plan]:
+    """The teach planned by each method."""
+    stations = check_teach(teach, setup)
+    try:
+        return {m: plan(m, teach, stations, setup.mesh.vertices, setup.styli, setup.check) for m in methods}
+    except AlgorithmError as exc:
+        raise TwinError(f"teach {teach.name!r}: {exc}") from None
+
+
+def _mm(p) -> str:
+    return "(" + ", ".join(f"{1e3 * float(x):.2f}" for x in p) + ") mm"
+
+
+# ----------------------------------------------------------------------------- execution
+@dataclass(frozen=True)
+class CmmHit:
+    """One measured point of a program (part frame, metres).
+
+    Attributes:
+        label: the feature; point_m, normal: its nominal point and normal.
+        measured_m: the measured surface point (ball centre from the latched scales, minus
+            the ball radius along the nominal normal), or None for a miss.
+        deviation_m: (measured - nominal) . normal, or None.
+        trigger_t_s: time of the trigger [s], or None.
+    """
+
+    label: str
+    point_m: np.ndarray
+    normal: np.ndarray
+    measured_m: np.ndarray | None
+    deviation_m: float | None
+    trigger_t_s: float | None
+
+
+@dataclass(frozen=True)
+class CmmContact:
+    """An unintended contact of the probe with the part.
+
+    Attributes:
+        solid: "ball", "stylus", "body", "head" or "ram".
+        statement: the program statement (0-based) whose move it happened in; kind: the move's kind.
+        first_t_s, last_t_s: first and last sample in contact [s].
+        ball_centre_m: (3,) the ball centre at the first contact (part frame) [m].
+        part_point_m: (3,) the point of the part nearest the solid's centre there (part frame) [m].
+    """
+
+    solid: str
+    statement: int
+    kind: str
+    first_t_s: float
+    last_t_s: float
+    ball_centre_m: np.ndarray
+    part_point_m: np.ndarray
+
+
+@dataclass
+class CmmRun:
+    """A program executed in the twin.
+
+    Attributes:
+        program: the program.
+        t_s: (n,) sample times [s]; head_world_m: (n, 3) the head centre (true); head_angles_rad: (n, 2) A, B.
+        ball_part_m: (n, 3) the true ball centre in the part's nominal frame [m].
+        statement: (n,) the statement each sample belongs to; kind: (n,) index into MOVE_KINDS.
+        hits: one per measured point; contacts: every unintended contact.
+        path_length_m: the ball centre's travel; cycle_time_s: the program's duration.
+    """
+
+    program: Program
+    t_s: np.ndarray
+    head_world_m: np.ndarray
+    head_angles_rad: np.ndarray
+    ball_part_m: np.ndarray
+    statement: np.ndarray
+    kind: np.ndarray
+    hits: list[CmmHit] = field(default_factory=list)
+    contacts: list[CmmContact] = field(default_factory=list)
+    path_length_m: float = 0.0
+    cycle_time_s: float = 0.0
+
+    @property
+    def misses(self) -> int:
+        return sum(h.measured_m is None for h in self.hits)
+
+
+MOVE_KINDS = ("goto", "approach", "probe", "retract", "index", "brake")
+
+
+def trapezoid(distance_m: float, v_max: float, a_max: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Arc length and speed at each step of a rest-to-rest move (the first sample after the start,
+    the last at the end) with a trapezoidal (or triangular) speed law."""
+    if distance_m <= 0:
+        return np.zeros(1), np.zeros(1)
+    t_acc = v_max / a_max
+    if a_max * t_acc**2 >= distance_m:  # triangular
+        t_acc = np.sqrt(distance_m / a_max)
+        v_top, t_flat = a_max * t_acc, 0.0
+    else:
+        v_top, t_flat = v_max, (distance_m - a_max * t_acc**2) / v_max
+    total = 2 * t_acc + t_flat
+    n = max(1, int(np.ceil(total / dt)))
+    t = np.arange(1, n + 1) * dt * (total / (n * dt))
+    s = np.where(t < t_acc, 0.5 * a_max * t**2,
+                 np.where(t < t_acc + t_flat, 0.5 * a_max * t_acc**2 + v_top * (t - t_acc),
+                          distance_m - 0.5 * a_max * np.maximum(total - t, 0.0) ** 2))
+    v = np.where(t < t_acc, a_max * t, np.where(t < t_acc + t_flat, v_top, a_max * np.maximum(total - t, 0.0)))
+    s[-1], v[-1] = distance_m, 0.0
+    return s, v
+
+
+class _Machine:
+    """The CMM cell stepping at 1 ms with servo references, recording every step."""
+
+    def __init__(self, setup: CmmSetup):
+        sc = setup.scenario
+        spec = _cmm_spec(sc)
+        self.probe = TouchProbe(sc.probe, sc.noise)  # type: ignore[arg-type]
+        self.probe.attach(spec, spec.body("probe_mount"))
+        T = setup.T_world_part_true
+        m = setup.mesh
+        spec.add_mesh(name="workpiece_mesh", uservert=np.asarray(m.vertices, dtype=np.float64).ravel(),
+                      userface=np.asarray(m.faces, dtype=np.int32).ravel())
+        from twin.cell import quat_wxyz  # noqa: PLC0415 - the one quaternion helper
+
+        wp = spec.worldbody.add_body(name="workpiece", pos=T[:3, 3], quat=quat_wxyz(T[:3, :3]))
+        wp.add_geom(name="workpiece", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="workpiece_mesh",
+                    rgba=[0.75, 0.6, 0.35, 1], group=3, contype=0, conaffinity=0)
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.dt = float(self.model.opt.timestep)
+        mdl = self.model
+        self.qadr = np.array([mdl.jnt_qposadr[mdl.joint(j).id] for j in AXES + HEAD_JOINTS])
+        self.vadr = np.array([mdl.jnt_dofadr[mdl.joint(j).id] for j in AXES + HEAD_JOINTS])
+        self.act_pos = [mdl.actuator(f"{j}_pos").id for j in AXES + HEAD_JOINTS]
+        self.act_vel = [mdl.actuator(f"{j}_vel").id if _has_actuator(mdl, f"{j}_vel") else -1
+                        for j in AXES + HEAD_JOINTS]
+        self.ball_site = mdl.site(BALL_SITE).id
+        self.t: list[float] = []
+        self.q: list[np.ndarray] = []
+        self.ball: list[np.ndarray] = []
+        self.statement: list[int] = []
+        self.kind: list[int] = []
+
+    def reset(self, q0: np.ndarray) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self.qadr] = q0
+        mujoco.mj_forward(self.model, self.data)
+        self.ref = np.array(q0, dtype=np.float64)
+
+    def step(self, q_ref: np.ndarray, qd_ref: np.ndarray, statement: int, kind: str) -> np.ndarray:
+        d = self.data
+        for i, (ap, av) in enumerate(zip(self.act_pos, self.act_vel, strict=True)):
+            d.ctrl[ap] = q_ref[i]
+            if av >= 0:
+                d.ctrl[av] = qd_ref[i]
+        mujoco.mj_step(self.model, d)
+        self.ref = np.array(q_ref, dtype=np.float64)
+        ball = d.site_xpos[self.ball_site].copy()
+        self.t.append(float(d.time))
+        self.q.append(d.qpos[self.qadr].copy())
+        self.ball.append(ball)
+        self.statement.append(statement)
+        self.kind.append(MOVE_KINDS.index(kind))
+        return ball
+
+
+def _has_actuator(model: mujoco.MjModel, name: str) -> bool:
+    try:
+        model.actuator(name)
+    except KeyError:
+        return False
+    return True
+
+
+def _angles(cmm_styli: dict, name: str) -> np.ndarray:
+    a, b = cmm_styli[name]
+    return np.radians([a, b])
+
+
+def execute(program: Program, setup: CmmSetup, rng: np.random.Generator) -> CmmRun:
+    """Run a program in the twin at 1 ms (see the module docstring).
+
+    Raises:
+        TwinError: a stylus the machine lacks, or a move that drives an axis past its range.
+    """
+    sc = setup.scenario
+    cmm, probe = sc.cmm, sc.probe
+    assert cmm is not None and probe is not None
+    try:
+        moves = program_moves(program, setup.styli)
+    except AlgorithmError as exc:
+        raise TwinError(f"program {program.name!r}: {exc}") from None
+    if not moves:
+        raise TwinError(f"program {program.name!r} makes no move")
+    T_wp = setup.T_world_part_nominal
+    reach = {k: (sc.cmm.direction(k), v.reach_m) for k, v in setup.styli.items()}  # type: ignore[union-attr]
+
+    def head_of(ball_part: np.ndarray, stylus: str) -> np.ndarray:
+        d, L = reach[stylus]
+        return transform_points(T_wp, ball_part[None])[0] - L * d
+
+    _check_ranges(program, moves, setup, head_of)
+    machine = _Machine(setup)
+    stylus0 = next(st.name for st in program.statements if isinstance(st, SelectStylus))
+    q = np.concatenate([head_of(moves[0].start_m, stylus0), _angles(cmm.styli, stylus0)])
+    machine.reset(q)
+    gap_index = MeshIndex(trimesh.Trimesh(transform_points(setup.T_world_part_true, setup.mesh.vertices),
+                                          setup.mesh.faces, process=False))
+    pretravel = machine.probe.pretravel
+    hits: list[CmmHit] = []
+    measures = {k: st for k, st in enumerate(program.statements) if isinstance(st, MeasurePoint)}
+    i = 0
+    while i < len(moves):
+        mv = moves[i]
+        if mv.kind == "index":
+            q = _index(machine, q, _angles(cmm.styli, mv.stylus), cmm.index_time_s, mv.statement)
+            i += 1
+            continue
+        if mv.kind == "probe":
+            st = measures[mv.statement]
+            hit, q = _probe(machine, q, mv, st, program.settings.search_m, setup, gap_index, pretravel, rng)
+            hits.append(hit)
+            i += 1
+            # the retract starts where the machine stopped
+            back = moves[i]
+            q = _line(machine, q, head_of(back.end_m, back.stylus), cmm.transit_speed_m_s, cmm.acceleration_m_s2,
+                      back.statement, "retract")
+            i += 1
+            continue
+        q = _line(machine, q, head_of(mv.end_m, mv.stylus), cmm.transit_speed_m_s, cmm.acceleration_m_s2,
+                  mv.statement, mv.kind)
+        i += 1
+    t = np.array(machine.t)
+    qs = np.array(machine.q)
+    ball_world = np.array(machine.ball)
+    ball_part = transform_points(inv_pose(T_wp), ball_world)
+    run = CmmRun(program, t, qs[:, :3], qs[:, 3:], ball_part, np.array(machine.statement), np.array(machine.kind),
+                 hits)
+    run.path_length_m = float(np.linalg.norm(np.diff(ball_part, axis=0), axis=1).sum())
+    run.cycle_time_s = float(t[-1]) if len(t) else 0.0
+    run.contacts = find_contacts(run, setup)
+    return run
+
+
+def _check_ranges(program: Program, moves: list[Move], setup: CmmSetup, head_of) -> None:
+    lim = setup.limits
+    for mv in moves:
+        for p in (mv.start_m, mv.end_m):
+            h = head_of(p, mv.stylus)
+            for k, ax in enumerate("XYZ"):
+                if not lim.lo_m[k] - 1e-9 <= h[k] <= lim.hi_m[k] + 1e-9:
+                    raise TwinError(
+                        f"program {program.name!r}, statement {mv.statement + 1}: the {ax} axis would go to "
+                        f"{1e3 * h[k]:.1f} mm, outside its range [{1e3 * lim.lo_m[k]:.0f}, {1e3 * lim.hi_m[k]:.0f}] mm")
+
+
+def _line(machine: _Machine, q: np.ndarray, head_target: np.ndarray, v_max: float, a_max: float, statement: int,
+          kind: str) -> np.ndarray:
+    start = q[:3]
+    delta = head_target - start
+    dist = float(np.linalg.norm(delta))
+    if dist < 1e-12:
+        return q
+    u = delta / dist
+    s, v = trapezoid(dist, v_max, a_max, machine.dt)
+    for sk, vk in zip(s, v, strict=True):
+        machine.step(np.concatenate([start + sk * u, q[3:]]), np.concatenate([vk * u, [0.0, 0.0]]), statement, kind)
+    return np.concatenate([head_target, q[3:]])
+
+
+def _index(machine: _Machine, q: np.ndarray, angles: np.ndarray, time_s: float, statement: int) -> np.ndarray:
+    n = max(1, int(round(time_s / machine.dt)))
+    a0 = q[3:].copy()
+    for k in range(1, n + 1):
+        f = k / n
+        smooth = f * f * (3 - 2 * f)
+        rate = 6 * f * (1 - f) / time_s
+        machine.step(np.concatenate([q[:3], a0 + smooth * (angles - a0)]),
+                     np.concatenate([[0.0, 0.0, 0.0], rate * (angles - a0)]), statement, "index")
+    return np.concatenate([q[:3], angles])
+
+
+def _probe(machine: _Machine, q: np.ndarray, mv: Move, st: MeasurePoint, search_m: float, setup: CmmSetup,
+           gap_index: MeshIndex, pretravel: PretravelModel, rng: np.random.Generator) -> tuple[CmmHit, np.ndarray]:
+    """The probing move along -normal at the probing speed until the trigger or the search end."""
+    sc = setup.scenario
+    probe, cmm = sc.probe, sc.cmm
+    assert probe is not None and cmm is not None
+    r = probe.ball_radius_m
+    n_part = np.asarray(st.normal)
+    T_wp = setup.T_world_part_nominal
+    n_world = T_wp[:3, :3] @ n_part
+    start_head = q[:3].copy()
+    total = float(np.linalg.norm(mv.end_m - mv.start_m)) + search_m
+    v = probe.probing_speed_m_s
+    n_steps = int(np.ceil(total / v / machine.dt))
+    d_world, L = sc.cmm.direction(mv.stylus), setup.styli[mv.stylus].reach_m  # type: ignore[union-attr]
+    R_world_probe = _probe_rotation(d_world)
+    t0 = len(machine.t)
+
+    def gap(c: np.ndarray) -> np.ndarray:
+        return gap_index.signed_distance(c) - r
+
+    drawn: list[float] = []
+
+    def draw(direction: np.ndarray) -> float:
+        # one draw per touch, however many samples it takes to reach the trigger
+        if not drawn:
+            u = direction @ R_world_probe
+            u[2] = max(u[2], 0.0)  # a touch moving slightly away from the body triggers sideways
+            drawn.append(float(pretravel.draw_m(u / np.linalg.norm(u), rng)))
+        return drawn[0]
+
+    trig = None
+    k = 0
+    touched = False
+    for k in range(1, n_steps + 1):
+        ball = machine.step(np.concatenate([start_head - k * v * machine.dt * n_world, q[3:]]),
+                            np.concatenate([-v * n_world, [0.0, 0.0]]), mv.statement, "probe")
+        if not touched and gap(ball[None])[0] <= 0:
+            touched = True
+        if touched:
+            lo = max(t0 - 1, 0)
+            trig = find_trigger(np.array(machine.t[lo:]), np.array(machine.ball[lo:]), gap, draw)
+            if trig is not None:
+                break
+    q_stop = np.concatenate([start_head - k * v * machine.dt * n_world, q[3:]])
+    if trig is None:
+        return CmmHit(st.label, np.asarray(st.point_m), n_part, None, None, None), q_stop
+    # The scales latched at the trigger (interpolated between the two samples around it).
+    ts = np.array(machine.t)
+    qs = np.array(machine.q)
+    j = int(np.searchsorted(ts, trig.trigger_t_s))
+    j = min(max(j, 1), len(ts) - 1)
+    f = (trig.trigger_t_s - ts[j - 1]) / (ts[j] - ts[j - 1])
+    head = qs[j - 1, :3] + f * (qs[j, :3] - qs[j - 1, :3])
+    head = head + rng.normal(0.0, cmm.encoder_sigma_m, 3)
+    ball_world = head + L * d_world
+    ball_part = transform_points(inv_pose(T_wp), ball_world[None])[0]
+    measured = ball_part - r * n_part
+    dev = float((measured - np.asarray(st.point_m)) @ n_part)
+    # Brake to rest from the probing speed.
+    stop = probe.stop_deceleration_m_s2
+    n_brake = int(np.ceil(v / stop / machine.dt))
+    pos = q_stop[:3].copy()
+    for b in range(1, n_brake + 1):
+        speed = max(v - stop * b * machine.dt, 0.0)
+        pos = pos - speed * machine.dt * n_world
+        machine.step(np.concatenate([pos, q[3:]]), np.concatenate([-speed * n_world, [0.0, 0.0]]), mv.statement,
+                     "brake")
+    hit = CmmHit(st.label, np.asarray(st.point_m), n_part, measured, dev, trig.trigger_t_s)
+    return hit, np.concatenate([pos, q[3:]])
+
+
+def _probe_rotation(d_world: np.ndarray) -> np.ndarray:
+    """A probe frame whose z is the stylus direction (the pre-travel model's frame)."""
+    z = d_world / np.linalg.norm(d_world)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+# ----------------------------------------------------------------------------- contacts
+def find_contacts(run: CmmRun, setup: CmmSetup) -> list[CmmContact]:
+    """Every unintended contact along the executed motion (see the module docstring)."""
+    sc = setup.scenario
+    T_wp = setup.T_world_part_nominal
+    # Check in the part's TRUE frame: the probe's world pose mapped into the true part frame.
+    T_true_inv = inv_pose(setup.T_world_part_true)
+    R = T_true_inv[:3, :3]
+    up = R @ np.array([0.0, 0.0, 1.0])
+    ball_true = transform_points(T_true_inv, transform_points(T_wp, run.ball_part_m))
+    sweep = ProbeSweep(setup.mesh.vertices, setup.mesh.faces, clearance_m=1e-6, step_floor_m=5e-7)
+    probe_kind = MOVE_KINDS.index("probe")
+    brake_kind = MOVE_KINDS.index("brake")
+    lim = setup.limits
+    out: list[CmmContact] = []
+    n = len(run.t_s)
+    open_: dict[str, list] = {}
+    k = 0
+    geom_cache: dict[tuple[float, float], ProbeGeometry] = {}
+    while k < n:
+        a, b = run.head_angles_rad[k]
+        key = (round(float(a), 4), round(float(b), 4))
+        if key not in geom_cache:
+            d = np.array([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), -np.cos(a)])
+            geom_cache[key] = probe_geometry(sc, lim, R @ d, up)
+        g = geom_cache[key]
+        measuring = run.kind[k] in (probe_kind, brake_kind)
+        dists = _solid_distances(sweep, ball_true[k], g)
+        if measuring:
+            dists["ball"] = np.inf
+        touching = {s for s, dv in dists.items() if dv <= CONTACT_MARGIN_M}
+        for s in list(open_):
+            if s not in touching:
+                out.append(_contact(s, open_.pop(s), run, k - 1, setup, sweep, g))
+        for s in touching:
+            if s not in open_:
+                open_[s] = [k, ball_true[k].copy()]
+        dmin = min(dists.values())
+        if touching or not np.isfinite(dmin):
+            k += 1
+            continue
+        # Skip the samples the probe cannot have reached the part in (translation only).
+        k1 = k + 1
+        travelled = 0.0
+        while k1 < n and np.allclose(run.head_angles_rad[k1], run.head_angles_rad[k], atol=1e-9):
+            travelled += float(np.linalg.norm(ball_true[k1] - ball_true[k1 - 1]))
+            if travelled >= dmin or run.kind[k1] != run.kind[k]:
+                break
+            k1 += 1
+        k = max(k1, k + 1)
+    for s, (k0, _) in open_.items():
+        out.append(_contact(s, [k0, None], run, n - 1, setup, sweep, geom_cache[next(iter(geom_cache))]))
+    out.sort(key=lambda c: c.first_t_s)
+    return out
+
+
+def _solid_distances(sweep: ProbeSweep, ball: np.ndarray, g: ProbeGeometry) -> dict[str, float]:
+    """Each solid's distance to the part, or a lower bound of it (the gap between its box and
+    the part's) where that gap is positive: such a solid cannot touch, and the bound is enough
+    to decide how far the probe may travel before the next check."""
+    import fcl  # noqa: PLC0415 - only the contact check uses fcl directly
+
+    out = {}
+    request = fcl.DistanceRequest()
+    near = False
+    for name, obj, off, half in sweep._probe_solids(g):
+        gap = sweep._box_gap(ball + off, half)
+        if gap > 0:
+            out[name] = gap
+            continue
+        near = True
+        obj.setTranslation(ball + off)
+        out[name] = max(float(fcl.distance(obj, sweep._part, request, fcl.DistanceResult())), 0.0)
+    if near:  # a solid wholly inside the material has no triangle near it: test its centre line
+        for name in sweep.inside_all(ball, g):
+            out[name] = 0.0
+    return out
+
+
+def _contact(solid: str, opened: list, run: CmmRun, k_last: int, setup: CmmSetup, sweep: ProbeSweep,
+             g: ProbeGeometry) -> CmmContact:
+    k0 = int(opened[0])
+    ball = run.ball_part_m[k0]
+    offsets = {"ball": 0.0, "stylus": 0.5 * g.stylus_length_m, "body": g.stylus_length_m + 0.5 * g.body_length_m,
+               "head": g.reach_m, "ram": g.reach_m}
+    centre = ball - offsets.get(solid, 0.0) * g.direction
+    foot = setup.index.query(centre[None]).foot[0]
+    return CmmContact(solid, int(run.statement[k0]), MOVE_KINDS[int(run.kind[k0])], float(run.t_s[k0]),
+                      float(run.t_s[k_last]), ball.copy(), foot)
+
+
+__all__ = ["PROBE_PARTS", "CmmContact", "CmmHit", "CmmRun", "CmmSetup", "check_teach", "cmm_setup", "execute",
+           "find_contacts", "plan_programs", "trapezoid"]
