@@ -28,9 +28,11 @@ CASES = {"inner_sphere": ("inner_sphere", "inner_sphere"), "through_hole": ("thr
          "below_plane": ("inner_sphere", "inner_sphere_below_plane")}
 #: Randomized teach sequences run in CI (all 20 with TWIN_CMM_RANDOM=20; benchmarks/bench_cmm.py).
 RANDOM_TRIALS = int(os.environ.get("TWIN_CMM_RANDOM", "3"))
-#: A hit's deviation from the nominal point equals the part's displacement along the normal to
-#: within the probe's pre-travel (a few um, uncompensated here) and the scales' noise.
-HIT_TOL_M = 10e-6
+#: A hit's deviation from the nominal point is the part's displacement along the normal, less the
+#: probe's pre-travel (the machine travels on after the touch: 4-20 um with the 20 mm stylus,
+#: not compensated here), plus the scales' noise (0.1 um).
+PRETRAVEL_MAX_M = 20e-6
+NOISE_M = 1e-6
 
 
 @cache
@@ -77,7 +79,8 @@ def test_hits_measure_the_parts_displacement_from_its_alignment():
     for h in run.hits:
         # the nominal point's true counterpart: where the displaced surface is along the normal
         moved = transform_points(T, h.point_m[None])[0] - h.point_m
-        assert h.deviation_m == pytest.approx(float(moved @ h.normal), abs=HIT_TOL_M)
+        lag = float(moved @ h.normal) - h.deviation_m
+        assert -NOISE_M < lag < PRETRAVEL_MAX_M
     assert len(run.hits) == 8
 
 
@@ -135,29 +138,29 @@ def test_a_program_past_an_axis_range_is_refused_naming_the_axis():
 
 
 def test_arm_commands_refuse_a_cmm_scenario_and_twin_cmm_an_arm_one(tmp_path):
-    r = run_cli(["run", str(CMM / "inner_sphere.toml"), "--out", str(tmp_path / "r")])
+    r = run_cli("run", str(CMM / "inner_sphere.toml"), "--out", str(tmp_path / "r"))
     assert r.returncode == 2 and "machine = 'cmm'" in r.stderr and not (tmp_path / "r").exists()
-    r = run_cli(["cmm", "plan", str(TEACH / "inner_sphere.toml"), str(ROOT / "scenarios" / "inner_sphere.toml"),
-                 "--out", str(tmp_path / "p")])
+    r = run_cli("cmm", "plan", str(TEACH / "inner_sphere.toml"), str(ROOT / "scenarios" / "inner_sphere.toml"),
+                 "--out", str(tmp_path / "p"))
     assert r.returncode == 2 and "machine = 'arm'" in r.stderr and not (tmp_path / "p").exists()
 
 
 # ----------------------------------------------------------------------------- the command
 def test_twin_cmm_plan_then_run_each_program(tmp_path):
-    r = run_cli(["cmm", "plan", str(TEACH / "through_hole.toml"), str(CMM / "through_hole.toml"),
-                 "--out", str(tmp_path / "plan"), "--json"])
+    r = run_cli("cmm", "plan", str(TEACH / "through_hole.toml"), str(CMM / "through_hole.toml"),
+                 "--out", str(tmp_path / "plan"), "--json")
     assert r.returncode == 0, r.stderr
     plan = json.loads(r.stdout)
     assert set(plan["plans"]) == {"baseline", "document", "full_check"}
     for m in plan["plans"]:
         assert read_dmis(tmp_path / "plan" / f"{m}.dmi").measurements
-    r = run_cli(["cmm", "run", str(tmp_path / "plan" / "baseline.dmi"), str(CMM / "through_hole.toml"),
-                 "--out", str(tmp_path / "base"), "--json", "--quiet"])
+    r = run_cli("cmm", "run", str(tmp_path / "plan" / "baseline.dmi"), str(CMM / "through_hole.toml"),
+                 "--out", str(tmp_path / "base"), "--json", "--quiet")
     assert r.returncode == 3, r.stderr  # the baseline hits the part: not trusted
     report = json.loads(r.stdout)
     assert report["contacts"] >= 1 and report["contact_list"][0]["part_point_m"]
-    r = run_cli(["cmm", "run", str(tmp_path / "plan" / "document.dmi"), str(CMM / "through_hole.toml"),
-                 "--out", str(tmp_path / "doc"), "--rrd", str(tmp_path / "doc.rrd")])
+    r = run_cli("cmm", "run", str(tmp_path / "plan" / "document.dmi"), str(CMM / "through_hole.toml"),
+                 "--out", str(tmp_path / "doc"), "--rrd", str(tmp_path / "doc.rrd"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "doc" / "hits.csv").read_text().count("\n") == 9
     assert (tmp_path / "doc.rrd").stat().st_size > 0
@@ -171,7 +174,7 @@ def test_twin_cmm_plan_then_run_each_program(tmp_path):
 def test_twin_cmm_run_refuses_a_malformed_program_with_its_line(tmp_path, text, line):
     prog = tmp_path / "bad.dmi"
     prog.write_text(text)
-    r = run_cli(["cmm", "run", str(prog), str(CMM / "inner_sphere.toml"), "--out", str(tmp_path / "o")])
+    r = run_cli("cmm", "run", str(prog), str(CMM / "inner_sphere.toml"), "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and f"bad.dmi:{line}:" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "o").exists()
 

@@ -43,7 +43,7 @@ from algorithms.probing.cmm_planning import (
 )
 from algorithms.probing.pretravel import PretravelModel
 from algorithms.probing.program import MeasurePoint, Program, SelectStylus
-from algorithms.probing.safety_plane import Station, Teach, taught_path
+from algorithms.probing.safety_plane import SafetyPlane, Station, Teach, penetrations, taught_path
 from algorithms.probing.sweep import PROBE_PARTS, ProbeGeometry, ProbeSweep
 from twin.errors import TwinError
 from twin.realize import load_workpiece_mesh
@@ -168,6 +168,11 @@ def check_teach(teach: Teach, setup: CmmSetup) -> list[Station]:
             raise TwinError(f"teach {teach.name!r}: touch {t.label}'s normal is {ang:.0f} deg from the surface "
                             f"normal there (allowed {TOUCH_NORMAL_DEG:.0f} deg): the probe would not approach "
                             "the surface from outside")
+    try:
+        plane = teach.plane if teach.plane is not None else SafetyPlane.through_highest_point(setup.mesh.vertices)
+        penetrations(stations, plane)
+    except AlgorithmError as exc:
+        raise TwinError(f"teach {teach.name!r}: {exc}") from None
     bad = taught_path_collisions(stations, setup.check)
     if bad:
         raise TwinError(f"teach {teach.name!r}: {bad[0]}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "")

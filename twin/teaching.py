@@ -28,6 +28,8 @@ from twin.errors import TwinError
 PARTS = ("inner_sphere", "through_hole", "bore_and_face")
 APPROACH_M = 0.002
 MAX_DRAWS = 50
+#: The operator indexes the head with the ball this high over the part's top [m].
+INDEX_HEIGHT_M = 0.12
 
 
 @dataclass(frozen=True)
@@ -134,10 +136,11 @@ def _draw(part: str, setup: CmmSetup, rng: np.random.Generator, name: str) -> Te
         entry = _entry(kind, first, top_z)
         over = entry[0] if entry else first
         # over the feature, at the hover height (indexing the head there if needed)
-        steps.append(TeachMove((float(over[0]), float(over[1]), hover)))
-        if sty != stylus:
+        if sty != stylus:  # index high enough that a stylus swinging down stays above the part
+            steps.append(TeachMove((float(over[0]), float(over[1]), top_z + INDEX_HEIGHT_M)))
             steps.append(TeachStylus(sty))
             stylus = sty
+        steps.append(TeachMove((float(over[0]), float(over[1]), hover)))
         for e in entry:
             steps.append(TeachMove(tuple(e)))  # type: ignore[arg-type]
         for j, p in enumerate(pts):
