@@ -183,3 +183,18 @@ def test_measure_statements_carry_the_teach_points():
     _, plans, _ = _case("through_hole")
     labels = [s.label for s in plans["document"].program.statements if isinstance(s, MeasurePoint)]
     assert labels == [f"HOLE_{i}" for i in range(1, 9)]
+
+
+def test_the_recording_shows_each_program_on_its_own_entity_with_contacts_marked(tmp_path):
+    from rerun.chunk import RrdReader
+
+    from twin.viz.cmm import save_cmm_recording
+
+    setup, _, runs = _case("through_hole")
+    path = save_cmm_recording(tmp_path / "cmm.rrd", setup, runs)
+    reader = RrdReader(path)
+    entities = {str(ch.entity_path).lstrip("/") for ch in reader.stream().to_chunks()}
+    for m in runs:
+        assert {f"world/cmm/{m}/path", f"world/cmm/{m}/ball", f"world/cmm/{m}/hits"} <= entities
+    assert "world/cmm/baseline/contacts" in entities and "world/cmm/full_check/contacts" not in entities
+    assert len(reader.blueprints()) == 1

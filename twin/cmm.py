@@ -127,6 +127,11 @@ def cmm_setup(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> CmmSet
     mesh = load_workpiece_mesh(scenario) if mesh is None else mesh
     model = _cmm_spec(scenario).compile()
     limits = machine_limits(model)
+    if scenario.cmm.transit_speed_m_s > limits.max_speed_m_s or scenario.cmm.acceleration_m_s2 > limits.max_accel_m_s2:
+        cmm = scenario.cmm
+        raise TwinError(f"cmm.transit_speed_m_s = {cmm.transit_speed_m_s:g} and acceleration_m_s2 = "
+                        f"{cmm.acceleration_m_s2:g} must be at most the machine's {limits.max_speed_m_s:g} m/s "
+                        f"and {limits.max_accel_m_s2:g} m/s^2 (models/cmm)")
     wp = scenario.workpiece
     R_part_world = wp.T_world_workpiece_nominal[:3, :3].T
     up = R_part_world @ np.array([0.0, 0.0, 1.0])

@@ -19,10 +19,10 @@ changes are the operator's, in the operator's order; the planners differ in the 
   below the plane are not checked: a detour the operator took below the plane is lost, which
   the document names as its limit.
 * :func:`plan_full_check` (beyond the document): document 002's program, then every move is
-  swept; a move that hits the part is replaced by the shortest chain of stations of the taught
-  path (which the operator drove, and which is checked) that keeps every move clear (greedy
-  shortcutting: from each point, the farthest station it can reach straight). A move no chain
-  clears is reported, never hidden.
+  swept; a move that hits the part is replaced by a chain of stations of the taught path
+  (which the operator drove, and which is checked) that keeps every move clear, found by
+  greedy shortcutting: from each point, the farthest station it can reach straight. A move no
+  chain clears is reported, never hidden.
 
 Collision checks are a callable ``check(start, end, stylus) -> MoveCheck`` (a swept check of
 the whole probe, :class:`algorithms.probing.sweep.ProbeSweep`), so the planners run on a real
@@ -368,7 +368,7 @@ def plan_full_check(teach: Teach, stations: list[Station], vertices, styli: dict
 
 def _via_chain(move: Move, p0: float, p1: float, stations: list[Station], crossings: list[tuple[float, np.ndarray]],
                check: Check) -> list[tuple[np.ndarray, float]] | None:
-    """The fewest taught points between places ``p0`` and ``p1`` of the taught path that join
+    """Taught points between places ``p0`` and ``p1`` of the taught path that join
     the move's ends by clear straight moves (greedy: always the farthest reachable), or None."""
     lo, hi = min(p0, p1), max(p0, p1)
     cands = [(float(i), s.position_m) for i, s in enumerate(stations)

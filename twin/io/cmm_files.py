@@ -76,7 +76,7 @@ def write_hits_csv(path: Path, run: CmmRun) -> None:
 
 def comparison_table(rows: list[dict]) -> str:
     """The planners side by side (Markdown): one row per program."""
-    head = ("| program | GOTOs | predicted collisions | contacts in the twin | where (first) | path [mm] | "
+    head = ("| program | GOTOs | predicted collisions | contact events in the twin | where (first) | path [mm] | "
             "cycle [s] | misses |\n|---|---|---|---|---|---|---|---|\n")
     lines = []
     for r in rows:
