@@ -198,3 +198,11 @@ def test_the_recording_shows_each_program_on_its_own_entity_with_contacts_marked
         assert {f"world/cmm/{m}/path", f"world/cmm/{m}/ball", f"world/cmm/{m}/hits"} <= entities
     assert "world/cmm/baseline/contacts" in entities and "world/cmm/full_check/contacts" not in entities
     assert len(reader.blueprints()) == 1
+
+
+def test_twin_cmm_plan_says_when_the_program_asked_for_collides(tmp_path):
+    args = [str(TEACH / "inner_sphere_below_plane.toml"), str(CMM / "inner_sphere.toml")]
+    r = run_cli("cmm", "plan", *args, "--planner", "document", "--out", str(tmp_path / "d"), "--quiet")
+    assert r.returncode == 3 and "2 predicted collisions" in r.stdout
+    r = run_cli("cmm", "plan", *args, "--out", str(tmp_path / "all"), "--quiet")
+    assert r.returncode == 0, r.stdout  # the full check's program is clear

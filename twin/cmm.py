@@ -44,7 +44,8 @@ from algorithms.probing.cmm_planning import (
 from algorithms.probing.pretravel import PretravelModel
 from algorithms.probing.program import MeasurePoint, Program, SelectStylus
 from algorithms.probing.safety_plane import SafetyPlane, Station, Teach, penetrations, taught_path
-from algorithms.probing.sweep import PROBE_PARTS, ProbeGeometry, ProbeSweep
+from algorithms.probing.sweep import ProbeGeometry, ProbeSweep
+from twin.cell import quat_wxyz
 from twin.errors import TwinError
 from twin.realize import load_workpiece_mesh
 from twin.robot import MODELS_DIR
@@ -307,8 +308,6 @@ class _Machine:
         m = setup.mesh
         spec.add_mesh(name="workpiece_mesh", uservert=np.asarray(m.vertices, dtype=np.float64).ravel(),
                       userface=np.asarray(m.faces, dtype=np.int32).ravel())
-        from twin.cell import quat_wxyz  # noqa: PLC0415 - the one quaternion helper
-
         wp = spec.worldbody.add_body(name="workpiece", pos=T[:3, 3], quat=quat_wxyz(T[:3, :3]))
         wp.add_geom(name="workpiece", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="workpiece_mesh",
                     rgba=[0.75, 0.6, 0.35, 1], group=3, contype=0, conaffinity=0)
@@ -575,7 +574,7 @@ def find_contacts(run: CmmRun, setup: CmmSetup) -> list[CmmContact]:
             geom_cache[key] = probe_geometry(sc, lim, R @ d, up)
         g = geom_cache[key]
         measuring = run.kind[k] in (probe_kind, brake_kind)
-        dists = _solid_distances(sweep, ball_true[k], g)
+        dists = sweep.solid_distances(ball_true[k], g)
         if measuring:
             dists["ball"] = np.inf
         touching = {s for s, dv in dists.items() if dv <= CONTACT_MARGIN_M}
@@ -604,29 +603,6 @@ def find_contacts(run: CmmRun, setup: CmmSetup) -> list[CmmContact]:
     return out
 
 
-def _solid_distances(sweep: ProbeSweep, ball: np.ndarray, g: ProbeGeometry) -> dict[str, float]:
-    """Each solid's distance to the part, or a lower bound of it (the gap between its box and
-    the part's) where that gap is positive: such a solid cannot touch, and the bound is enough
-    to decide how far the probe may travel before the next check."""
-    import fcl  # noqa: PLC0415 - only the contact check uses fcl directly
-
-    out = {}
-    request = fcl.DistanceRequest()
-    near = False
-    for name, obj, off, half in sweep._probe_solids(g):
-        gap = sweep._box_gap(ball + off, half)
-        if gap > 0:
-            out[name] = gap
-            continue
-        near = True
-        obj.setTranslation(ball + off)
-        out[name] = max(float(fcl.distance(obj, sweep._part, request, fcl.DistanceResult())), 0.0)
-    if near:  # a solid wholly inside the material has no triangle near it: test its centre line
-        for name in sweep.inside_all(ball, g):
-            out[name] = 0.0
-    return out
-
-
 def _contact(solid: str, opened: list, run: CmmRun, k_last: int, setup: CmmSetup, sweep: ProbeSweep,
              g: ProbeGeometry) -> CmmContact:
     k0 = int(opened[0])
@@ -639,5 +615,5 @@ def _contact(solid: str, opened: list, run: CmmRun, k_last: int, setup: CmmSetup
                       float(run.t_s[k_last]), ball.copy(), foot)
 
 
-__all__ = ["PROBE_PARTS", "CmmContact", "CmmHit", "CmmRun", "CmmSetup", "check_teach", "cmm_setup", "execute",
+__all__ = ["CmmContact", "CmmHit", "CmmRun", "CmmSetup", "check_teach", "cmm_setup", "execute",
            "find_contacts", "plan_programs", "trapezoid"]

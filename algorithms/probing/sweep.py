@@ -213,6 +213,27 @@ class ProbeSweep:
                     break
         return best, which
 
+    def solid_distances(self, ball_centre, probe: ProbeGeometry) -> dict[str, float]:
+        """Each solid's distance to the part (0: touching, overlapping or inside), or where the
+        gap between its box and the part's is positive, that gap: a lower bound, enough to know
+        it cannot touch and how far the probe may travel before it could."""
+        c = np.asarray(ball_centre, dtype=np.float64)
+        out = {}
+        request = fcl.DistanceRequest()
+        near = False
+        for name, obj, off, half in self._probe_solids(probe):
+            gap = self._box_gap(c + off, half)
+            if gap > 0:
+                out[name] = gap
+                continue
+            near = True
+            obj.setTranslation(c + off)
+            out[name] = max(float(fcl.distance(obj, self._part, request, fcl.DistanceResult())), 0.0)
+        if near:  # a solid wholly inside the material has no triangle near it: test its centre
+            for name in self.inside_all(c, probe):
+                out[name] = 0.0
+        return out
+
     def _box_gap(self, centre: np.ndarray, half: np.ndarray) -> float:
         gap = np.maximum(np.maximum(self._part_lo - (centre + half), (centre - half) - self._part_hi), 0.0)
         return float(np.linalg.norm(gap))
