@@ -78,6 +78,7 @@ def reference(tmp_path_factory):
     (TINY + '"sensor.nonsense" = [1]\n', ["sensor.nonsense"]),
     (TINY + '"localize.method" = ["nope"]\n', ["localize.method", "nope"]),
     (TINY.replace('kind = "fast"', 'kind = "slow"'), ["kind", "fast, full"]),
+    (TINY + '"localize.points" = [3]\n', ["localize.points", "[6, 10^7]"]),
 ])
 def test_bad_study_refused_in_one_line(tmp_path, capsys, text, words):
     study = write_study(tmp_path, text)
@@ -154,3 +155,15 @@ def test_unreachable_scheduler(reference, tmp_path, capsys):
     rc, out, err = run_main(capsys, "study", study, "--out", tmp_path / "x", "--scheduler", "tcp://127.0.0.1:1")
     assert one_line_refusal(rc, err) and "tcp://127.0.0.1:1" in err, err
     assert time.monotonic() - t0 < 10 and out == "" and not (tmp_path / "x").exists()
+
+
+def test_a_random_subset_of_points_per_trial_whatever_the_workers(tmp_path):
+    study = write_study(tmp_path, TINY.replace('"sensor.sigma_m" = [1e-6, 5e-6]', '"localize.points" = [150, 0]')
+                        .replace("trials = 6", "trials = 3"))
+    run_study(load_study(study), tmp_path / "one", workers=1)
+    run_study(load_study(study), tmp_path / "two", workers=2)
+    a, b = pq.read_table(tmp_path / "one" / RESULTS), pq.read_table(tmp_path / "two" / RESULTS)
+    assert_same_table(a, b)
+    cells, n = a.column("cell").to_pylist(), a.column("n_points").to_pylist()
+    assert all(v == 150 for c, v in zip(cells, n, strict=True) if c == 0)
+    assert all(v > 1000 for c, v in zip(cells, n, strict=True) if c == 1)

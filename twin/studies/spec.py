@@ -30,6 +30,8 @@ LOCALIZE_KEYS: dict[str, tuple[Any, Any, str]] = {
     "method": ("hong_tan", lambda v: v in METHODS, f"one of {', '.join(METHODS)}"),
     "init_angle_deg": (1.0, lambda v: _is_number(v) and 0.0 <= v <= 180.0, "a number in [0, 180]"),
     "init_distance_m": (0.001, lambda v: _is_number(v) and 0.0 <= v <= 0.1, "a number in [0, 0.1]"),
+    "points": (0, lambda v: isinstance(v, int) and not isinstance(v, bool) and (v == 0 or 6 <= v <= 10_000_000),
+               "0 (every scanned point) or an integer in [6, 10^7]"),
 }
 MAX_TRIALS = 1_000_000
 

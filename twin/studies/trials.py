@@ -116,10 +116,10 @@ def noise_free_scan(scenario: Scenario) -> NoiseFreeScan:
     return out
 
 
-def trial_streams(seed: int, cell: int, trial: int) -> tuple[np.random.Generator, np.random.Generator]:
-    """(initial pose stream, error stream) of one trial."""
-    a, b = np.random.SeedSequence(seed, spawn_key=(cell, trial)).spawn(2)
-    return np.random.default_rng(a), np.random.default_rng(b)
+def trial_streams(seed: int, cell: int, trial: int) -> tuple[np.random.Generator, ...]:
+    """(initial pose stream, error stream, point subset stream) of one trial (the first two are
+    the same children whether or not the third is used)."""
+    return tuple(np.random.default_rng(c) for c in np.random.SeedSequence(seed, spawn_key=(cell, trial)).spawn(3))
 
 
 def initial_pose(T_true: np.ndarray, angle_rad: float, distance_m: float, rng: np.random.Generator) -> np.ndarray:
@@ -160,7 +160,7 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
     over, loc = study.cell_settings(cell)
     scenario = load_scenario(study.scenario_path, over, machine="arm")
     geo = noise_free_scan(scenario)
-    rng_init, rng_err = trial_streams(study.seed, cell, trial)
+    rng_init, rng_err, rng_subset = trial_streams(study.seed, cell, trial)
     T_true = geo.realized.T_base_workpiece_true
     T_init = initial_pose(T_true, np.radians(loc["init_angle_deg"]), loc["init_distance_m"], rng_init)
     meas = geo.sensor.measure(geo.rays, rng_err, geo.model)
@@ -173,6 +173,8 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
         q_log = q_log + rng_err.normal(0.0, noise.encoder_sigma_rad, q_log.shape)
     points = geo.sensor.reconstruct(q_log, meas.d, UR5E_DH, scenario.sensor.T_flange_sensor)
     pts = points[meas.valid & (geo.plan.line >= 0)[:, None]]
+    if 0 < loc["points"] < len(pts):  # a random subset of the valid points, drawn per trial
+        pts = pts[np.sort(rng_subset.choice(len(pts), loc["points"], replace=False))]
     t0 = time.perf_counter()
     try:
         res = localize(pts, geo.realized.workpiece.mesh, method=loc["method"], init=T_init,
@@ -185,7 +187,7 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
 
 def full_trial(study: Study, cell: int, trial: int) -> dict:
     over, _ = study.cell_settings(cell)
-    _, rng_err = trial_streams(study.seed, cell, trial)
+    _, rng_err, _ = trial_streams(study.seed, cell, trial)
     seed = int(rng_err.integers(0, 2**63 - 1))
     scenario = load_scenario(study.scenario_path, merge_tables(over, {"seed": seed}), machine="arm")
     realized = realize(scenario)
