@@ -222,3 +222,19 @@ def test_bad_teach_files_are_refused_in_one_line(raw, message):
     with pytest.raises(TwinError, match=message) as exc:
         parse_teach(raw, "t.toml")
     assert "\n" not in str(exc.value)
+
+
+def test_sweep_keeps_probes_apart_however_they_were_made():
+    """Solids are cached by the probe's geometry, not its id (a dropped probe's id is reused)."""
+    plate = trimesh.creation.box((0.1, 0.1, 0.002))  # top face at z = 1 mm
+    sweep = ProbeSweep(plate.vertices, plate.faces, CLEARANCE_M)
+    above = [0.0, 0.0, 0.05]  # ball 50 mm over the plate's centre
+    for _ in range(50):
+        down = ProbeGeometry(np.array([0.0, 0.0, -1.0]), 0.001, 0.0005, 0.02, 0.0066, 0.05, 0.025, 0.04)
+        assert sweep.solid_distances(above, down)["ball"] == pytest.approx(0.05 - 0.001 - 0.001, abs=1e-9)
+        del down
+        side = ProbeGeometry(np.array([1.0, 0.0, 0.0]), 0.001, 0.0005, 0.02, 0.0066, 0.05, 0.025, 0.04)
+        d = sweep.solid_distances(above, side)
+        assert d["body"] == pytest.approx(0.05 - 0.0066 - 0.001, abs=1e-9)  # as low as the ball, wider
+        assert d["head"] == pytest.approx(0.05 - 0.025 - 0.001, abs=1e-9)
+        del side

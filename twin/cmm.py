@@ -44,7 +44,7 @@ from algorithms.probing.cmm_planning import (
 from algorithms.probing.pretravel import PretravelModel
 from algorithms.probing.program import MeasurePoint, Program, SelectStylus
 from algorithms.probing.safety_plane import SafetyPlane, Station, Teach, penetrations, taught_path
-from algorithms.probing.sweep import ProbeGeometry, ProbeSweep
+from algorithms.probing.sweep import ProbeGeometry, ProbeSweep, frame_with_z
 from twin.cell import quat_wxyz
 from twin.errors import TwinError
 from twin.realize import load_workpiece_mesh
@@ -318,8 +318,7 @@ class _Machine:
         self.qadr = np.array([mdl.jnt_qposadr[mdl.joint(j).id] for j in AXES + HEAD_JOINTS])
         self.vadr = np.array([mdl.jnt_dofadr[mdl.joint(j).id] for j in AXES + HEAD_JOINTS])
         self.act_pos = [mdl.actuator(f"{j}_pos").id for j in AXES + HEAD_JOINTS]
-        self.act_vel = [mdl.actuator(f"{j}_vel").id if _has_actuator(mdl, f"{j}_vel") else -1
-                        for j in AXES + HEAD_JOINTS]
+        self.act_vel = [mdl.actuator(f"{j}_vel").id for j in AXES + HEAD_JOINTS]
         self.ball_site = mdl.site(BALL_SITE).id
         self.t: list[float] = []
         self.q: list[np.ndarray] = []
@@ -331,16 +330,13 @@ class _Machine:
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self.qadr] = q0
         mujoco.mj_forward(self.model, self.data)
-        self.ref = np.array(q0, dtype=np.float64)
 
     def step(self, q_ref: np.ndarray, qd_ref: np.ndarray, statement: int, kind: str) -> np.ndarray:
         d = self.data
         for i, (ap, av) in enumerate(zip(self.act_pos, self.act_vel, strict=True)):
             d.ctrl[ap] = q_ref[i]
-            if av >= 0:
-                d.ctrl[av] = qd_ref[i]
+            d.ctrl[av] = qd_ref[i]
         mujoco.mj_step(self.model, d)
-        self.ref = np.array(q_ref, dtype=np.float64)
         ball = d.site_xpos[self.ball_site].copy()
         self.t.append(float(d.time))
         self.q.append(d.qpos[self.qadr].copy())
@@ -348,14 +344,6 @@ class _Machine:
         self.statement.append(statement)
         self.kind.append(MOVE_KINDS.index(kind))
         return ball
-
-
-def _has_actuator(model: mujoco.MjModel, name: str) -> bool:
-    try:
-        model.actuator(name)
-    except KeyError:
-        return False
-    return True
 
 
 def _angles(cmm_styli: dict, name: str) -> np.ndarray:
@@ -390,8 +378,6 @@ def execute(program: Program, setup: CmmSetup, rng: np.random.Generator) -> CmmR
     stylus0 = next(st.name for st in program.statements if isinstance(st, SelectStylus))
     q = np.concatenate([head_of(moves[0].start_m, stylus0), _angles(cmm.styli, stylus0)])
     machine.reset(q)
-    gap_index = MeshIndex(trimesh.Trimesh(transform_points(setup.T_world_part_true, setup.mesh.vertices),
-                                          setup.mesh.faces, process=False))
     pretravel = machine.probe.pretravel
     hits: list[CmmHit] = []
     measures = {k: st for k, st in enumerate(program.statements) if isinstance(st, MeasurePoint)}
@@ -404,7 +390,7 @@ def execute(program: Program, setup: CmmSetup, rng: np.random.Generator) -> CmmR
             continue
         if mv.kind == "probe":
             st = measures[mv.statement]
-            hit, q = _probe(machine, q, mv, st, program.settings.search_m, setup, gap_index, pretravel, rng)
+            hit, q = _probe(machine, q, mv, st, program.settings.search_m, setup, pretravel, rng)
             hits.append(hit)
             i += 1
             # the retract starts where the machine stopped
@@ -467,7 +453,7 @@ def _index(machine: _Machine, q: np.ndarray, angles: np.ndarray, time_s: float, 
 
 
 def _probe(machine: _Machine, q: np.ndarray, mv: Move, st: MeasurePoint, search_m: float, setup: CmmSetup,
-           gap_index: MeshIndex, pretravel: PretravelModel, rng: np.random.Generator) -> tuple[CmmHit, np.ndarray]:
+           pretravel: PretravelModel, rng: np.random.Generator) -> tuple[CmmHit, np.ndarray]:
     """The probing move along -normal at the probing speed until the trigger or the search end."""
     sc = setup.scenario
     probe, cmm = sc.probe, sc.cmm
@@ -481,11 +467,13 @@ def _probe(machine: _Machine, q: np.ndarray, mv: Move, st: MeasurePoint, search_
     v = probe.probing_speed_m_s
     n_steps = int(np.ceil(total / v / machine.dt))
     d_world, L = sc.cmm.direction(mv.stylus), setup.styli[mv.stylus].reach_m  # type: ignore[union-attr]
-    R_world_probe = _probe_rotation(d_world)
+    R_world_probe = frame_with_z(d_world)
+    T_part_true_world = inv_pose(setup.T_world_part_true)
     t0 = len(machine.t)
 
     def gap(c: np.ndarray) -> np.ndarray:
-        return gap_index.signed_distance(c) - r
+        # the exact part where it really lies: ball centres mapped into its true frame
+        return setup.index.signed_distance(transform_points(T_part_true_world, c)) - r
 
     drawn: list[float] = []
 
@@ -538,15 +526,6 @@ def _probe(machine: _Machine, q: np.ndarray, mv: Move, st: MeasurePoint, search_
     return hit, np.concatenate([pos, q[3:]])
 
 
-def _probe_rotation(d_world: np.ndarray) -> np.ndarray:
-    """A probe frame whose z is the stylus direction (the pre-travel model's frame)."""
-    z = d_world / np.linalg.norm(d_world)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
-
-
 # ----------------------------------------------------------------------------- contacts
 def find_contacts(run: CmmRun, setup: CmmSetup) -> list[CmmContact]:
     """Every unintended contact along the executed motion (see the module docstring)."""
@@ -557,13 +536,13 @@ def find_contacts(run: CmmRun, setup: CmmSetup) -> list[CmmContact]:
     R = T_true_inv[:3, :3]
     up = R @ np.array([0.0, 0.0, 1.0])
     ball_true = transform_points(T_true_inv, transform_points(T_wp, run.ball_part_m))
-    sweep = ProbeSweep(setup.mesh.vertices, setup.mesh.faces, clearance_m=1e-6, step_floor_m=5e-7)
+    sweep = setup.sweep  # its distances and inside test do not depend on its clearance
     probe_kind = MOVE_KINDS.index("probe")
     brake_kind = MOVE_KINDS.index("brake")
     lim = setup.limits
     out: list[CmmContact] = []
     n = len(run.t_s)
-    open_: dict[str, list] = {}
+    open_: dict[str, int] = {}  # solid -> first sample of its contact in progress
     k = 0
     geom_cache: dict[tuple[float, float], ProbeGeometry] = {}
     while k < n:
@@ -580,10 +559,10 @@ def find_contacts(run: CmmRun, setup: CmmSetup) -> list[CmmContact]:
         touching = {s for s, dv in dists.items() if dv <= CONTACT_MARGIN_M}
         for s in list(open_):
             if s not in touching:
-                out.append(_contact(s, open_.pop(s), run, k - 1, setup, sweep, g))
+                out.append(_contact(s, open_.pop(s), k - 1, run, ball_true, setup, g))
         for s in touching:
             if s not in open_:
-                open_[s] = [k, ball_true[k].copy()]
+                open_[s] = k
         dmin = min(dists.values())
         if touching or not np.isfinite(dmin):
             k += 1
@@ -597,19 +576,20 @@ def find_contacts(run: CmmRun, setup: CmmSetup) -> list[CmmContact]:
                 break
             k1 += 1
         k = max(k1, k + 1)
-    for s, (k0, _) in open_.items():
-        out.append(_contact(s, [k0, None], run, n - 1, setup, sweep, geom_cache[next(iter(geom_cache))]))
+    for s, k0 in open_.items():
+        out.append(_contact(s, k0, n - 1, run, ball_true, setup, g))
     out.sort(key=lambda c: c.first_t_s)
     return out
 
 
-def _contact(solid: str, opened: list, run: CmmRun, k_last: int, setup: CmmSetup, sweep: ProbeSweep,
+def _contact(solid: str, k0: int, k_last: int, run: CmmRun, ball_true: np.ndarray, setup: CmmSetup,
              g: ProbeGeometry) -> CmmContact:
-    k0 = int(opened[0])
+    """A contact event from sample ``k0`` to ``k_last``, located on the part (true frame: ``g``
+    and ``ball_true`` are in it, and so is the part's own mesh)."""
     ball = run.ball_part_m[k0]
     offsets = {"ball": 0.0, "stylus": 0.5 * g.stylus_length_m, "body": g.stylus_length_m + 0.5 * g.body_length_m,
                "head": g.reach_m, "ram": g.reach_m}
-    centre = ball - offsets.get(solid, 0.0) * g.direction
+    centre = ball_true[k0] - offsets[solid] * g.direction
     foot = setup.index.query(centre[None]).foot[0]
     return CmmContact(solid, int(run.statement[k0]), MOVE_KINDS[int(run.kind[k0])], float(run.t_s[k0]),
                       float(run.t_s[k_last]), ball.copy(), foot)

@@ -11,7 +11,6 @@ degrees, extrinsic x-y-z rotations) or as ``{ matrix = [[...4x4...]] }``.
 from __future__ import annotations
 
 import copy
-import tomllib
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ from scipy.spatial.transform import Rotation
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.se3 import as_pose
 from twin.errors import TwinError
+from twin.formats.toml_files import read_toml
 
 SENSOR_WINDOW_M = (0.055, 0.105)  # Keyence IL-065 measuring window
 
@@ -540,12 +540,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None, machine: str 
         machine: "arm" or "cmm": refuse a scenario for the other machine.
     """
     path = Path(path)
-    if not path.is_file():
-        raise TwinError(f"scenario file not found: {path}")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise TwinError(f"scenario {path} is not valid TOML: {exc}") from None
+    raw = read_toml(path, "scenario")
     if overrides:
         raw = merge_tables(raw, overrides)
     scenario = parse_scenario(raw, name=path.stem, base_dir=path.parent, source=str(path))

@@ -46,7 +46,7 @@ def _unit(v, what: str) -> np.ndarray:
     return a / n
 
 
-def _frame_with_z(z: np.ndarray) -> np.ndarray:
+def frame_with_z(z: np.ndarray) -> np.ndarray:
     """A rotation whose third column is the unit vector ``z``."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     x = np.cross(helper, z)
@@ -107,7 +107,7 @@ class ProbeGeometry:
     def _placements(self) -> list[tuple[str, fcl.CollisionGeometry, np.ndarray, np.ndarray]]:
         """(part, fcl shape, offset of its centre from the ball centre, rotation) of each solid."""
         d, up = self.direction, self.up
-        R_d, R_up = _frame_with_z(d), _frame_with_z(up)
+        R_d, R_up = frame_with_z(d), frame_with_z(up)
         head = -self.reach_m * d
         return [
             ("ball", fcl.Sphere(self.ball_radius_m), np.zeros(3), np.eye(3)),
@@ -177,10 +177,13 @@ class ProbeSweep:
         bvh.endModel()
         self._part = fcl.CollisionObject(bvh, fcl.Transform())
         self._part_lo, self._part_hi = v.min(axis=0), v.max(axis=0)
-        self._solids: dict[int, list] = {}
+        self._solids: dict[tuple, list] = {}
 
     def _probe_solids(self, probe: ProbeGeometry) -> list:
-        key = id(probe)
+        # keyed by the geometry itself (an id could be reused by a later, different probe)
+        key = (*probe.direction.tolist(), *probe.up.tolist(), probe.ball_radius_m, probe.stylus_radius_m,
+               probe.stylus_length_m, probe.body_radius_m, probe.body_length_m, probe.head_radius_m,
+               probe.ram_half_width_m)
         if key not in self._solids:
             self._solids[key] = [(name, fcl.CollisionObject(shape, fcl.Transform(R, np.zeros(3))), off,
                                   _half_extent(shape, R)) for name, shape, off, R in probe._placements()]

@@ -26,7 +26,6 @@ against the part's CAD model where the teach is planned (:mod:`twin.cmm`).
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +34,7 @@ from algorithms.errors import AlgorithmError
 from algorithms.probing.program import ProbeSettings
 from algorithms.probing.safety_plane import SafetyPlane, Teach, TeachMove, TeachStep, TeachStylus, TeachTouch
 from twin.errors import TwinError
+from twin.formats.toml_files import read_toml
 
 TOP_KEYS = ("name", "stylus", "safe_distance_m", "settings", "plane", "step")
 SETTINGS_KEYS = ("approach_m", "retract_m", "search_m")
@@ -127,10 +127,5 @@ def parse_teach(raw: dict, source: str = "teach") -> Teach:
 def load_teach(path: str | Path) -> Teach:
     """Read and validate a teach file (one-line TwinError on any problem)."""
     path = Path(path)
-    if not path.is_file():
-        raise TwinError(f"teach file not found: {path}")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise TwinError(f"teach file {path} is not valid TOML: {exc}") from None
+    raw = read_toml(path, "teach file")
     return parse_teach(raw, str(path))

@@ -14,13 +14,13 @@ import copy
 import hashlib
 import itertools
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from algorithms.registration.local import METHODS
 from twin.errors import TwinError
+from twin.formats.toml_files import read_toml
 from twin.scenario import Scenario, load_scenario, merge_tables
 
 KINDS = ("fast", "full")
@@ -126,12 +126,7 @@ class Study:
 def load_study(path: str | Path) -> Study:
     """Read and validate a study file; raise TwinError with one line on any problem."""
     path = Path(path)
-    if not path.is_file():
-        raise TwinError(f"study file not found: {path}")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise TwinError(f"study {path} is not valid TOML: {' '.join(str(exc).split())}") from None
+    raw = read_toml(path, "study")
     return parse_study(raw, path.parent)
 
 
