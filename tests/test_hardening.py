@@ -157,6 +157,27 @@ def _check_after_kill(rc, err, out, rrd, tmp_path, sig):
         assert not out.exists() and not rrd.exists()
 
 
+def test_a_signal_swallowed_by_a_foreign_callback_is_still_an_interruption(tmp_path, capsys, monkeypatch):
+    """A signal landing while numba writes its cache through a ctypes callback: the raised
+    exception is swallowed there, and numba then fails with an error of its own (CI, stop 23)."""
+    import ctypes
+
+    import twin.cli.scan
+
+    @ctypes.CFUNCTYPE(None)
+    def callback():
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    def run_in_a_library(args):
+        callback()  # the interruption, raised inside the callback, is swallowed by ctypes
+        raise RuntimeError("no compiled object yet")  # what the library says next
+
+    monkeypatch.setattr(twin.cli.scan, "run", run_in_a_library)
+    rc, out, err = run_main(capsys, "scan", short_scenario(tmp_path), "--out", tmp_path / "scan")
+    assert rc == EXIT_SIGTERM and out == ""
+    assert err.strip().splitlines() == ["twin scan: terminated (SIGTERM); nothing written"], err
+
+
 @pytest.mark.parametrize("sig, after_s", [(signal.SIGTERM, 0.5), (signal.SIGINT, 3.0)])
 def test_an_interrupted_run_leaves_nothing_that_looks_complete(tmp_path, sig, after_s):
     rc, err, out, rrd = _kill_at(tmp_path, sig, after_s)

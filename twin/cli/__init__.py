@@ -37,6 +37,12 @@ class Terminated(BaseException):
     """SIGTERM, raised where the program is, so that every staged output is cleaned up."""
 
 
+#: The signal received, if any. A signal can land inside a foreign callback (numba writing its
+#: cache through ctypes): there the raised exception is swallowed and the library fails later
+#: with an error of its own, which is then the interruption, not a fault of the program.
+_received: int | None = None
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="twin",
@@ -50,10 +56,28 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
+    global _received
     # one interrupt is enough: the clean-up that follows must not be interrupted in turn
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _received = signum
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _quiet_unraisable(unraisable: sys.UnraisableHookArgs) -> None:
+    """Python prints an exception it cannot raise (one from a callback) with its traceback:
+    our own interruption is reported once, by ``main``, and the rest as Python would."""
+    if isinstance(unraisable.exc_value, (Terminated, KeyboardInterrupt)):
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+def _interrupted(command: str) -> int:
+    if _received == signal.SIGTERM:
+        print(f"{command}: terminated (SIGTERM); {_left_behind(command)}", file=sys.stderr)
+        return EXIT_SIGTERM
+    print(f"{command}: interrupted (SIGINT); {_left_behind(command)}", file=sys.stderr)
+    return EXIT_SIGINT
 
 
 def _left_behind(command: str) -> str:
@@ -77,12 +101,30 @@ def _os_error_line(exc: OSError) -> str:
     return f"{exc.strerror or type(exc).__name__}{where}"
 
 
+def _failed(command: str, exc: Exception) -> int:
+    """The one line and exit status of an error; an error of no known kind is a bug: raised."""
+    if isinstance(exc, (TwinError, AlgorithmError)):
+        print(f"{command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if isinstance(exc, BrokenPipeError):
+        _quiet_stdout()
+        return EXIT_BROKEN_PIPE
+    if isinstance(exc, OSError):
+        print(f"{command}: error: {_os_error_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    raise exc
+
+
 def main(argv: list[str] | None = None) -> int:
+    global _received
+    _received = None
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    unraisable_hook = sys.unraisablehook
     in_main_thread = True
     try:
         for s in handlers:
             signal.signal(s, _on_signal)
+        sys.unraisablehook = _quiet_unraisable
     except ValueError:  # not the main thread (an embedding program): leave signals alone
         in_main_thread = False
     command = "twin"
@@ -96,25 +138,17 @@ def main(argv: list[str] | None = None) -> int:
         code = int(args.run(args) or 0)
         sys.stdout.flush()
         return code
-    except (TwinError, AlgorithmError) as exc:
-        print(f"{command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except BrokenPipeError:
-        _quiet_stdout()
-        return EXIT_BROKEN_PIPE
-    except OSError as exc:
-        print(f"{command}: error: {_os_error_line(exc)}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"{command}: interrupted (SIGINT); {_left_behind(command)}", file=sys.stderr)
-        return EXIT_SIGINT
-    except Terminated:
-        print(f"{command}: terminated (SIGTERM); {_left_behind(command)}", file=sys.stderr)
-        return EXIT_SIGTERM
+    except (KeyboardInterrupt, Terminated):
+        return _interrupted(command)
+    except Exception as exc:
+        if _received is not None:  # a library failing on the interruption it swallowed
+            return _interrupted(command)
+        return _failed(command, exc)
     finally:
         if in_main_thread:
             for s, h in handlers.items():
                 signal.signal(s, h)
+            sys.unraisablehook = unraisable_hook
 
 
 if __name__ == "__main__":
