@@ -1,16 +1,30 @@
-"""The study's report: ``report.md`` (a table per grid cell) and a PNG plot.
+"""The study's report: ``report.md`` (a summary table and a table per grid cell) and PNG plots.
 
-Per grid cell: the factor values, the trials, and for each pose-error component (the twist
-``[omega, v]`` in the workpiece frame, in urad and um) and the rmse: the mean, the standard
-deviation and the 95 % coverage interval (the 2.5 and 97.5 percentiles over the cell's
-successful trials), the success rate (status ``ok``) and the mean localization time. The plot
-shows the translation error against the first numeric grid factor (one marker per trial, the
-cell means joined), or against the cell index when no factor is numeric.
+Per grid cell: the factor values, the trials, the success rate (status ``ok``), the rate within
+the study's tolerance (``[success]``: rotation and translation error both within it), the
+median localization time, the Cramer-Rao ratio ``sqrt(mean(xi^T C^-1 xi) / 6)`` over the
+trials with status ``ok`` (1.00 attains the bound; C is the bound of the trial's own point set
+at the truth), and for each pose-error component (the twist ``[omega, v]`` in the workpiece
+frame, in urad and um), the rotation and translation errors and the rmse: the mean, the
+standard deviation and the 95 % coverage interval (the 2.5 and 97.5 percentiles) over the
+trials with status ``ok``. Components are given only where the trials' points fix all six
+directions (a bound exists for every trial); elsewhere only the error magnitudes.
+
+Plots, each where the grid has the factor it needs (series: the other factors' values):
+
+* ``translation_error.png``: the translation error against the first numeric factor;
+* ``crlb.png``: RMS translation and rotation error against the noise sigma (``sensor.sigma_m``
+  or ``points.noise_sigma_m``) with the Cramer-Rao bound's RMS (root of the trace) beside it;
+* ``success_vs_angle.png``: the rate within tolerance against ``localize.init_angle_deg``;
+* ``time_per_method.png``: the median localization time per ``localize.method``;
+* ``subsampling.png``: per ``localize.subsample`` rule, the accuracy kept (RMS translation
+  error without subsampling / with it) against the time saved (1 - time with / time without).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,61 +38,155 @@ from twin.studies.trials import TWIST_COLUMNS
 REPORT = "report.md"
 PLOT = "translation_error.png"
 STAT_COLUMNS = TWIST_COLUMNS + ("rotation_error_deg", "translation_error_um", "rmse_um")
+MAGNITUDE_COLUMNS = ("rotation_error_deg", "translation_error_um", "rmse_um")
+SIGMA_FACTORS = ("sensor.sigma_m", "points.noise_sigma_m")
 
 
 def _fmt(v: float) -> str:
     return "n/a" if not math.isfinite(v) else f"{v:.4g}"
 
 
-def cell_stats(table: pa.Table, cell: int) -> dict:
-    """Statistics of one cell: ``n``, ``success_rate``, ``mean_time_s`` and per column of
+def _col(table: pa.Table, name: str, dtype=np.float64) -> np.ndarray:
+    return np.asarray(table.column(name).to_pylist(), dtype=dtype)
+
+
+def summary_stats(x: np.ndarray) -> tuple[float, float, float, float]:
+    """(mean, standard deviation, 2.5 % and 97.5 % percentiles) of ``x``; NaN where undefined."""
+    if len(x) == 0:
+        return (float("nan"),) * 4
+    std = float(np.std(x, ddof=1)) if len(x) > 1 else float("nan")
+    lo, hi = np.percentile(x, [2.5, 97.5])
+    return float(np.mean(x)), std, float(lo), float(hi)
+
+
+def cell_stats(table: pa.Table, cell: int, success: dict | None = None) -> dict:
+    """Statistics of one cell (module docstring): ``n``, ``success_rate``, ``within_rate``,
+    ``median_time_s``, ``mean_time_s``, ``crlb_ratio``, ``determined`` and per column of
     ``STAT_COLUMNS`` (mean, std, p2.5, p97.5) over the trials with status ``ok``."""
-    cells = np.asarray(table.column("cell").to_pylist())
-    sel = cells == cell
-    status = np.asarray(table.column("status").to_pylist(), dtype=object)[sel]
-    ok = status == "ok"
-    out: dict = {"n": int(sel.sum()), "success_rate": float(ok.mean()) if len(ok) else float("nan"),
-                 "mean_time_s": float(np.mean(np.asarray(table.column("time_s").to_pylist())[sel]))}
+    success = success or {"angle_deg": 1.0, "distance_m": 0.001}
+    sel = _col(table, "cell", np.int64) == cell
+    ok = (_col(table, "status", object) == "ok")[sel]
+    rot, tra = _col(table, "rotation_error_deg")[sel], _col(table, "translation_error_um")[sel]
+    within = (rot <= success["angle_deg"]) & (tra <= success["distance_m"] * 1e6)
+    time_s = _col(table, "time_s")[sel]
+    m2 = _col(table, "mahalanobis2")[sel][ok] if "mahalanobis2" in table.column_names else np.array([])
+    n = int(sel.sum())
+    out: dict = {"n": n, "success_rate": float(ok.mean()) if n else float("nan"),
+                 "within_rate": float(within.mean()) if n else float("nan"),
+                 "mean_time_s": float(np.mean(time_s)) if n else float("nan"),
+                 "median_time_s": float(np.median(time_s)) if n else float("nan"),
+                 "determined": bool(len(m2)) and bool(np.all(np.isfinite(m2))),
+                 "crlb_ratio": float(np.sqrt(np.mean(m2) / 6.0)) if len(m2) and np.all(np.isfinite(m2))
+                 else float("nan")}
     for c in STAT_COLUMNS:
-        x = np.asarray(table.column(c).to_pylist(), dtype=np.float64)[sel][ok]
-        if len(x) == 0:
-            out[c] = (float("nan"),) * 4
-            continue
-        std = float(np.std(x, ddof=1)) if len(x) > 1 else float("nan")
-        lo, hi = np.percentile(x, [2.5, 97.5])
-        out[c] = (float(np.mean(x)), std, float(lo), float(hi))
+        out[c] = summary_stats(_col(table, c)[sel][ok])
     return out
 
 
-def write_report(study: Study, table: pa.Table, out: Path) -> list[Path]:
-    """Write ``report.md`` and the plot into ``out``; returns their paths (report first)."""
+def write_report(study: Study, table: pa.Table, out: Path, adaptive: dict | None = None) -> list[Path]:
+    """Write ``report.md`` and the plots into ``out``; returns their paths (report first).
+    ``adaptive``: per cell, the trials the adaptive rule ran and whether it was met."""
     out = Path(out)
     cells = study.cells
-    lines = [f"# Study `{study.name}`", "",
-             f"Base scenario `{study.scenario_path.name}`, {study.kind} trials, seed {study.seed}, "
-             f"{study.n_cells} cell(s) x {study.trials} trial(s). Localization: "
-             + ", ".join(f"{k} = {v}" for k, v in study.localize.items()) + ".", "",
-             "Pose error: the twist `[omega, v]` with `T_est = T_true exp(xi)`, workpiece frame "
-             "(omega in urad, v in um). Statistics over the trials with status `ok`; the 95 % "
-             "coverage interval is the 2.5 and 97.5 percentiles.", "", f"![translation error]({PLOT})", ""]
+    stats = [cell_stats(table, i, study.success) for i in range(study.n_cells)]
+    plots = _plots(study, table, stats, out)
+    tol = study.success
+    head = [f"# Study `{study.name}`", "",
+            f"Base scenario `{study.scenario_path.name}`, {study.kind} trials, seed {study.seed}, "
+            f"{study.n_cells} cell(s), " + (f"adaptive (JCGM 101, 7.9: {study.adaptive['digits']} significant "
+                                           f"digit(s), batches of {study.adaptive['batch']}, at most "
+                                           f"{study.trials} trials per cell)" if study.adaptive
+                                           else f"{study.trials} trial(s) per cell") + ". Localization: "
+            + ", ".join(f"{k} = {v}" for k, v in study.localize.items()) + ".", ""]
+    if study.kind == "points":
+        head += ["Point sets: " + ", ".join(f"{k} = {v}" for k, v in study.points.items()) + ".", ""]
+    head += ["Pose error: the twist `[omega, v]` with `T_est = T_true exp(xi)`, workpiece frame "
+             "(omega in urad, v in um). `ok`: the localization's own verdict; `within`: rotation error "
+             f"<= {tol['angle_deg']} deg and translation error <= {tol['distance_m'] * 1e3:g} mm. CRLB ratio: "
+             "`sqrt(mean(xi^T C^-1 xi) / 6)` over the `ok` trials, C the Cramer-Rao bound of the trial's "
+             "points at the truth (1.00 attains the bound). Statistics over the `ok` trials; the 95 % "
+             "coverage interval is the 2.5 and 97.5 percentiles.", ""]
+    head += [f"![{p.stem}]({p.name})" for p in plots] + [""]
+    factors = list(study.factors)
+    head += ["| cell | " + " | ".join(f"`{f}`" for f in factors) + " | trials | ok | within | "
+             "translation error mean [um] | rotation error mean [deg] | CRLB ratio | median time [ms] |",
+             "|---" * (len(factors) + 8) + "|"]
     for i, values in enumerate(cells):
-        s = cell_stats(table, i)
-        factors = ", ".join(f"`{k}` = {v}" for k, v in values.items()) or "(no factor)"
-        lines += [f"## Cell {i}: {factors}", "",
-                  f"{s['n']} trials, success rate {s['success_rate'] * 100:.1f} %, "
-                  f"mean localization time {s['mean_time_s'] * 1e3:.1f} ms.", "",
-                  "| quantity | mean | std | 2.5 % | 97.5 % |", "|---|---|---|---|---|"]
-        for c in STAT_COLUMNS:
+        s = stats[i]
+        head.append(f"| {i} | " + " | ".join(str(values[f]) for f in factors) + f" | {s['n']} | "
+                    f"{s['success_rate'] * 100:.0f} % | {s['within_rate'] * 100:.0f} % | "
+                    f"{_fmt(s['translation_error_um'][0])} | {_fmt(s['rotation_error_deg'][0])} | "
+                    f"{_fmt(s['crlb_ratio'])} | {s['median_time_s'] * 1e3:.3g} |")
+    head.append("")
+    lines = head
+    for i, values in enumerate(cells):
+        s = stats[i]
+        factors_txt = ", ".join(f"`{k}` = {v}" for k, v in values.items()) or "(no factor)"
+        extra = ""
+        if adaptive is not None:
+            a = adaptive[i]
+            extra = (f" The adaptive rule {'was met' if a['stable'] else 'was NOT met'} after {a['trials']} trials.")
+        lines += [f"## Cell {i}: {factors_txt}", "",
+                  f"{s['n']} trials, status ok {s['success_rate'] * 100:.1f} %, within tolerance "
+                  f"{s['within_rate'] * 100:.1f} %, median localization time {s['median_time_s'] * 1e3:.3g} ms, "
+                  f"CRLB ratio {_fmt(s['crlb_ratio'])}.{extra}", ""]
+        columns = STAT_COLUMNS if s["determined"] else MAGNITUDE_COLUMNS
+        if not s["determined"]:
+            lines += ["The points of some trials leave a direction free or weak: no component is reported.", ""]
+        lines += ["| quantity | mean | std | 2.5 % | 97.5 % |", "|---|---|---|---|---|"]
+        for c in columns:
             m, sd, lo, hi = s[c]
             lines.append(f"| {c} | {_fmt(m)} | {_fmt(sd)} | {_fmt(lo)} | {_fmt(hi)} |")
         lines.append("")
-    plot = out / PLOT
-    _plot(study, table, plot)
     report = out / REPORT
     tmp = out / f".{REPORT}.partial"
     tmp.write_text("\n".join(lines))
     tmp.replace(report)
-    return [report, plot]
+    return [report, *plots]
+
+
+# ------------------------------------------------------------------ plots
+def _series(study: Study, x_factor: str, skip: tuple[str, ...] = ()) -> dict[str, list[int]]:
+    """Cells grouped by the values of the factors other than ``x_factor`` (and ``skip``)."""
+    groups: dict[str, list[int]] = {}
+    for i, values in enumerate(study.cells):
+        label = ", ".join(f"{k.split('.')[-1]}={v}" for k, v in values.items() if k != x_factor and k not in skip)
+        groups.setdefault(label or "all", []).append(i)
+    return groups
+
+
+def _figure(title: str) -> tuple[Figure, object]:
+    fig = Figure(figsize=(6.4, 4.0), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, alpha=0.3)
+    return fig, ax
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    tmp = path.with_name(f".{path.name}.partial.png")
+    fig.savefig(tmp)
+    tmp.replace(path)
+    return path
+
+
+def _plots(study: Study, table: pa.Table, stats: list[dict], out: Path) -> list[Path]:
+    makers: list[tuple[str, Callable[[], Figure | None]]] = [
+        (PLOT, lambda: _plot_translation(study, table)),
+        ("crlb.png", lambda: _plot_crlb(study, table)),
+        ("success_vs_angle.png", lambda: _plot_success(study, stats)),
+        ("time_per_method.png", lambda: _plot_time(study, stats)),
+        ("subsampling.png", lambda: _plot_subsampling(study, stats)),
+    ]
+    paths = []
+    for name, make in makers:
+        fig = make()
+        if fig is not None:
+            paths.append(_save(fig, out / name))
+        else:
+            (out / name).unlink(missing_ok=True)
+    return paths
 
 
 def _numeric_factor(study: Study) -> str | None:
@@ -88,23 +196,113 @@ def _numeric_factor(study: Study) -> str | None:
     return None
 
 
-def _plot(study: Study, table: pa.Table, path: Path) -> None:
+def _plot_translation(study: Study, table: pa.Table) -> Figure:
     factor = _numeric_factor(study)
-    fig = Figure(figsize=(6.4, 4.0), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
+    fig, ax = _figure(f"study {study.name}: translation error")
     col = "cell" if factor is None else factor
-    x = np.asarray(table.column(col).to_pylist(), dtype=np.float64)
-    y = np.asarray(table.column("translation_error_um").to_pylist(), dtype=np.float64)
-    ok = np.asarray(table.column("status").to_pylist(), dtype=object) == "ok"
+    x = _col(table, col)
+    y = _col(table, "translation_error_um")
+    ok = _col(table, "status", object) == "ok"
     ax.plot(x[ok], y[ok], ".", alpha=0.4, label="trials (status ok)")
     xs = np.unique(x[ok])
     ax.plot(xs, [np.mean(y[ok][x[ok] == v]) for v in xs], "-o", label="mean per level")
     ax.set_xlabel("grid cell" if factor is None else factor)
     ax.set_ylabel("translation error [um]")
-    ax.set_title(f"study {study.name}")
-    ax.grid(True, alpha=0.3)
-    ax.legend()
-    tmp = path.with_name(f".{path.name}.partial.png")
-    fig.savefig(tmp)
-    tmp.replace(path)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+
+
+def _plot_crlb(study: Study, table: pa.Table) -> Figure | None:
+    factor = next((f for f in SIGMA_FACTORS if f in study.factors), None)
+    if factor is None:
+        return None
+    fig = Figure(figsize=(9.6, 4.0), dpi=100)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2)
+    cell = _col(table, "cell", np.int64)
+    ok = _col(table, "status", object) == "ok"
+    v = np.column_stack([_col(table, c) for c in TWIST_COLUMNS[3:]])
+    w = np.column_stack([_col(table, c) for c in TWIST_COLUMNS[:3]])
+    for label, cells in _series(study, factor).items():
+        xs = np.array([study.cells[i][factor] for i in cells], dtype=np.float64) * 1e6
+        for ax, err, bound_col in ((axes[0], v, "crlb_translation_um"), (axes[1], w, "crlb_rotation_urad")):
+            rms = [_rms(np.linalg.norm(err[(cell == i) & ok], axis=1)) for i in cells]
+            bnd = [_rms(_col(table, bound_col)[(cell == i) & ok]) for i in cells]
+            line, = ax.plot(xs, rms, "o-", label=f"{label}: RMS error")
+            ax.plot(xs, bnd, "--", color=line.get_color(), label=f"{label}: Cramer-Rao")
+    for ax, what in ((axes[0], "translation error [um]"), (axes[1], "rotation error [urad]")):
+        ax.set_xlabel(f"{factor} [um]")
+        ax.set_ylabel(what)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.grid(True, alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.suptitle(f"study {study.name}: pose error against sigma, with the Cramer-Rao bound", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _plot_success(study: Study, stats: list[dict]) -> Figure | None:
+    factor = "localize.init_angle_deg"
+    if factor not in study.factors:
+        return None
+    fig, ax = _figure(f"study {study.name}: rate within tolerance against the initial angle")
+    for label, cells in _series(study, factor).items():
+        xs = [study.cells[i][factor] for i in cells]
+        ax.plot(xs, [stats[i]["within_rate"] * 100 for i in cells], "o-", label=label)
+    ax.set_xlabel("initial rotation error [deg]")
+    ax.set_ylabel(f"within {study.success['angle_deg']} deg / {study.success['distance_m'] * 1e3:g} mm [%]")
+    ax.set_ylim(-5, 105)
+    ax.legend(fontsize=7)
+    return fig
+
+
+def _plot_time(study: Study, stats: list[dict]) -> Figure | None:
+    factor = "localize.method"
+    if factor not in study.factors:
+        return None
+    fig, ax = _figure(f"study {study.name}: median localization time per method")
+    groups = _series(study, factor)
+    width = 0.8 / max(len(groups), 1)
+    methods = list(dict.fromkeys(study.cells[i][factor] for i in range(study.n_cells)))
+    for k, (label, cells) in enumerate(groups.items()):
+        t = {study.cells[i][factor]: stats[i]["median_time_s"] * 1e3 for i in cells}
+        ax.bar(np.arange(len(methods)) + k * width, [t.get(m, np.nan) for m in methods], width, label=label)
+    ax.set_xticks(np.arange(len(methods)) + 0.4 - width / 2, methods, rotation=20, fontsize=8)
+    ax.set_ylabel("median time [ms]")
+    ax.set_yscale("log")
+    ax.legend(fontsize=7)
+    return fig
+
+
+def _plot_subsampling(study: Study, stats: list[dict]) -> Figure | None:
+    factor = "localize.subsample"
+    if factor not in study.factors or "none" not in study.levels[study.factors.index(factor)]:
+        return None
+    fig, ax = _figure(f"study {study.name}: accuracy kept against time saved")
+    for label, cells in _series(study, factor).items():
+        by_rule = {study.cells[i][factor]: stats[i] for i in cells}
+        ref = by_rule.get("none")
+        if ref is None:
+            continue
+        for rule, s in by_rule.items():
+            if rule == "none":
+                continue
+            kept = _rms_of(ref) / _rms_of(s)
+            saved = 1.0 - s["median_time_s"] / ref["median_time_s"]
+            ax.plot(saved * 100, kept * 100, "o")
+            ax.annotate(f"{rule} ({label})", (saved * 100, kept * 100), fontsize=7)
+    ax.axhline(90, color="grey", lw=0.8, ls="--")
+    ax.set_xlabel("time saved [%]")
+    ax.set_ylabel("accuracy kept [%] (RMS translation error, full / subset)")
+    return fig
+
+
+def _rms_of(s: dict) -> float:
+    """RMS translation error of a cell from its mean and standard deviation."""
+    m, sd = s["translation_error_um"][0], s["translation_error_um"][1]
+    return float(np.sqrt(m**2 + (sd if math.isfinite(sd) else 0.0) ** 2))

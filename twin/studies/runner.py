@@ -45,12 +45,13 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from twin.errors import TwinError
 from twin.studies.spec import Study
-from twin.studies.trials import METRIC_COLUMNS, run_trial
+from twin.studies.trials import METRIC_COLUMNS, TWIST_COLUMNS, run_trial
 
 MANIFEST = "manifest.json"
 RESULTS = "results.parquet"
@@ -221,6 +222,11 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
               force: bool = False, on_progress: Callable[[int, int], None] = lambda done, total: None) -> dict:
     """Run every trial not yet in ``out``'s batch files, then write the final table and report.
 
+    With ``study.adaptive`` the trials run in rounds of ``adaptive.batch`` per cell until each
+    cell's results are stable (:mod:`twin.studies.adaptive`) or it reaches ``study.trials``;
+    the rounds depend on the results only, so a resume or another worker count runs the same
+    trials.
+
     Returns a summary: trials run now and before, batches, seconds, the output files.
     """
     from twin.studies.report import write_report
@@ -232,35 +238,87 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
         _probe(scheduler)
     prepare_folder(out, study, resume, force)
     done = finished_ids(out)
-    todo = [(c, t) for c in range(study.n_cells) for t in range(study.trials) if (c, t) not in done]
-    total = study.n_trials
+    resumed = len(done)
     numbers = [int(BATCH_RE.match(p.name).group(1)) for p in batch_files(out)]
-    next_batch = max(numbers, default=-1) + 1
-    count = total - len(todo)
-    on_progress(count, total)
+    state = {"next": max(numbers, default=-1) + 1, "count": len(done)}
+    total = study.n_trials
+    on_progress(state["count"], total)
     t0 = time.perf_counter()
-    batches = list(_chunks(todo, batch_size(study, workers)))
     with executor(scheduler, workers) as (mode, ex):
-        if mode == "inline":
-            results: Iterator[list[dict]] = (run_batch(study, b) for b in batches)
+
+        def run_ids(ids: list[tuple[int, int]]) -> None:
+            batches = list(_chunks(ids, batch_size(study, workers)))
+            if mode == "inline":
+                results: Iterator[list[dict]] = (run_batch(study, b) for b in batches)
+            else:
+                results = _stream(mode, ex, study, batches, workers)
+            for rows in results:
+                _write_table_atomic(out / BATCH_DIR / f"batch-{state['next']:06d}.parquet", rows_table(study, rows))
+                state["next"] += 1
+                state["count"] += len(rows)
+                on_progress(state["count"], total)
+
+        if study.adaptive is None:
+            run_ids([(c, t) for c in range(study.n_cells) for t in range(study.trials) if (c, t) not in done])
+            rounds = None
         else:
-            results = _stream(mode, ex, study, batches, workers)
-        for rows in results:
-            _write_table_atomic(out / BATCH_DIR / f"batch-{next_batch:06d}.parquet", rows_table(study, rows))
-            next_batch += 1
-            count += len(rows)
-            on_progress(count, total)
+            rounds = _run_adaptive(study, out, done, run_ids)
     table = final_table(out)
-    if table.num_rows != total:
-        raise TwinError(f"{out}: {table.num_rows} trials in the batch files, expected {total}")
-    files = write_report(study, table, out)
+    expected = total if rounds is None else sum(r["trials"] for r in rounds)
+    if table.num_rows != expected:
+        raise TwinError(f"{out}: {table.num_rows} trials in the batch files, expected {expected}")
+    files = write_report(study, table, out, rounds)
     # the final table last: its presence says the study is complete
     _write_table_atomic(out / RESULTS, table)
-    return {"study": study.name, "study_hash": study.content_hash, "out": str(out), "cells": study.n_cells,
-            "trials_per_cell": study.trials, "trials": total, "trials_run": len(todo),
-            "trials_resumed": total - len(todo), "seconds": time.perf_counter() - t0,
-            "results": str(out / RESULTS), "report": str(files[0]), "plots": [str(p) for p in files[1:]],
-            "success_rate": _success_rate(table)}
+    summary = {"study": study.name, "study_hash": study.content_hash, "out": str(out), "cells": study.n_cells,
+               "trials_per_cell": study.trials, "trials": table.num_rows, "trials_run": table.num_rows - resumed,
+               "trials_resumed": resumed, "seconds": time.perf_counter() - t0,
+               "results": str(out / RESULTS), "report": str(files[0]), "plots": [str(p) for p in files[1:]],
+               "success_rate": _success_rate(table)}
+    if rounds is not None:
+        summary["adaptive"] = rounds
+    return summary
+
+
+def _run_adaptive(study: Study, out: Path, done: set, run_ids: Callable[[list], None]) -> list[dict]:
+    """JCGM 101 7.9's rounds (module docstring of :mod:`twin.studies.adaptive`); per cell the
+    trials run and whether the rule was met."""
+    from twin.studies.adaptive import is_stable
+
+    h, digits = study.adaptive["batch"], study.adaptive["digits"]
+    rounds = [{"trials": 0, "stable": False} for _ in range(study.n_cells)]
+    active = list(range(study.n_cells))
+    r = 0
+    while active:
+        hi = min((r + 1) * h, study.trials)
+        run_ids([(c, t) for c in active for t in range(r * h, hi) if (c, t) not in done])
+        table = final_table(out)
+        for c in list(active):
+            rounds[c]["trials"] = hi
+            rounds[c]["stable"] = _cell_stable(table, c, h, digits, is_stable)
+            if rounds[c]["stable"] or hi >= study.trials:
+                active.remove(c)
+        r += 1
+    return rounds
+
+
+def _cell_stable(table: pa.Table, cell: int, h: int, digits: int, is_stable) -> bool:
+    from twin.studies.report import MAGNITUDE_COLUMNS, cell_stats
+
+    sel = [i for i, c in enumerate(table.column("cell").to_pylist()) if c == cell]
+    sub = table.take(sel)
+    ok = [s == "ok" for s in sub.column("status").to_pylist()]
+    batch = [t // h for t in sub.column("trial").to_pylist()]
+    columns = TWIST_COLUMNS if cell_stats(sub, cell)["determined"] else MAGNITUDE_COLUMNS[:2]
+    for name in columns:
+        x = sub.column(name).to_pylist()
+        groups: dict[int, list] = {}
+        for b, v, k in zip(batch, x, ok, strict=True):
+            if k:
+                groups.setdefault(b, []).append(v)
+        if not is_stable([np.asarray(groups[b], dtype=np.float64) for b in sorted(groups)], digits):
+            return False
+    return True
 
 
 def _success_rate(table: pa.Table) -> float:

@@ -1,11 +1,13 @@
 """Study files (TOML): read, validate every key, expand the grid into cells.
 
-A study names one base scenario, optional overrides of it, the localization settings, a grid
-of factors and how many trials each grid cell gets (``studies/README.md`` documents every key).
-A grid key is a dotted key path into the scenario (``"sensor.sigma_m"``) or into the
-localization (``"localize.method"``, ``"localize.init_angle_deg"``, ``"localize.init_distance_m"``).
-Every grid value is checked before any trial runs: a scenario factor by loading the scenario
-with the override, a localization factor against its allowed range.
+A study names a base scenario, optional overrides of it, the localization settings, for
+``kind = "points"`` the sampled point sets, a grid of factors and how many trials each grid
+cell gets, or an adaptive rule (``studies/README.md`` documents every key). A grid key is a
+dotted key path into the scenario (``"sensor.sigma_m"``), into the localization
+(``"localize.method"``), into the point sets (``"points.noise_sigma_m"``), or ``"scenario"``
+(a list of scenario files: several base scenarios in one study). Every grid value is checked
+before any trial runs: a scenario factor by loading the scenario with the override, the
+others against their allowed ranges.
 """
 
 from __future__ import annotations
@@ -18,26 +20,111 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from algorithms.registration.global_search.search import GLOBAL_METHODS
 from algorithms.registration.local import METHODS
 from twin.errors import TwinError
 from twin.formats.toml_files import read_toml
 from twin.scenario import Scenario, load_scenario, merge_tables
 
-KINDS = ("fast", "full")
-TOP_KEYS = ("name", "seed", "scenario", "trials", "kind", "overrides", "localize", "grid")
+KINDS = ("fast", "full", "points")
+TOP_KEYS = ("name", "seed", "scenario", "trials", "kind", "overrides", "localize", "points", "adaptive", "success",
+            "grid")
+#: Stages of the global methods run alone: document 001's genetic coarse stage (one GA run, no
+#: fine stage), document 003's swarm without the polish.
+STAGE_METHODS = ("genetic_coarse", "pso_alone")
+#: Peers, rows where the package is installed (``pip install -e ".[peers]"``).
+PEER_METHODS = ("open3d_icp", "small_gicp")
+ALL_METHODS = tuple(METHODS) + tuple(GLOBAL_METHODS) + STAGE_METHODS + PEER_METHODS
+SUBSAMPLE_RULES = ("none", "hammersley", "uniform", "random")
 #: Localization settings: name -> (default, check, what is allowed).
 LOCALIZE_KEYS: dict[str, tuple[Any, Any, str]] = {
-    "method": ("hong_tan", lambda v: v in METHODS, f"one of {', '.join(METHODS)}"),
+    "method": ("hong_tan", lambda v: v in ALL_METHODS, f"one of {', '.join(ALL_METHODS)}"),
     "init_angle_deg": (1.0, lambda v: _is_number(v) and 0.0 <= v <= 180.0, "a number in [0, 180]"),
     "init_distance_m": (0.001, lambda v: _is_number(v) and 0.0 <= v <= 0.1, "a number in [0, 0.1]"),
-    "points": (0, lambda v: isinstance(v, int) and not isinstance(v, bool) and (v == 0 or 6 <= v <= 10_000_000),
+    "init_position": ("truth", lambda v: v in ("truth", "mean"), "'truth' or 'mean'"),
+    "points": (0, lambda v: _is_int(v) and (v == 0 or 6 <= v <= 10_000_000),
                "0 (every scanned point) or an integer in [6, 10^7]"),
+    "subsample": ("none", lambda v: v in SUBSAMPLE_RULES, f"one of {', '.join(SUBSAMPLE_RULES)}"),
+}
+#: Point sets of ``kind = "points"`` (document 000's simulation): name -> (default, check, allowed).
+POINTS_KEYS: dict[str, tuple[Any, Any, str]] = {
+    "count": (150, lambda v: _is_int(v) and 6 <= v <= 1_000_000, "an integer in [6, 10^6]"),
+    "layout": ("random", lambda v: v in ("random", "grid"), "'random' or 'grid'"),
+    "grid_rows": (10, lambda v: _is_int(v) and 2 <= v <= 1000, "an integer in [2, 1000]"),
+    "grid_cols": (30, lambda v: _is_int(v) and 3 <= v <= 1000, "an integer in [3, 1000]"),
+    "noise_mean_m": (0.0, lambda v: _is_number(v) and abs(v) <= 0.01, "a number in [-0.01, 0.01]"),
+    "noise_sigma_m": (5e-6, lambda v: _is_number(v) and 0.0 < v <= 0.01, "a number in (0, 0.01]"),
+    "noise_direction": ("isotropic", lambda v: v in ("isotropic", "normal"), "'isotropic' or 'normal'"),
+    "region": ([], lambda v: _is_region(v), "a list of tables, each with normal = [x, y, z] and cone_deg, "
+               "and/or box_min_m = [x, y, z] and box_max_m = [x, y, z] (workpiece frame)"),
+}
+#: The adaptive rule (JCGM 101, 7.9): name -> (default, check, allowed).
+ADAPTIVE_KEYS: dict[str, tuple[Any, Any, str]] = {
+    "digits": (1, lambda v: _is_int(v) and 1 <= v <= 3, "an integer in [1, 3]"),
+    "batch": (100, lambda v: _is_int(v) and 10 <= v <= 100_000, "an integer in [10, 10^5]"),
+}
+#: What counts as a success in the report, besides the status: name -> (default, check, allowed).
+SUCCESS_KEYS: dict[str, tuple[Any, Any, str]] = {
+    "angle_deg": (1.0, lambda v: _is_number(v) and 0 < v <= 180, "a number in (0, 180]"),
+    "distance_m": (0.001, lambda v: _is_number(v) and 0 < v <= 1.0, "a number in (0, 1]"),
 }
 MAX_TRIALS = 1_000_000
 
 
 def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_vec3(v: Any) -> bool:
+    return isinstance(v, list) and len(v) == 3 and all(_is_number(x) for x in v)
+
+
+def _is_region(v: Any) -> bool:
+    """A list of selector tables: ``normal`` + ``cone_deg`` and/or ``box_min_m`` + ``box_max_m``."""
+    if not isinstance(v, list):
+        return False
+    for sel in v:
+        if not isinstance(sel, dict) or not sel or set(sel) - {"normal", "cone_deg", "box_min_m", "box_max_m"}:
+            return False
+        if ("normal" in sel) != ("cone_deg" in sel) or ("box_min_m" in sel) != ("box_max_m" in sel):
+            return False
+        if "normal" in sel and not (_is_vec3(sel["normal"]) and any(x != 0 for x in sel["normal"])
+                                    and _is_number(sel["cone_deg"]) and 0 <= sel["cone_deg"] <= 180):
+            return False
+        if "box_min_m" in sel and not (_is_vec3(sel["box_min_m"]) and _is_vec3(sel["box_max_m"])
+                                       and all(a < b for a, b in zip(sel["box_min_m"], sel["box_max_m"],
+                                                                     strict=True))):
+            return False
+    return True
+
+
+def _table(raw: dict, name: str, keys: dict) -> dict:
+    """The ``[name]`` table of a study with its defaults, every key checked."""
+    table = raw.get(name, {})
+    if not isinstance(table, dict):
+        raise TwinError(f"study [{name}] must be a table, got {table!r}")
+    bad = sorted(set(table) - set(keys))
+    if bad:
+        raise TwinError(f"unknown key(s) {', '.join(name + '.' + k for k in bad)}; "
+                        f"allowed in [{name}]: {', '.join(keys)}")
+    out = {k: copy.deepcopy(table.get(k, default)) for k, (default, _, _) in keys.items()}
+    for k, v in out.items():
+        _check_value(keys, k, v, f"{name}.{k}")
+    return out
+
+
+@dataclass(frozen=True)
+class CellSettings:
+    """What one grid cell runs: its scenario file and overrides, localization, point sets."""
+
+    scenario_path: Path
+    overrides: dict
+    localize: dict
+    points: dict
 
 
 def _nested(dotted: str, value: Any) -> dict:
@@ -55,13 +142,20 @@ class Study:
     Attributes:
         name: the study's name.
         seed: the root of every trial's random stream (``SeedSequence(seed, spawn_key=(cell, trial))``).
-        scenario_path: the base scenario file (absolute).
-        trials: trials per grid cell.
-        kind: ``"fast"`` (sensor errors redrawn on a cached noise-free scan) or ``"full"`` (the loop).
+        scenario_path: the base scenario file (absolute); a ``scenario`` factor replaces it per cell.
+        trials: trials per grid cell (the most per cell when ``adaptive``).
+        kind: ``"fast"`` (sensor errors redrawn on a cached noise-free scan), ``"full"`` (the
+            loop) or ``"points"`` (points sampled on the scenario's part, document 000's simulation).
         overrides: nested tables merged over the scenario file for every cell.
         localize: the localization settings every cell starts from (``LOCALIZE_KEYS``).
+        points: the point sets of ``kind = "points"`` (``POINTS_KEYS``).
+        adaptive: the adaptive rule (``ADAPTIVE_KEYS``), or None: a fixed number of trials.
         factors: the grid's keys in file order; ``levels``: their value lists.
         raw: the file's content (for the content hash).
+        scenario_text: the text of every scenario file the study uses (for the content hash).
+        base_dir: the study file's folder (scenario files are relative to it).
+        success: the report's tolerance (``SUCCESS_KEYS``): a trial whose rotation and
+            translation errors are within it is counted "within tolerance".
     """
 
     name: str
@@ -75,6 +169,10 @@ class Study:
     levels: tuple[tuple, ...]
     raw: dict = field(repr=False)
     scenario_text: str = field(repr=False, default="")
+    points: dict = field(default_factory=dict)
+    adaptive: dict | None = None
+    base_dir: Path = Path(".")
+    success: dict = field(default_factory=lambda: {k: v[0] for k, v in SUCCESS_KEYS.items()})
 
     @property
     def cells(self) -> list[dict]:
@@ -92,20 +190,26 @@ class Study:
     def n_trials(self) -> int:
         return self.n_cells * self.trials
 
-    def cell_settings(self, cell: int) -> tuple[dict, dict]:
-        """(scenario overrides, localization settings) of grid cell ``cell``."""
+    def cell_settings(self, cell: int) -> CellSettings:
+        """What grid cell ``cell`` runs: the study's settings with the cell's factor values."""
         values = self.cells[cell]
         over = copy.deepcopy(self.overrides)
-        loc = dict(self.localize)
+        loc, pts = dict(self.localize), copy.deepcopy(self.points)
+        path = self.scenario_path
         for key, v in values.items():
-            if key.startswith("localize."):
+            if key == "scenario":
+                path = _scenario_file(self.base_dir, v)
+            elif key.startswith("localize."):
                 loc[key.split(".", 1)[1]] = v
+            elif key.startswith("points."):
+                pts[key.split(".", 1)[1]] = v
             else:
                 over = merge_tables(over, _nested(key, v))
-        return over, loc
+        return CellSettings(path, over, loc, pts)
 
     def cell_scenario(self, cell: int) -> Scenario:
-        return load_scenario(self.scenario_path, self.cell_settings(cell)[0], machine="arm")
+        s = self.cell_settings(cell)
+        return load_scenario(s.scenario_path, s.overrides, machine="arm")
 
     @property
     def content_hash(self) -> str:
@@ -119,6 +223,7 @@ class Study:
         """The study as a JSON-ready dict (the manifest)."""
         return {"name": self.name, "seed": self.seed, "scenario": str(self.scenario_path), "trials": self.trials,
                 "kind": self.kind, "overrides": self.overrides, "localize": self.localize,
+                "points": self.points, "adaptive": self.adaptive, "success": self.success,
                 "grid": {k: list(v) for k, v in zip(self.factors, self.levels, strict=True)},
                 "cells": self.n_cells}
 
@@ -138,13 +243,13 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
     if not isinstance(name, str) or not name:
         raise TwinError(f"study name must be a non-empty string, got {name!r}")
     seed = raw.get("seed", 0)
-    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**63:
+    if not _is_int(seed) or not 0 <= seed < 2**63:
         raise TwinError(f"study seed must be an integer in [0, 2^63), got {seed!r}")
     if "scenario" not in raw or not isinstance(raw["scenario"], str):
         raise TwinError("study scenario is required: the base scenario file, relative to the study file")
     scenario_path = (base_dir / raw["scenario"]).resolve()
     trials = raw.get("trials", 10)
-    if not isinstance(trials, int) or isinstance(trials, bool) or not 1 <= trials <= MAX_TRIALS:
+    if not _is_int(trials) or not 1 <= trials <= MAX_TRIALS:
         raise TwinError(f"study trials must be an integer in [1, {MAX_TRIALS}], got {trials!r}")
     kind = raw.get("kind", "fast")
     if kind not in KINDS:
@@ -152,16 +257,12 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
     overrides = raw.get("overrides", {})
     if not isinstance(overrides, dict):
         raise TwinError(f"study overrides must be a table of scenario tables, got {overrides!r}")
-    localize = raw.get("localize", {})
-    if not isinstance(localize, dict):
-        raise TwinError(f"study [localize] must be a table, got {localize!r}")
-    bad = sorted(set(localize) - set(LOCALIZE_KEYS))
-    if bad:
-        raise TwinError(f"unknown key(s) {', '.join('localize.' + k for k in bad)}; "
-                        f"allowed in [localize]: {', '.join(LOCALIZE_KEYS)}")
-    loc = {k: localize.get(k, default) for k, (default, _, _) in LOCALIZE_KEYS.items()}
-    for k, v in loc.items():
-        _check_localize(k, v, f"localize.{k}")
+    loc = _table(raw, "localize", LOCALIZE_KEYS)
+    if "points" in raw and kind != "points":
+        raise TwinError("study [points] needs kind = 'points' (points sampled on the part)")
+    pts = _table(raw, "points", POINTS_KEYS)
+    adaptive = _table(raw, "adaptive", ADAPTIVE_KEYS) if "adaptive" in raw else None
+    success = _table(raw, "success", SUCCESS_KEYS)
     grid = raw.get("grid", {})
     if not isinstance(grid, dict):
         raise TwinError(f"study [grid] must be a table of key paths to value lists, got {grid!r}")
@@ -173,40 +274,76 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
             raise TwinError(f"grid {key!r} is an empty list; give at least one value (or leave the key out)")
         factors.append(key)
         levels.append(tuple(values))
-    try:
-        scenario_text = scenario_path.read_text()
-    except (OSError, UnicodeDecodeError):
-        raise TwinError(f"study scenario not found or unreadable: {scenario_path}") from None
-    load_scenario(scenario_path, overrides, machine="arm")  # the base overrides alone
+    scenario_paths = [scenario_path]
+    if "scenario" in grid:
+        scenario_paths = [_scenario_file(base_dir, v) for v in grid["scenario"]]
+    texts = []
+    for sp in scenario_paths:
+        try:
+            texts.append(sp.read_text())
+        except (OSError, UnicodeDecodeError):
+            raise TwinError(f"study scenario not found or unreadable: {sp}") from None
+        load_scenario(sp, overrides, machine="arm")  # the base overrides alone
     for key, values in zip(factors, levels, strict=True):
-        _check_factor(key, values, kind, scenario_path, overrides)
-    return Study(name, seed, scenario_path, trials, kind, copy.deepcopy(overrides), loc, tuple(factors),
-                 tuple(levels), copy.deepcopy(raw), scenario_text)
+        _check_factor(key, values, kind, scenario_paths, overrides)
+    study = Study(name, seed, scenario_path, trials, kind, copy.deepcopy(overrides), loc, tuple(factors),
+                  tuple(levels), copy.deepcopy(raw), "\n".join(texts), pts, adaptive,
+                  base_dir.resolve(), success)
+    for cell in range(study.n_cells):
+        _check_cell(study.cell_settings(cell), kind)
+    return study
 
 
-def _check_localize(key: str, value: Any, where: str) -> None:
-    _, ok, allowed = LOCALIZE_KEYS[key]
+def _scenario_file(base_dir: Path, value: Any) -> Path:
+    if not isinstance(value, str) or not value:
+        raise TwinError(f"grid 'scenario' values must be scenario file paths (relative to the study file), "
+                        f"got {value!r}")
+    return (base_dir / value).resolve()
+
+
+def _check_value(keys: dict, key: str, value: Any, where: str) -> None:
+    _, ok, allowed = keys[key]
     if not ok(value):
         raise TwinError(f"{where} {value!r} is refused: must be {allowed}")
 
 
-def _check_factor(key: str, values: tuple, kind: str, scenario_path: Path, overrides: dict) -> None:
+def _check_cell(cell: CellSettings, kind: str) -> None:
+    """Settings that are refused in combination, whichever factor set them."""
+    loc, pts = cell.localize, cell.points
+    if loc["subsample"] != "none" and not (kind == "points" and pts["layout"] == "grid"):
+        raise TwinError(f"localize.subsample = {loc['subsample']!r} needs kind = 'points' with "
+                        "points.layout = 'grid' (the document's M x N grid of measured points)")
+    if kind == "points" and pts["layout"] == "grid" and pts["grid_rows"] > pts["grid_cols"]:
+        raise TwinError(f"points.grid_rows {pts['grid_rows']} > points.grid_cols {pts['grid_cols']}: "
+                        "document 000's Algorithm 4 needs M <= N")
+    if loc["points"] and kind == "points":
+        raise TwinError("localize.points subsets scanned points; with kind = 'points' set points.count")
+
+
+def _check_factor(key: str, values: tuple, kind: str, scenario_paths: list[Path], overrides: dict) -> None:
     parts = key.split(".")
     if not all(parts):
         raise TwinError(f"grid key {key!r} is not a dotted key path (e.g. 'sensor.sigma_m', 'localize.method')")
-    if parts[0] == "localize":
-        if len(parts) != 2 or parts[1] not in LOCALIZE_KEYS:
-            raise TwinError(f"unknown grid key {key!r}; localization keys allowed: "
-                            f"{', '.join('localize.' + k for k in LOCALIZE_KEYS)}")
-        if kind == "full":
-            raise TwinError(f"grid key {key!r} needs kind = 'fast' (a full trial localizes as twin run does)")
+    if key == "scenario":
+        return  # each file was loaded above
+    if parts[0] in ("localize", "points"):
+        keys = LOCALIZE_KEYS if parts[0] == "localize" else POINTS_KEYS
+        if len(parts) != 2 or parts[1] not in keys:
+            raise TwinError(f"unknown grid key {key!r}; {parts[0]} keys allowed: "
+                            f"{', '.join(parts[0] + '.' + k for k in keys)}")
+        if parts[0] == "localize" and kind == "full":
+            raise TwinError(f"grid key {key!r} needs kind = 'fast' or 'points' "
+                            "(a full trial localizes as twin run does)")
+        if parts[0] == "points" and kind != "points":
+            raise TwinError(f"grid key {key!r} needs kind = 'points'")
         for v in values:
-            _check_localize(parts[1], v, f"grid {key!r} value")
+            _check_value(keys, parts[1], v, f"grid {key!r} value")
         return
     if parts[0] == "seed":
         raise TwinError("grid key 'seed' is not a factor: every trial draws its own random stream")
     for v in values:
-        try:
-            load_scenario(scenario_path, merge_tables(overrides, _nested(key, v)), machine="arm")
-        except TwinError as exc:
-            raise TwinError(f"grid {key!r} value {v!r} is refused: {' '.join(str(exc).split())}") from None
+        for sp in scenario_paths:
+            try:
+                load_scenario(sp, merge_tables(overrides, _nested(key, v)), machine="arm")
+            except TwinError as exc:
+                raise TwinError(f"grid {key!r} value {v!r} is refused: {' '.join(str(exc).split())}") from None

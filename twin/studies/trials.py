@@ -4,8 +4,11 @@ Randomness comes only from ``np.random.SeedSequence(study.seed, spawn_key=(cell,
 (never the scenario's own seed streams), so a trial's result does not depend on the worker
 that runs it, the order, or a resume. Its first child draws the initial pose (the truth moved
 by a rotation of ``init_angle_deg`` about a random axis and a translation of ``init_distance_m``
-in a random direction, workpiece frame); the second the sensor and encoder errors (fast) or the
-scenario's seed (full).
+in a random direction, workpiece frame; with ``init_position = "mean"`` the translation instead
+puts the model's centroid at the points' mean, document 000's ``p0 = mean(y)``); the second the
+sensor and encoder errors (fast), the scenario's seed (full) or the noise (points); the third
+the point subset (fast) or the point set (points); the fourth the method's own randomness
+(GA, PSO, multistart perturbations).
 
 Kinds:
 
@@ -18,6 +21,14 @@ Kinds:
   Robot-side errors drawn once per scenario (kinematics, hand-eye) stay those of the cached scan.
 * ``full``: :func:`twin.pipeline.run` on the scenario with its seed replaced by one drawn from
   the trial's stream; the localization is the loop's own (from the nominal pose).
+* ``points``: document 000's simulation (:mod:`twin.studies.point_sets`): model points on the
+  scenario's part, the known transform (the scenario's true placement), the noise; localized
+  by ``localize.method`` (:mod:`twin.studies.methods`), after the subsampling rule.
+
+Every kind also reports the Cramer-Rao bound of its point set at the truth (smooth normals of
+the model, the sensor's or the points' sigma): the root of the trace of its rotation and
+translation blocks, and the squared Mahalanobis distance ``xi^T C^-1 xi`` of the pose error
+(mean 6 at the bound), NaN where the points do not fix all six directions.
 """
 
 from __future__ import annotations
@@ -31,9 +42,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from algorithms.errors import AlgorithmError
-from algorithms.geometry.se3 import make_pose, rotation_error_rad, translation_error_m
-from algorithms.registration import localize
-from algorithms.registration.uncertainty import pose_error_twist
+from algorithms.geometry.se3 import inv_pose, make_pose, rotation_error_rad, transform_points, translation_error_m
+from algorithms.registration.global_search.multistart import model_centroid
+from algorithms.registration.uncertainty import crlb, observability, pose_error_twist
 from twin.cell import build_cell
 from twin.errors import TwinError
 from twin.pipeline import run as run_loop
@@ -45,12 +56,14 @@ from twin.scan import solve_joint_references
 from twin.scenario import Scenario, load_scenario, merge_tables
 from twin.sensors.base import RawRays, sensor_slice
 from twin.sim import simulate
+from twin.studies.methods import Outcome, run_method
+from twin.studies.point_sets import Design, make_design, measured_points, model_points
 from twin.studies.spec import Study
 
 #: The metric columns of a trial, in order (units in :mod:`twin.studies.runner`'s docstring).
 TWIST_COLUMNS = ("omega_x_urad", "omega_y_urad", "omega_z_urad", "v_x_um", "v_y_um", "v_z_um")
 METRIC_COLUMNS = TWIST_COLUMNS + ("rotation_error_deg", "translation_error_um", "rmse_um", "iterations", "status",
-                                  "time_s", "n_points")
+                                  "time_s", "n_points", "crlb_rotation_urad", "crlb_translation_um", "mahalanobis2")
 
 
 @dataclass(frozen=True)
@@ -117,9 +130,9 @@ def noise_free_scan(scenario: Scenario) -> NoiseFreeScan:
 
 
 def trial_streams(seed: int, cell: int, trial: int) -> tuple[np.random.Generator, ...]:
-    """(initial pose stream, error stream, point subset stream) of one trial (the first two are
-    the same children whether or not the third is used)."""
-    return tuple(np.random.default_rng(c) for c in np.random.SeedSequence(seed, spawn_key=(cell, trial)).spawn(3))
+    """(initial pose, errors, points, method) streams of one trial: the children 0-3 of its
+    ``SeedSequence`` (a child is the same whether or not the later ones are used)."""
+    return tuple(np.random.default_rng(c) for c in np.random.SeedSequence(seed, spawn_key=(cell, trial)).spawn(4))
 
 
 def initial_pose(T_true: np.ndarray, angle_rad: float, distance_m: float, rng: np.random.Generator) -> np.ndarray:
@@ -133,36 +146,80 @@ def initial_pose(T_true: np.ndarray, angle_rad: float, distance_m: float, rng: n
     return T_true @ dT
 
 
-def _metrics(T_est: np.ndarray, T_true: np.ndarray, rmse_m: float, iterations: int, status: str, time_s: float,
-             n_points: int) -> dict:
+def start_pose(T_true: np.ndarray, loc: dict, points: np.ndarray, mesh, rng: np.random.Generator) -> np.ndarray:
+    """The trial's initial pose (module docstring): ``initial_pose``, then with
+    ``init_position = "mean"`` the translation that puts the model centroid at the points' mean."""
+    T = initial_pose(T_true, np.radians(loc["init_angle_deg"]), loc["init_distance_m"], rng)
+    if loc["init_position"] == "mean":
+        T[:3, 3] = points.mean(axis=0) - T[:3, :3] @ model_centroid(mesh)
+    return T
+
+
+def bound(points: np.ndarray, T_true: np.ndarray, index, sigma_m: float | None) -> np.ndarray | None:
+    """The Cramer-Rao bound (6, 6) of ``points`` (world frame) at the truth, or None where the
+    points do not fix all six directions or no sigma is known."""
+    if not sigma_m or len(points) < 6:
+        return None
+    cp = index.query(transform_points(inv_pose(T_true), points))
+    normals = index.smooth_normals(cp.face, cp.foot)
+    if not observability(cp.foot, normals).observable:
+        return None
+    return crlb(cp.foot, normals, sigma_m)
+
+
+def _metrics(out: Outcome, T_true: np.ndarray, n_points: int, C: np.ndarray | None) -> dict:
+    T_est = out.T_world_workpiece
     xi = pose_error_twist(T_est, T_true)
-    out = {name: float(v * 1e6) for name, v in zip(TWIST_COLUMNS, xi, strict=True)}
-    out.update(rotation_error_deg=float(np.degrees(rotation_error_rad(T_est, T_true))),
-               translation_error_um=float(translation_error_m(T_est, T_true) * 1e6), rmse_um=float(rmse_m * 1e6),
-               iterations=int(iterations), status=status, time_s=float(time_s), n_points=int(n_points))
-    return out
+    m = {name: float(v * 1e6) for name, v in zip(TWIST_COLUMNS, xi, strict=True)}
+    m.update(rotation_error_deg=float(np.degrees(rotation_error_rad(T_est, T_true))),
+             translation_error_um=float(translation_error_m(T_est, T_true) * 1e6), rmse_um=float(out.rmse_m * 1e6),
+             iterations=int(out.iterations), status=out.status, time_s=float(out.time_s), n_points=int(n_points),
+             **_bound_columns(C, xi))
+    return m
 
 
-def _failed(status: str, n_points: int = 0, time_s: float = 0.0) -> dict:
+def _bound_columns(C: np.ndarray | None, xi: np.ndarray | None) -> dict:
+    if C is None:
+        return {"crlb_rotation_urad": float("nan"), "crlb_translation_um": float("nan"), "mahalanobis2": float("nan")}
+    m2 = float(xi @ np.linalg.solve(C, xi)) if xi is not None else float("nan")
+    return {"crlb_rotation_urad": float(np.sqrt(np.trace(C[:3, :3])) * 1e6),
+            "crlb_translation_um": float(np.sqrt(np.trace(C[3:, 3:])) * 1e6), "mahalanobis2": m2}
+
+
+def _failed(status: str, n_points: int = 0, time_s: float = 0.0, C: np.ndarray | None = None) -> dict:
     out = {name: float("nan") for name in TWIST_COLUMNS}
     out.update(rotation_error_deg=float("nan"), translation_error_um=float("nan"), rmse_um=float("nan"),
-               iterations=0, status=status, time_s=float(time_s), n_points=int(n_points))
+               iterations=0, status=status, time_s=float(time_s), n_points=int(n_points), **_bound_columns(C, None))
     return out
+
+
+def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init: np.ndarray, sigma_m: float | None,
+              rng: np.random.Generator) -> dict:
+    """Localize by ``loc["method"]`` and measure against the truth (the metric columns)."""
+    C = bound(pts, T_true, workpiece.index, sigma_m)
+    t0 = time.perf_counter()
+    try:
+        out = run_method(loc["method"], pts, workpiece, T_init, sigma_m, rng, loc["init_distance_m"])
+    except AlgorithmError:
+        return _failed("error", len(pts), time.perf_counter() - t0, C)
+    if isinstance(out, str):
+        return _failed(out, len(pts), 0.0, C)
+    return _metrics(out, T_true, len(pts), C)
 
 
 def run_trial(study: Study, cell: int, trial: int) -> dict:
     """One trial (module docstring): ``{"cell", "trial", *METRIC_COLUMNS}``."""
-    out = fast_trial(study, cell, trial) if study.kind == "fast" else full_trial(study, cell, trial)
-    return {"cell": int(cell), "trial": int(trial), **out}
+    kinds = {"fast": fast_trial, "full": full_trial, "points": points_trial}
+    return {"cell": int(cell), "trial": int(trial), **kinds[study.kind](study, cell, trial)}
 
 
 def fast_trial(study: Study, cell: int, trial: int) -> dict:
-    over, loc = study.cell_settings(cell)
-    scenario = load_scenario(study.scenario_path, over, machine="arm")
+    settings = study.cell_settings(cell)
+    loc = settings.localize
+    scenario = load_scenario(settings.scenario_path, settings.overrides, machine="arm")
     geo = noise_free_scan(scenario)
-    rng_init, rng_err, rng_subset = trial_streams(study.seed, cell, trial)
+    rng_init, rng_err, rng_subset, rng_method = trial_streams(study.seed, cell, trial)
     T_true = geo.realized.T_base_workpiece_true
-    T_init = initial_pose(T_true, np.radians(loc["init_angle_deg"]), loc["init_distance_m"], rng_init)
     meas = geo.sensor.measure(geo.rays, rng_err, geo.model)
     t, q_log = geo.plan.t, geo.q_enc
     noise = scenario.noise
@@ -175,21 +232,47 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
     pts = points[meas.valid & (geo.plan.line >= 0)[:, None]]
     if 0 < loc["points"] < len(pts):  # a random subset of the valid points, drawn per trial
         pts = pts[np.sort(rng_subset.choice(len(pts), loc["points"], replace=False))]
-    t0 = time.perf_counter()
-    try:
-        res = localize(pts, geo.realized.workpiece.mesh, method=loc["method"], init=T_init,
-                       sigma=sensor_sigma_m(scenario) or None, index=geo.realized.workpiece.index)
-    except AlgorithmError:
-        return _failed("error", len(pts), time.perf_counter() - t0)
-    return _metrics(res.T_world_workpiece, T_true, res.rmse_m, res.iterations, res.status.value,
-                    res.time_s, len(pts))
+    workpiece = geo.realized.workpiece
+    T_init = start_pose(T_true, loc, pts, workpiece.mesh, rng_init)
+    return _localize(loc, pts, workpiece, T_true, T_init, sensor_sigma_m(scenario) or None, rng_method)
+
+
+_PARTS: dict[str, tuple[Realized, dict]] = {}
+
+
+def part_design(scenario: Scenario, points: dict) -> tuple[Realized, Design]:
+    """The realized scenario (part, truth) and the design of its point sets, cached per process."""
+    key = scenario_key(scenario)
+    if key not in _PARTS:
+        if len(_PARTS) >= _CACHE_SIZE:
+            _PARTS.pop(next(iter(_PARTS)))
+        _PARTS[key] = (realize(scenario), {})
+    realized, designs = _PARTS[key]
+    dkey = json.dumps({k: points[k] for k in ("region", "layout", "grid_rows", "grid_cols")}, sort_keys=True)
+    if dkey not in designs:
+        designs[dkey] = make_design(realized.workpiece.mesh, points)
+    return realized, designs[dkey]
+
+
+def points_trial(study: Study, cell: int, trial: int) -> dict:
+    settings = study.cell_settings(cell)
+    loc, spec = settings.localize, settings.points
+    scenario = load_scenario(settings.scenario_path, settings.overrides, machine="arm")
+    realized, design = part_design(scenario, spec)
+    rng_init, rng_err, rng_points, rng_method = trial_streams(study.seed, cell, trial)
+    workpiece, T_true = realized.workpiece, realized.T_base_workpiece_true
+    x = model_points(workpiece.mesh, design, spec, loc["subsample"], rng_points)
+    cp = workpiece.index.query(x)
+    pts = measured_points(x, workpiece.index.smooth_normals(cp.face, cp.foot), T_true, spec, rng_err)
+    T_init = start_pose(T_true, loc, pts, workpiece.mesh, rng_init)
+    return _localize(loc, pts, workpiece, T_true, T_init, spec["noise_sigma_m"], rng_method)
 
 
 def full_trial(study: Study, cell: int, trial: int) -> dict:
-    over, _ = study.cell_settings(cell)
-    _, rng_err, _ = trial_streams(study.seed, cell, trial)
+    settings = study.cell_settings(cell)
+    _, rng_err, _, _ = trial_streams(study.seed, cell, trial)
     seed = int(rng_err.integers(0, 2**63 - 1))
-    scenario = load_scenario(study.scenario_path, merge_tables(over, {"seed": seed}), machine="arm")
+    scenario = load_scenario(settings.scenario_path, merge_tables(settings.overrides, {"seed": seed}), machine="arm")
     realized = realize(scenario)
     try:
         result = run_loop(realized)
@@ -198,7 +281,8 @@ def full_trial(study: Study, cell: int, trial: int) -> dict:
     loc = result.localization
     if loc is None:
         return _failed(f"failed_{result.failure[0]}" if result.failure else "failed")
-    n = len(result.scan.line_points_base) if result.scan is not None else 0
-    out = _metrics(loc.T_world_workpiece, realized.T_base_workpiece_true, loc.rmse_m, loc.iterations,
-                   loc.status.value, result.timings_s.get("localize_s", loc.time_s), n)
-    return out
+    pts = result.scan.line_points_base if result.scan is not None else np.empty((0, 3))
+    T_true = realized.T_base_workpiece_true
+    out = Outcome(loc.T_world_workpiece, loc.rmse_m, loc.iterations, loc.status.value,
+                  result.timings_s.get("localize_s", loc.time_s))
+    return _metrics(out, T_true, len(pts), bound(pts, T_true, realized.workpiece.index, sensor_sigma_m(scenario)))

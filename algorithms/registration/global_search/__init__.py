@@ -42,6 +42,7 @@ from algorithms.registration.global_search.search import (
     GlobalDiagnostics,
     GlobalLocalizationResult,
     global_localize,
+    pso_refine,
 )
 from algorithms.registration.global_search.verify import (
     AMBIGUITY_CHI2,
@@ -50,6 +51,7 @@ from algorithms.registration.global_search.verify import (
 )
 
 __all__ = [
+    "pso_refine",
     "AMBIGUITY_CHI2",
     "CONVERGENCE_RADIUS_DEG",
     "DEFAULT_MODEL_ERROR_M",

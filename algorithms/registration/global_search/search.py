@@ -52,6 +52,7 @@ from algorithms.registration.result import RegistrationResult, Status
 from algorithms.registration.robust import outlier_config
 
 __all__ = [
+    "pso_refine",
     "DEFAULT_MODEL_ERROR_M",
     "DEFAULT_POLISH",
     "GLOBAL_METHODS",
@@ -352,3 +353,37 @@ def global_localize(
         time_s=time.perf_counter() - t0,
     )
     return GlobalLocalizationResult(**base, candidates=verdict.candidates, diagnostics=diagnostics)
+
+
+def pso_refine(points, T_init, *, index=None, mesh=None, rng: np.random.Generator | None = None,
+               rotation_range_rad: float = math.radians(5.0), translation_range_m: float | None = None,
+               particles: int = PSO_PARTICLES, iterations: int = PSO_ITERATIONS) -> tuple[np.ndarray, PSODiagnostics]:
+    """Document 003's step 4 alone: the particle swarm from a given pre-registration
+    ``T_init`` (workpiece to world), exact nearest model points, no polish.
+
+    Args:
+        points: (N, 3) [m] measured points, world frame (all of them are the swarm's points).
+        T_init: (4, 4) the pre-registration.
+        index / mesh: the CAD model's :class:`MeshIndex` or its mesh.
+        rng: the swarm's random generator (default ``np.random.default_rng(0)``).
+        rotation_range_rad, translation_range_m: the search ranges around ``T_init`` (default
+            5 degrees and 2 % of the model's size, as :func:`global_localize`).
+        particles, iterations: the patent's 40 and 100 by default.
+
+    Returns:
+        (the swarm's pose ``T_init @ Delta(g_best)`` (4, 4), its diagnostics).
+    """
+    P, rows = finite_rows(points)
+    y = P[rows]
+    index = mesh_index(mesh, index)
+    check_units(y, index)
+    T_init = np.asarray(T_init, dtype=np.float64)
+    if T_init.shape != (4, 4) or not np.all(np.isfinite(T_init)):
+        raise AlgorithmError(f"T_init must be a finite (4, 4) pose, got shape {T_init.shape}")
+    rng = np.random.default_rng(0) if rng is None else rng
+    dc = y - y.mean(axis=0)
+    L = float(np.sqrt(np.mean(np.einsum("ij,ij->i", dc, dc)))) or float(index.extent)
+    trange = 0.02 * float(index.extent) if translation_range_m is None else float(translation_range_m)
+    T, diag, _ = pso_stage(ExactOracle(index), y, T_init, L, rng, rotation_range_rad=rotation_range_rad,
+                           translation_range_m=trange, particles=particles, iterations=iterations, fitness="exact")
+    return T, diag
