@@ -26,6 +26,8 @@ def numerical_tolerance(u: float, digits: int) -> float:
     if not (math.isfinite(u) and u > 0):
         return 0.0
     exponent = math.floor(math.log10(u)) - digits + 1
+    if round(u / 10.0**exponent) >= 10**digits:  # 0.998 with one digit is 1 x 10^0, not 9 x 10^-1
+        exponent += 1
     return 0.5 * 10.0**exponent
 
 

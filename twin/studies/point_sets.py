@@ -3,9 +3,11 @@
 "Sample points uniformly on the CAD surfaces, apply known transforms, add noise N(mu, sigma^2)":
 the points lie on the faces of the scenario's part selected by ``points.region`` (workpiece
 frame), either drawn uniformly by area per trial (``layout = "random"``, ``count`` points) or
-on a fixed ``grid_rows x grid_cols`` grid over the region seen from above (``layout = "grid"``:
-rays cast along -z through a regular grid over the region's x-y bounding box; a node whose ray
-first meets an unselected face, or nothing, is a hole in the grid). The known transform is the
+on fixed ``grid_rows x grid_cols`` grids, one per selector of the region, as the document
+samples "a single surface uniformly on an M x N grid" (``layout = "grid"``: rays cast against
+the selector's ``normal``, or along -z, through a regular grid over the bounding rectangle of
+its faces seen from that direction; a node whose ray first meets a face outside the selector,
+or nothing, is a hole in the grid). Subsampling rules apply to each grid. The known transform is the
 scenario's true placement; the noise is ``noise_mean_m + noise_sigma_m * N(0, 1)`` on each
 coordinate of the measured point in the machine frame (``noise_direction = "isotropic"``) or
 along the surface normal (``"normal"``).
@@ -32,27 +34,33 @@ from algorithms.registration.subsampling import (
 from twin.errors import TwinError
 
 
+def _selector_faces(mesh, sel: dict) -> np.ndarray:
+    """(F,) bool: the faces that pass one selector."""
+    ok = np.ones(len(mesh.faces), dtype=bool)
+    if "normal" in sel:
+        axis = np.asarray(sel["normal"], dtype=np.float64)
+        axis /= np.linalg.norm(axis)
+        ok &= np.asarray(mesh.face_normals) @ axis >= np.cos(np.radians(sel["cone_deg"])) - 1e-12
+    if "box_min_m" in sel:
+        centroids = np.asarray(mesh.triangles_center)
+        ok &= np.all((centroids >= sel["box_min_m"]) & (centroids <= sel["box_max_m"]), axis=1)
+    return ok
+
+
+def _nonempty(mesh, faces: np.ndarray, what: list) -> np.ndarray:
+    if len(faces) == 0 or float(np.asarray(mesh.area_faces)[faces].sum()) <= 0.0:
+        raise TwinError(f"points.region {json.dumps(what)} selects no face of the part")
+    return faces
+
+
 def select_faces(mesh, region: list[dict]) -> np.ndarray:
     """Indices of the faces of ``mesh`` that ``region`` selects (module docstring)."""
-    n_faces = len(mesh.faces)
     if not region:
-        return np.arange(n_faces)
-    normals = np.asarray(mesh.face_normals)
-    centroids = np.asarray(mesh.triangles_center)
-    keep = np.zeros(n_faces, dtype=bool)
+        return np.arange(len(mesh.faces))
+    keep = np.zeros(len(mesh.faces), dtype=bool)
     for sel in region:
-        ok = np.ones(n_faces, dtype=bool)
-        if "normal" in sel:
-            axis = np.asarray(sel["normal"], dtype=np.float64)
-            axis /= np.linalg.norm(axis)
-            ok &= normals @ axis >= np.cos(np.radians(sel["cone_deg"])) - 1e-12
-        if "box_min_m" in sel:
-            ok &= np.all((centroids >= sel["box_min_m"]) & (centroids <= sel["box_max_m"]), axis=1)
-        keep |= ok
-    faces = np.flatnonzero(keep)
-    if len(faces) == 0 or float(np.asarray(mesh.area_faces)[faces].sum()) <= 0.0:
-        raise TwinError(f"points.region {json.dumps(region)} selects no face of the part")
-    return faces
+        keep |= _selector_faces(mesh, sel)
+    return _nonempty(mesh, np.flatnonzero(keep), region)
 
 
 @dataclass(frozen=True)
@@ -61,59 +69,69 @@ class Design:
 
     Attributes:
         faces: the selected faces; ``weights``: their areas normalised to 1.
-        grid: (M, N, 3) [m] the grid's model points (NaN where the grid has a hole), or None.
+        grids: ``layout = "grid"``: one (M, N, 3) [m] array of model points per selector (NaN
+            where the grid has a hole); else empty.
     """
 
     faces: np.ndarray
     weights: np.ndarray
-    grid: np.ndarray | None
+    grids: tuple = ()
 
 
 def make_design(mesh, points: dict) -> Design:
     faces = select_faces(mesh, points["region"])
     area = np.asarray(mesh.area_faces)[faces]
-    grid = None
+    grids: tuple = ()
     if points["layout"] == "grid":
-        grid = _grid_points(mesh, faces, points["grid_rows"], points["grid_cols"])
-    return Design(faces, area / area.sum(), grid)
+        selectors = points["region"] or [{}]
+        grids = tuple(_grid_points(mesh, sel, points["grid_rows"], points["grid_cols"]) for sel in selectors)
+        if sum(int(np.all(np.isfinite(g), axis=2).sum()) for g in grids) < 6:
+            raise TwinError(f"points.layout = 'grid': fewer than 6 grid nodes fall on points.region "
+                            f"{json.dumps(points['region'])}")
+    return Design(faces, area / area.sum(), grids)
 
 
-def _grid_points(mesh, faces: np.ndarray, rows: int, cols: int) -> np.ndarray:
-    """The first hit from above of a ``rows x cols`` grid of vertical rays over the region."""
+def _grid_points(mesh, sel: dict, rows: int, cols: int) -> np.ndarray:
+    """The first hits of a ``rows x cols`` grid of parallel rays cast against the selector's
+    normal (or along -z) over its faces (module docstring); the longer side gets the columns."""
+    faces = _nonempty(mesh, np.flatnonzero(_selector_faces(mesh, sel)), [sel])
+    n = np.asarray(sel.get("normal", [0.0, 0.0, 1.0]), dtype=np.float64)
+    n /= np.linalg.norm(n)
+    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
     verts = np.asarray(mesh.triangles)[faces].reshape(-1, 3)
-    lo, hi = verts.min(axis=0), verts.max(axis=0)
-    pad = 1e-6 * max(float(np.max(hi - lo)), 1e-3)
-    # node centres of an even grid (rows along y, columns along x: M <= N puts N on the longer side
-    # when x is longer)
-    xs = lo[0] + (np.arange(cols) + 0.5) * (hi[0] - lo[0]) / cols
-    ys = lo[1] + (np.arange(rows) + 0.5) * (hi[1] - lo[1]) / rows
-    X, Y = np.meshgrid(xs, ys)
-    top = float(np.asarray(mesh.bounds)[1, 2]) + 1.0 + pad
-    origins = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, top)])
-    directions = np.tile([0.0, 0.0, -1.0], (X.size, 1))
+    pa, pb = verts @ a, verts @ b
+    (a0, a1), (b0, b1) = (pa.min(), pa.max()), (pb.min(), pb.max())
+    if a1 - a0 < b1 - b0:  # columns along the longer side
+        a, b, (a0, a1), (b0, b1) = b, a, (b0, b1), (a0, a1)
+    ca = a0 + (np.arange(cols) + 0.5) * (a1 - a0) / cols
+    cb = b0 + (np.arange(rows) + 0.5) * (b1 - b0) / rows
+    A, B = np.meshgrid(ca, cb)
+    lift = float(np.max(np.asarray(mesh.vertices) @ n)) + 1.0
+    origins = A.reshape(-1, 1) * a + B.reshape(-1, 1) * b + lift * n
+    directions = np.tile(-n, (A.size, 1))
     tri, ray, loc = mesh.ray.intersects_id(origins, directions, multiple_hits=False, return_locations=True)
-    out = np.full((X.size, 3), np.nan)
+    out = np.full((A.size, 3), np.nan)
     selected = np.isin(tri, faces)
     out[ray[selected]] = loc[selected]
-    if np.count_nonzero(np.all(np.isfinite(out), axis=1)) < 6:
-        raise TwinError(f"points.layout = 'grid': fewer than 6 of the {rows} x {cols} grid nodes fall on the region")
     return out.reshape(rows, cols, 3)
 
 
 def model_points(mesh, design: Design, points: dict, subsample: str, rng: np.random.Generator) -> np.ndarray:
     """This trial's model points (K, 3) [m], workpiece frame: ``count`` random points, or the
     grid's nodes kept by the subsampling rule (holes dropped)."""
-    if design.grid is None:
+    if not design.grids:
         f = design.faces[rng.choice(len(design.faces), size=points["count"], p=design.weights)]
         u = rng.uniform(size=(points["count"], 2))
         flip = u.sum(axis=1) > 1.0
         u[flip] = 1.0 - u[flip]
         t = np.asarray(mesh.triangles)[f]
         return t[:, 0] + u[:, :1] * (t[:, 1] - t[:, 0]) + u[:, 1:] * (t[:, 2] - t[:, 0])
-    M, N = design.grid.shape[:2]
+    M, N = design.grids[0].shape[:2]
     rule = {"none": lambda: full_grid(M, N), "hammersley": lambda: pseudo_hammersley_subsample(M, N),
             "uniform": lambda: uniform_subsample(M, N), "random": lambda: random_subsample(M, N, rng)}[subsample]
-    kept = rule().take(design.grid)
+    kept = np.concatenate([rule().take(grid) for grid in design.grids])
     return kept[np.all(np.isfinite(kept), axis=1)]
 
 

@@ -23,8 +23,11 @@ Columns of the tables (one row per trial):
   distance between the estimate and the truth;
 * ``rmse_um`` [um]: RMS point-to-model distance of the inliers at the estimate;
 * ``iterations`` (int): pose updates; ``status`` (str): the localization's verdict (``ok``, ...,
-  ``error`` where it raised); ``time_s`` [s]: wall time of the localization (not reproducible);
-  ``n_points`` (int): points handed to the localization.
+  ``error`` where it raised, ``not_installed`` for a missing peer); ``time_s`` [s]: wall time of
+  the localization (not reproducible); ``n_points`` (int): points handed to the localization;
+* ``crlb_rotation_urad``, ``crlb_translation_um``, ``mahalanobis2``: the Cramer-Rao bound of the
+  trial's points at the truth and the pose error's squared Mahalanobis distance under it;
+  ``path_error_max_um``: the compensated CAD path's largest error (full trials; NaN otherwise).
 """
 
 from __future__ import annotations
@@ -168,10 +171,15 @@ def rows_table(study: Study, rows: list[dict]) -> pa.Table:
     cells = study.cells
     cols: dict[str, list] = {"cell": [r["cell"] for r in rows], "trial": [r["trial"] for r in rows]}
     for f in study.factors:
-        cols[f] = [cells[r["cell"]][f] for r in rows]
+        # a table-valued factor (``overrides``) is one JSON text per row
+        cols[f] = [_column_value(cells[r["cell"]][f]) for r in rows]
     for m in METRIC_COLUMNS:
         cols[m] = [r[m] for r in rows]
     return pa.table(cols)
+
+
+def _column_value(v):
+    return json.dumps(v, sort_keys=True) if isinstance(v, dict) else v
 
 
 # ------------------------------------------------------------------ executors

@@ -4,8 +4,9 @@ A study names a base scenario, optional overrides of it, the localization settin
 ``kind = "points"`` the sampled point sets, a grid of factors and how many trials each grid
 cell gets, or an adaptive rule (``studies/README.md`` documents every key). A grid key is a
 dotted key path into the scenario (``"sensor.sigma_m"``), into the localization
-(``"localize.method"``), into the point sets (``"points.noise_sigma_m"``), or ``"scenario"``
-(a list of scenario files: several base scenarios in one study). Every grid value is checked
+(``"localize.method"``), into the point sets (``"points.noise_sigma_m"``), ``"scenario"``
+(a list of scenario files: several base scenarios in one study) or ``"overrides"`` (a list of
+tables merged over the scenario: variants that change several keys at once). Every grid value is checked
 before any trial runs: a scenario factor by loading the scenario with the override, the
 others against their allowed ranges.
 """
@@ -199,6 +200,8 @@ class Study:
         for key, v in values.items():
             if key == "scenario":
                 path = _scenario_file(self.base_dir, v)
+            elif key == "overrides":
+                over = merge_tables(over, v)
             elif key.startswith("localize."):
                 loc[key.split(".", 1)[1]] = v
             elif key.startswith("points."):
@@ -289,9 +292,28 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
     study = Study(name, seed, scenario_path, trials, kind, copy.deepcopy(overrides), loc, tuple(factors),
                   tuple(levels), copy.deepcopy(raw), "\n".join(texts), pts, adaptive,
                   base_dir.resolve(), success)
+    designs: set[str] = set()
     for cell in range(study.n_cells):
-        _check_cell(study.cell_settings(cell), kind)
+        settings = study.cell_settings(cell)
+        _check_cell(settings, kind)
+        if kind == "points":
+            _check_design(settings, designs)
     return study
+
+
+def _check_design(cell: CellSettings, seen: set[str]) -> None:
+    """Refuse a region that selects no face or a grid that misses it, once per distinct part
+    and design (before any trial runs)."""
+    from twin.realize import load_workpiece_mesh
+    from twin.studies.point_sets import make_design
+
+    key = json.dumps([str(cell.scenario_path), cell.overrides,
+                      {k: cell.points[k] for k in ("region", "layout", "grid_rows", "grid_cols")}],
+                     sort_keys=True, default=str)
+    if key in seen:
+        return
+    seen.add(key)
+    make_design(load_workpiece_mesh(load_scenario(cell.scenario_path, cell.overrides, machine="arm")), cell.points)
 
 
 def _scenario_file(base_dir: Path, value: Any) -> Path:
@@ -326,6 +348,18 @@ def _check_factor(key: str, values: tuple, kind: str, scenario_paths: list[Path]
         raise TwinError(f"grid key {key!r} is not a dotted key path (e.g. 'sensor.sigma_m', 'localize.method')")
     if key == "scenario":
         return  # each file was loaded above
+    if key == "overrides":
+        for v in values:
+            if not isinstance(v, dict):
+                raise TwinError(f"grid 'overrides' values must be tables of scenario tables "
+                                f"(e.g. {{ noise = {{ encoder_sigma_rad = 1e-5 }} }}), got {v!r}")
+            for sp in scenario_paths:
+                try:
+                    load_scenario(sp, merge_tables(overrides, v), machine="arm")
+                except TwinError as exc:
+                    raise TwinError(f"grid 'overrides' value {v!r} is refused: {' '.join(str(exc).split())}") \
+                        from None
+        return
     if parts[0] in ("localize", "points"):
         keys = LOCALIZE_KEYS if parts[0] == "localize" else POINTS_KEYS
         if len(parts) != 2 or parts[1] not in keys:

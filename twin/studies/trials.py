@@ -28,7 +28,9 @@ Kinds:
 Every kind also reports the Cramer-Rao bound of its point set at the truth (smooth normals of
 the model, the sensor's or the points' sigma): the root of the trace of its rotation and
 translation blocks, and the squared Mahalanobis distance ``xi^T C^-1 xi`` of the pose error
-(mean 6 at the bound), NaN where the points do not fix all six directions.
+(mean 6 at the bound), NaN where the points do not fix all six directions. A full trial also
+reports ``path_error_max_um``, how far the CAD path compensated with the estimate lies from
+the same path on the true part (NaN for the other kinds).
 """
 
 from __future__ import annotations
@@ -63,7 +65,8 @@ from twin.studies.spec import Study
 #: The metric columns of a trial, in order (units in :mod:`twin.studies.runner`'s docstring).
 TWIST_COLUMNS = ("omega_x_urad", "omega_y_urad", "omega_z_urad", "v_x_um", "v_y_um", "v_z_um")
 METRIC_COLUMNS = TWIST_COLUMNS + ("rotation_error_deg", "translation_error_um", "rmse_um", "iterations", "status",
-                                  "time_s", "n_points", "crlb_rotation_urad", "crlb_translation_um", "mahalanobis2")
+                                  "time_s", "n_points", "crlb_rotation_urad", "crlb_translation_um", "mahalanobis2",
+                                  "path_error_max_um")
 
 
 @dataclass(frozen=True)
@@ -174,7 +177,7 @@ def _metrics(out: Outcome, T_true: np.ndarray, n_points: int, C: np.ndarray | No
     m.update(rotation_error_deg=float(np.degrees(rotation_error_rad(T_est, T_true))),
              translation_error_um=float(translation_error_m(T_est, T_true) * 1e6), rmse_um=float(out.rmse_m * 1e6),
              iterations=int(out.iterations), status=out.status, time_s=float(out.time_s), n_points=int(n_points),
-             **_bound_columns(C, xi))
+             path_error_max_um=float("nan"), **_bound_columns(C, xi))
     return m
 
 
@@ -189,7 +192,8 @@ def _bound_columns(C: np.ndarray | None, xi: np.ndarray | None) -> dict:
 def _failed(status: str, n_points: int = 0, time_s: float = 0.0, C: np.ndarray | None = None) -> dict:
     out = {name: float("nan") for name in TWIST_COLUMNS}
     out.update(rotation_error_deg=float("nan"), translation_error_um=float("nan"), rmse_um=float("nan"),
-               iterations=0, status=status, time_s=float(time_s), n_points=int(n_points), **_bound_columns(C, None))
+               iterations=0, status=status, time_s=float(time_s), n_points=int(n_points),
+               path_error_max_um=float("nan"), **_bound_columns(C, None))
     return out
 
 
@@ -285,4 +289,17 @@ def full_trial(study: Study, cell: int, trial: int) -> dict:
     T_true = realized.T_base_workpiece_true
     out = Outcome(loc.T_world_workpiece, loc.rmse_m, loc.iterations, loc.status.value,
                   result.timings_s.get("localize_s", loc.time_s))
-    return _metrics(out, T_true, len(pts), bound(pts, T_true, realized.workpiece.index, sensor_sigma_m(scenario)))
+    m = _metrics(out, T_true, len(pts), bound(pts, T_true, realized.workpiece.index, sensor_sigma_m(scenario)))
+    m["path_error_max_um"] = path_error_max_um(result.cad_path_workpiece, loc.T_world_workpiece, T_true)
+    return m
+
+
+def path_error_max_um(path, T_est: np.ndarray, T_true: np.ndarray) -> float:
+    """How far the CAD path compensated with the estimate lies from the same path on the true
+    part: the largest ``|T_est x - T_true x|`` over its contact points ``x`` [um] (NaN: no path)."""
+    if path is None:
+        return float("nan")
+    x = path.contact[np.all(np.isfinite(path.contact), axis=1)]
+    if len(x) == 0:
+        return float("nan")
+    return float(np.max(np.linalg.norm(transform_points(T_est, x) - transform_points(T_true, x), axis=1)) * 1e6)
