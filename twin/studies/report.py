@@ -8,7 +8,8 @@ at the truth), and for each pose-error component (the twist ``[omega, v]`` in th
 frame, in urad and um), the rotation and translation errors and the rmse: the mean, the
 standard deviation and the 95 % coverage interval (the 2.5 and 97.5 percentiles) over the
 trials with status ``ok``. Components are given only where the trials' points fix all six
-directions (a bound exists for every trial); elsewhere only the error magnitudes.
+directions (a bound exists for every trial); elsewhere only the error magnitudes. Full trials
+add the compensated CAD path's largest error (``path_error_max_um``).
 
 Plots, each where the grid has the factor it needs (series: the other factors' values):
 
@@ -31,6 +32,7 @@ import numpy as np
 import pyarrow as pa
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import ScalarFormatter
 
 from twin.studies.spec import Study
 from twin.studies.trials import TWIST_COLUMNS
@@ -78,8 +80,9 @@ def cell_stats(table: pa.Table, cell: int, success: dict | None = None) -> dict:
                  "determined": bool(len(m2)) and bool(np.all(np.isfinite(m2))),
                  "crlb_ratio": float(np.sqrt(np.mean(m2) / 6.0)) if len(m2) and np.all(np.isfinite(m2))
                  else float("nan")}
-    for c in STAT_COLUMNS:
-        out[c] = summary_stats(_col(table, c)[sel][ok])
+    for c in STAT_COLUMNS + ("path_error_max_um",):
+        if c in table.column_names:
+            out[c] = summary_stats(_col(table, c)[sel][ok])
     return out
 
 
@@ -108,15 +111,18 @@ def write_report(study: Study, table: pa.Table, out: Path, adaptive: dict | None
              "coverage interval is the 2.5 and 97.5 percentiles.", ""]
     head += [f"![{p.stem}]({p.name})" for p in plots] + [""]
     factors = list(study.factors)
+    path = study.kind == "full"  # the compensated CAD path's error is known
     head += ["| cell | " + " | ".join(f"`{f}`" for f in factors) + " | trials | ok | within | "
-             "translation error mean [um] | rotation error mean [deg] | CRLB ratio | median time [ms] |",
-             "|---" * (len(factors) + 8) + "|"]
+             "translation error mean [um] | rotation error mean [deg] | CRLB ratio | "
+             + ("compensated path error, max, mean [um] | " if path else "") + "median time [ms] |",
+             "|---" * (len(factors) + 8 + path) + "|"]
     for i, values in enumerate(cells):
         s = stats[i]
         head.append(f"| {i} | " + " | ".join(str(values[f]) for f in factors) + f" | {s['n']} | "
                     f"{s['success_rate'] * 100:.0f} % | {s['within_rate'] * 100:.0f} % | "
                     f"{_fmt(s['translation_error_um'][0])} | {_fmt(s['rotation_error_deg'][0])} | "
-                    f"{_fmt(s['crlb_ratio'])} | {s['median_time_s'] * 1e3:.3g} |")
+                    f"{_fmt(s['crlb_ratio'])} | " + (f"{_fmt(s['path_error_max_um'][0])} | " if path else "")
+                    + f"{s['median_time_s'] * 1e3:.3g} |")
     head.append("")
     lines = head
     for i, values in enumerate(cells):
@@ -130,7 +136,7 @@ def write_report(study: Study, table: pa.Table, out: Path, adaptive: dict | None
                   f"{s['n']} trials, status ok {s['success_rate'] * 100:.1f} %, within tolerance "
                   f"{s['within_rate'] * 100:.1f} %, median localization time {s['median_time_s'] * 1e3:.3g} ms, "
                   f"CRLB ratio {_fmt(s['crlb_ratio'])}.{extra}", ""]
-        columns = STAT_COLUMNS if s["determined"] else MAGNITUDE_COLUMNS
+        columns = (STAT_COLUMNS if s["determined"] else MAGNITUDE_COLUMNS) + (("path_error_max_um",) if path else ())
         if not s["determined"]:
             lines += ["The points of some trials leave a direction free or weak: no component is reported.", ""]
         lines += ["| quantity | mean | std | 2.5 % | 97.5 % |", "|---|---|---|---|---|"]
@@ -239,6 +245,9 @@ def _plot_crlb(study: Study, table: pa.Table) -> Figure | None:
         ax.set_ylabel(what)
         ax.set_xscale("log")
         ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_formatter(ScalarFormatter())
+            axis.set_minor_formatter(ScalarFormatter())
         ax.grid(True, alpha=0.3, which="both")
         ax.legend(fontsize=7)
     fig.suptitle(f"study {study.name}: pose error against sigma, with the Cramer-Rao bound", fontsize=10)
@@ -283,22 +292,33 @@ def _plot_subsampling(study: Study, stats: list[dict]) -> Figure | None:
     factor = "localize.subsample"
     if factor not in study.factors or "none" not in study.levels[study.factors.index(factor)]:
         return None
-    fig, ax = _figure(f"study {study.name}: accuracy kept against time saved")
+    fig = Figure(figsize=(8.0, 5.0), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.set_title(f"study {study.name}: accuracy kept against time saved", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    rules = [r for r in study.levels[study.factors.index(factor)] if r != "none"]
+    colours = {r: f"C{k}" for k, r in enumerate(rules)}
     for label, cells in _series(study, factor).items():
         by_rule = {study.cells[i][factor]: stats[i] for i in cells}
         ref = by_rule.get("none")
         if ref is None:
             continue
-        for rule, s in by_rule.items():
-            if rule == "none":
+        for rule in rules:
+            s = by_rule.get(rule)
+            if s is None:
                 continue
-            kept = _rms_of(ref) / _rms_of(s)
-            saved = 1.0 - s["median_time_s"] / ref["median_time_s"]
-            ax.plot(saved * 100, kept * 100, "o")
-            ax.annotate(f"{rule} ({label})", (saved * 100, kept * 100), fontsize=7)
-    ax.axhline(90, color="grey", lw=0.8, ls="--")
-    ax.set_xlabel("time saved [%]")
-    ax.set_ylabel("accuracy kept [%] (RMS translation error, full / subset)")
+            kept = _rms_of(ref) / _rms_of(s) * 100
+            saved = (1.0 - s["median_time_s"] / ref["median_time_s"]) * 100
+            ax.plot(saved, kept, "o", color=colours[rule])
+            ax.annotate(", ".join(p.split("=", 1)[-1] for p in label.split(", ")), (saved, kept), fontsize=6,
+                        xytext=(3, 2), textcoords="offset points", color=colours[rule])
+    for rule in rules:
+        ax.plot([], [], "o", color=colours[rule], label=rule)
+    ax.axhline(90, color="grey", lw=0.8, ls="--", label="90 % of the accuracy")
+    ax.set_xlabel("time saved [%] (median time, against no subsampling)")
+    ax.set_ylabel("accuracy kept [%] (RMS translation error, all / subset)")
+    ax.legend(fontsize=8, title=", ".join(f.split(".")[-1] for f in study.factors if f != factor), title_fontsize=7)
     return fig
 
 
