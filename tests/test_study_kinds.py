@@ -155,3 +155,35 @@ def test_parse_keeps_defaults_of_an_old_study(tmp_path):
     study = parse_study(raw, tmp_path)
     assert study.localize["init_position"] == "truth" and study.localize["subsample"] == "none"
     assert study.adaptive is None and study.kind == "fast"
+
+
+def test_normals_trials_reproduce_document_004_on_scan_lines(tmp_path):
+    """Triangulation across lines is within a degree on the B-spline lines; PCA with 8
+    neighbours, all on the point's own line, is off by tens of degrees (the document's point)."""
+    p = tmp_path / "n.toml"
+    p.write_text(f'scenario = "{SCENARIOS / "s_surface.toml"}"\nkind = "normals"\ntrials = 1\n'
+                 '[overrides.scan]\nmax_lines = 3\n[normals]\ncloud = "bspline"\n'
+                 '[grid]\nnormals = [{ method = "triangulation" }, { method = "pca", k = 8 }]\n')
+    study = load_study(p)
+    tri, pca = (run_trial(study, c, 0) for c in range(2))
+    assert tri["status"] == pca["status"] == "ok" and tri["n_points"] > 100
+    assert tri["angle_rms_deg"] < 1.0 and tri["over_5deg_share"] == 0.0
+    assert pca["angle_rms_deg"] > 30.0
+    out = tmp_path / "out"
+    run_study(study, out)
+    assert "RMS angle" in (out / "report.md").read_text() and (out / "normals.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("text, words", [
+    ('kind = "normals"\n[adaptive]\ndigits = 1\n', "[adaptive]"),
+    ('kind = "fast"\n[normals]\nk = 8\n', "kind = 'normals'"),
+    ('kind = "normals"\n[grid]\nnormals = [{ method = "sobel" }]\n', "normals"),
+    ('kind = "normals"\n[grid]\n"localize.method" = ["icp"]\n', "localize.method"),
+    ('kind = "normals"\n[overrides.sensor]\nkind = "line"\n', "point sensor"),
+])
+def test_bad_normals_studies_are_refused(tmp_path, text, words):
+    p = tmp_path / "n.toml"
+    p.write_text(f'scenario = "{SCENARIOS / "s_surface.toml"}"\n' + text)
+    with pytest.raises(TwinError) as err:
+        load_study(p)
+    assert words in str(err.value)

@@ -90,6 +90,8 @@ def write_report(study: Study, table: pa.Table, out: Path, adaptive: dict | None
     """Write ``report.md`` and the plots into ``out``; returns their paths (report first).
     ``adaptive``: per cell, the trials the adaptive rule ran and whether it was met."""
     out = Path(out)
+    if study.kind == "normals":
+        return _write_normals_report(study, table, out)
     cells = study.cells
     stats = [cell_stats(table, i, study.success) for i in range(study.n_cells)]
     plots = _plots(study, table, stats, out)
@@ -149,6 +151,55 @@ def write_report(study: Study, table: pa.Table, out: Path, adaptive: dict | None
     tmp.write_text("\n".join(lines))
     tmp.replace(report)
     return [report, *plots]
+
+
+def _write_atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+NORMALS_STATS = ("angle_rms_deg", "angle_p95_deg", "angle_max_deg", "over_5deg_share")
+
+
+def _write_normals_report(study: Study, table: pa.Table, out: Path) -> list[Path]:
+    """``kind = "normals"``: per cell the mean (and standard deviation) over the trials of each
+    angle statistic, and a plot of the RMS angle per cell."""
+    cell = _col(table, "cell", np.int64)
+    ok = _col(table, "status", object) == "ok"
+    factors = list(study.factors)
+    lines = [f"# Study `{study.name}`", "",
+             f"Base scenario `{study.scenario_path.name}`, normals trials (document 004), seed {study.seed}, "
+             f"{study.n_cells} cell(s), {study.trials} trial(s) per cell. Normals: "
+             + ", ".join(f"{k} = {v}" for k, v in study.normals.items()) + ".", "",
+             "Angles between the estimated normals and the model's smooth normals at the true pose, per "
+             "trial over every point of the cloud (PCA unsigned); the table gives the mean and the standard "
+             "deviation over the trials with status `ok`.", "", "![normals](normals.png)", "",
+             "| cell | " + " | ".join(f"`{f}`" for f in factors) + " | trials | ok | points | RMS angle [deg] | "
+             "95 % angle [deg] | max angle [deg] | share > 5 deg | median time [ms] |",
+             "|---" * (len(factors) + 9) + "|"]
+    labels, rms = [], []
+    for i, values in enumerate(study.cells):
+        sel = (cell == i) & ok
+        st = {c: summary_stats(_col(table, c)[sel]) for c in NORMALS_STATS}
+        n_pts = _col(table, "n_points")[cell == i]
+        t_ms = float(np.median(_col(table, "time_s")[cell == i])) * 1e3
+        lines.append(f"| {i} | " + " | ".join(str(values[f]) for f in factors) + f" | {int((cell == i).sum())} | "
+                     f"{ok[cell == i].mean() * 100:.0f} % | {np.mean(n_pts):.0f} | "
+                     + " | ".join(f"{_fmt(st[c][0])} ± {_fmt(st[c][1])}" for c in NORMALS_STATS[:3])
+                     + f" | {st['over_5deg_share'][0] * 100:.2f} % | {t_ms:.3g} |")
+        labels.append(", ".join(str(values[f]) for f in factors) or "all")
+        rms.append(st["angle_rms_deg"][0])
+    fig, ax = _figure(f"study {study.name}: RMS angle of the normals")
+    ax.barh(np.arange(len(rms)), rms)
+    ax.set_yticks(np.arange(len(rms)), labels, fontsize=7)
+    ax.set_xscale("log")
+    ax.set_xlabel("RMS angle to the true normals [deg]")
+    fig.tight_layout()
+    plot = _save(fig, out / "normals.png")
+    report = out / REPORT
+    _write_atomic_text(report, "\n".join(lines) + "\n")
+    return [report, plot]
 
 
 # ------------------------------------------------------------------ plots

@@ -54,7 +54,7 @@ import pyarrow.parquet as pq
 
 from twin.errors import TwinError
 from twin.studies.spec import Study
-from twin.studies.trials import METRIC_COLUMNS, TWIST_COLUMNS, run_trial
+from twin.studies.trials import TWIST_COLUMNS, metric_columns, run_trial
 
 MANIFEST = "manifest.json"
 RESULTS = "results.parquet"
@@ -173,7 +173,7 @@ def rows_table(study: Study, rows: list[dict]) -> pa.Table:
     for f in study.factors:
         # a table-valued factor (``overrides``) is one JSON text per row
         cols[f] = [_column_value(cells[r["cell"]][f]) for r in rows]
-    for m in METRIC_COLUMNS:
+    for m in metric_columns(study.kind):
         cols[m] = [r[m] for r in rows]
     return pa.table(cols)
 

@@ -27,9 +27,11 @@ from twin.errors import TwinError
 from twin.formats.toml_files import read_toml
 from twin.scenario import Scenario, load_scenario, merge_tables
 
-KINDS = ("fast", "full", "points")
-TOP_KEYS = ("name", "seed", "scenario", "trials", "kind", "overrides", "localize", "points", "adaptive", "success",
-            "grid")
+KINDS = ("fast", "full", "points", "normals")
+TOP_KEYS = ("name", "seed", "scenario", "trials", "kind", "overrides", "localize", "points", "normals", "adaptive",
+            "success", "grid")
+#: The table of each kind's own settings (a grid key ``"points.count"`` needs that kind).
+KIND_TABLES = {"points": "points", "normals": "normals"}
 #: Stages of the global methods run alone: document 001's genetic coarse stage (one GA run, no
 #: fine stage), document 003's swarm without the polish.
 STAGE_METHODS = ("genetic_coarse", "pso_alone")
@@ -58,6 +60,12 @@ POINTS_KEYS: dict[str, tuple[Any, Any, str]] = {
     "noise_direction": ("isotropic", lambda v: v in ("isotropic", "normal"), "'isotropic' or 'normal'"),
     "region": ([], lambda v: _is_region(v), "a list of tables, each with normal = [x, y, z] and cone_deg, "
                "and/or box_min_m = [x, y, z] and box_max_m = [x, y, z] (workpiece frame)"),
+}
+#: Normals of ``kind = "normals"`` (document 004): name -> (default, check, allowed).
+NORMALS_KEYS: dict[str, tuple[Any, Any, str]] = {
+    "method": ("triangulation", lambda v: v in ("triangulation", "pca"), "'triangulation' or 'pca'"),
+    "k": (16, lambda v: _is_int(v) and 3 <= v <= 1000, "an integer in [3, 1000]"),
+    "cloud": ("raw", lambda v: v in ("raw", "simplified", "bspline"), "'raw', 'simplified' or 'bspline'"),
 }
 #: The adaptive rule (JCGM 101, 7.9): name -> (default, check, allowed).
 ADAPTIVE_KEYS: dict[str, tuple[Any, Any, str]] = {
@@ -120,12 +128,13 @@ def _table(raw: dict, name: str, keys: dict) -> dict:
 
 @dataclass(frozen=True)
 class CellSettings:
-    """What one grid cell runs: its scenario file and overrides, localization, point sets."""
+    """What one grid cell runs: its scenario file and overrides, localization, point sets, normals."""
 
     scenario_path: Path
     overrides: dict
     localize: dict
     points: dict
+    normals: dict
 
 
 def _nested(dotted: str, value: Any) -> dict:
@@ -150,6 +159,7 @@ class Study:
         overrides: nested tables merged over the scenario file for every cell.
         localize: the localization settings every cell starts from (``LOCALIZE_KEYS``).
         points: the point sets of ``kind = "points"`` (``POINTS_KEYS``).
+        normals: the normals of ``kind = "normals"`` (``NORMALS_KEYS``).
         adaptive: the adaptive rule (``ADAPTIVE_KEYS``), or None: a fixed number of trials.
         factors: the grid's keys in file order; ``levels``: their value lists.
         raw: the file's content (for the content hash).
@@ -171,6 +181,7 @@ class Study:
     raw: dict = field(repr=False)
     scenario_text: str = field(repr=False, default="")
     points: dict = field(default_factory=dict)
+    normals: dict = field(default_factory=dict)
     adaptive: dict | None = None
     base_dir: Path = Path(".")
     success: dict = field(default_factory=lambda: {k: v[0] for k, v in SUCCESS_KEYS.items()})
@@ -195,20 +206,24 @@ class Study:
         """What grid cell ``cell`` runs: the study's settings with the cell's factor values."""
         values = self.cells[cell]
         over = copy.deepcopy(self.overrides)
-        loc, pts = dict(self.localize), copy.deepcopy(self.points)
+        loc, pts, nrm = dict(self.localize), copy.deepcopy(self.points), dict(self.normals)
         path = self.scenario_path
         for key, v in values.items():
             if key == "scenario":
                 path = _scenario_file(self.base_dir, v)
             elif key == "overrides":
                 over = merge_tables(over, v)
+            elif key == "normals":
+                nrm.update(v)
             elif key.startswith("localize."):
                 loc[key.split(".", 1)[1]] = v
             elif key.startswith("points."):
                 pts[key.split(".", 1)[1]] = v
+            elif key.startswith("normals."):
+                nrm[key.split(".", 1)[1]] = v
             else:
                 over = merge_tables(over, _nested(key, v))
-        return CellSettings(path, over, loc, pts)
+        return CellSettings(path, over, loc, pts, nrm)
 
     def cell_scenario(self, cell: int) -> Scenario:
         s = self.cell_settings(cell)
@@ -226,7 +241,7 @@ class Study:
         """The study as a JSON-ready dict (the manifest)."""
         return {"name": self.name, "seed": self.seed, "scenario": str(self.scenario_path), "trials": self.trials,
                 "kind": self.kind, "overrides": self.overrides, "localize": self.localize,
-                "points": self.points, "adaptive": self.adaptive, "success": self.success,
+                "points": self.points, "normals": self.normals, "adaptive": self.adaptive, "success": self.success,
                 "grid": {k: list(v) for k, v in zip(self.factors, self.levels, strict=True)},
                 "cells": self.n_cells}
 
@@ -261,10 +276,14 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
     if not isinstance(overrides, dict):
         raise TwinError(f"study overrides must be a table of scenario tables, got {overrides!r}")
     loc = _table(raw, "localize", LOCALIZE_KEYS)
-    if "points" in raw and kind != "points":
-        raise TwinError("study [points] needs kind = 'points' (points sampled on the part)")
+    for table, needs in KIND_TABLES.items():
+        if table in raw and kind != needs:
+            raise TwinError(f"study [{table}] needs kind = '{needs}'")
     pts = _table(raw, "points", POINTS_KEYS)
+    nrm = _table(raw, "normals", NORMALS_KEYS)
     adaptive = _table(raw, "adaptive", ADAPTIVE_KEYS) if "adaptive" in raw else None
+    if adaptive is not None and kind == "normals":
+        raise TwinError("study [adaptive] watches pose errors; kind = 'normals' takes a fixed number of trials")
     success = _table(raw, "success", SUCCESS_KEYS)
     grid = raw.get("grid", {})
     if not isinstance(grid, dict):
@@ -290,7 +309,7 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
     for key, values in zip(factors, levels, strict=True):
         _check_factor(key, values, kind, scenario_paths, overrides)
     study = Study(name, seed, scenario_path, trials, kind, copy.deepcopy(overrides), loc, tuple(factors),
-                  tuple(levels), copy.deepcopy(raw), "\n".join(texts), pts, adaptive,
+                  tuple(levels), copy.deepcopy(raw), "\n".join(texts), pts, nrm, adaptive,
                   base_dir.resolve(), success)
     designs: set[str] = set()
     for cell in range(study.n_cells):
@@ -340,6 +359,11 @@ def _check_cell(cell: CellSettings, kind: str) -> None:
                         "document 000's Algorithm 4 needs M <= N")
     if loc["points"] and kind == "points":
         raise TwinError("localize.points subsets scanned points; with kind = 'points' set points.count")
+    if kind == "normals":
+        scenario = load_scenario(cell.scenario_path, cell.overrides, machine="arm")
+        if scenario.sensor.kind != "point":
+            raise TwinError(f"kind = 'normals' needs a point sensor (scan lines of one beam); "
+                            f"{cell.scenario_path.name} has sensor.kind = {scenario.sensor.kind!r}")
 
 
 def _check_factor(key: str, values: tuple, kind: str, scenario_paths: list[Path], overrides: dict) -> None:
@@ -348,6 +372,16 @@ def _check_factor(key: str, values: tuple, kind: str, scenario_paths: list[Path]
         raise TwinError(f"grid key {key!r} is not a dotted key path (e.g. 'sensor.sigma_m', 'localize.method')")
     if key == "scenario":
         return  # each file was loaded above
+    if key == "normals":
+        if kind != "normals":
+            raise TwinError("grid key 'normals' needs kind = 'normals'")
+        for v in values:
+            if not isinstance(v, dict) or not v or set(v) - set(NORMALS_KEYS):
+                raise TwinError(f"grid 'normals' values must be tables of {', '.join(NORMALS_KEYS)} "
+                                f"(e.g. {{ method = 'pca', k = 16 }}), got {v!r}")
+            for k, x in v.items():
+                _check_value(NORMALS_KEYS, k, x, f"grid 'normals' value {k}")
+        return
     if key == "overrides":
         for v in values:
             if not isinstance(v, dict):
@@ -360,16 +394,16 @@ def _check_factor(key: str, values: tuple, kind: str, scenario_paths: list[Path]
                     raise TwinError(f"grid 'overrides' value {v!r} is refused: {' '.join(str(exc).split())}") \
                         from None
         return
-    if parts[0] in ("localize", "points"):
-        keys = LOCALIZE_KEYS if parts[0] == "localize" else POINTS_KEYS
+    if parts[0] in ("localize", "points", "normals"):
+        keys = {"localize": LOCALIZE_KEYS, "points": POINTS_KEYS, "normals": NORMALS_KEYS}[parts[0]]
         if len(parts) != 2 or parts[1] not in keys:
             raise TwinError(f"unknown grid key {key!r}; {parts[0]} keys allowed: "
                             f"{', '.join(parts[0] + '.' + k for k in keys)}")
-        if parts[0] == "localize" and kind == "full":
+        if parts[0] == "localize" and kind in ("full", "normals"):
             raise TwinError(f"grid key {key!r} needs kind = 'fast' or 'points' "
-                            "(a full trial localizes as twin run does)")
-        if parts[0] == "points" and kind != "points":
-            raise TwinError(f"grid key {key!r} needs kind = 'points'")
+                            f"(a {kind} trial does not localize from the study's settings)")
+        if parts[0] in KIND_TABLES and kind != KIND_TABLES[parts[0]]:
+            raise TwinError(f"grid key {key!r} needs kind = '{KIND_TABLES[parts[0]]}'")
         for v in values:
             _check_value(keys, parts[1], v, f"grid {key!r} value")
         return

@@ -213,8 +213,34 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
 
 def run_trial(study: Study, cell: int, trial: int) -> dict:
     """One trial (module docstring): ``{"cell", "trial", *METRIC_COLUMNS}``."""
-    kinds = {"fast": fast_trial, "full": full_trial, "points": points_trial}
+    from twin.studies.normal_trials import normals_trial
+
+    kinds = {"fast": fast_trial, "full": full_trial, "points": points_trial, "normals": normals_trial}
     return {"cell": int(cell), "trial": int(trial), **kinds[study.kind](study, cell, trial)}
+
+
+def metric_columns(kind: str) -> tuple[str, ...]:
+    """The metric columns of a trial of ``kind``, in order."""
+    if kind == "normals":
+        from twin.studies.normal_trials import NORMALS_COLUMNS
+
+        return NORMALS_COLUMNS
+    return METRIC_COLUMNS
+
+
+def scan_points(scenario: Scenario, geo: NoiseFreeScan, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The scan redrawn: the sensor's errors on the ideal rays, encoder noise and time skew on
+    the joint log, the points rebuilt with the nominal kinematics and hand-eye (eq. 2);
+    ((N, B, 3) points in the robot base frame [m], (N, B) valid)."""
+    meas = geo.sensor.measure(geo.rays, rng, geo.model)
+    t, q_log = geo.plan.t, geo.q_enc
+    noise = scenario.noise
+    if noise.time_skew_s != 0.0:
+        ts = np.clip(t - noise.time_skew_s, t[0], t[-1])
+        q_log = np.column_stack([np.interp(ts, t, q_log[:, j]) for j in range(6)])
+    if noise.encoder_sigma_rad > 0:
+        q_log = q_log + rng.normal(0.0, noise.encoder_sigma_rad, q_log.shape)
+    return geo.sensor.reconstruct(q_log, meas.d, UR5E_DH, scenario.sensor.T_flange_sensor), meas.valid
 
 
 def fast_trial(study: Study, cell: int, trial: int) -> dict:
@@ -224,16 +250,8 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
     geo = noise_free_scan(scenario)
     rng_init, rng_err, rng_subset, rng_method = trial_streams(study.seed, cell, trial)
     T_true = geo.realized.T_base_workpiece_true
-    meas = geo.sensor.measure(geo.rays, rng_err, geo.model)
-    t, q_log = geo.plan.t, geo.q_enc
-    noise = scenario.noise
-    if noise.time_skew_s != 0.0:
-        ts = np.clip(t - noise.time_skew_s, t[0], t[-1])
-        q_log = np.column_stack([np.interp(ts, t, q_log[:, j]) for j in range(6)])
-    if noise.encoder_sigma_rad > 0:
-        q_log = q_log + rng_err.normal(0.0, noise.encoder_sigma_rad, q_log.shape)
-    points = geo.sensor.reconstruct(q_log, meas.d, UR5E_DH, scenario.sensor.T_flange_sensor)
-    pts = points[meas.valid & (geo.plan.line >= 0)[:, None]]
+    points, valid = scan_points(scenario, geo, rng_err)
+    pts = points[valid & (geo.plan.line >= 0)[:, None]]
     if 0 < loc["points"] < len(pts):  # a random subset of the valid points, drawn per trial
         pts = pts[np.sort(rng_subset.choice(len(pts), loc["points"], replace=False))]
     workpiece = geo.realized.workpiece
