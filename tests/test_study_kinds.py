@@ -14,9 +14,10 @@ from tests.test_study import assert_same_table
 from twin.errors import TwinError
 from twin.studies import load_study
 from twin.studies.adaptive import is_stable, numerical_tolerance
+from twin.studies.kinds import run_trial
 from twin.studies.runner import RESULTS, run_study
 from twin.studies.spec import parse_study
-from twin.studies.trials import run_trial, start_pose
+from twin.studies.trials import start_pose
 
 A_REGION = """region = [
   { box_min_m = [-0.026, -0.036, 0.0201], box_max_m = [0.046, 0.036, 0.06] },

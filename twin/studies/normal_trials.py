@@ -31,6 +31,7 @@ from algorithms.paths.pointcloud import organize_scan_lines, prepare_scan_lines,
 from algorithms.paths.spline import fit_lines
 from twin.scenario import load_scenario
 from twin.studies.spec import Study
+from twin.studies.trials import noise_free_scan, scan_points, trial_streams
 
 NORMALS_COLUMNS = ("angle_rms_deg", "angle_p95_deg", "angle_max_deg", "over_5deg_share", "n_points", "status",
                    "time_s")
@@ -54,8 +55,6 @@ def _failed(n_points: int = 0) -> dict:
 
 
 def normals_trial(study: Study, cell: int, trial: int) -> dict:
-    from twin.studies.trials import noise_free_scan, scan_points, trial_streams
-
     settings = study.cell_settings(cell)
     spec = settings.normals
     scenario = load_scenario(settings.scenario_path, settings.overrides, machine="arm")

@@ -53,8 +53,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from twin.errors import TwinError
+from twin.studies.kinds import metric_columns, run_trial
 from twin.studies.spec import Study
-from twin.studies.trials import TWIST_COLUMNS, metric_columns, run_trial
+from twin.studies.trials import TWIST_COLUMNS
 
 MANIFEST = "manifest.json"
 RESULTS = "results.parquet"

@@ -1,4 +1,5 @@
-"""One trial of a study: a pure function of (study, cell, trial) returning a flat dict of metrics.
+"""The pose trials of a study (``fast``, ``full``, ``points``): each a pure function of
+(study, cell, trial) returning a flat dict of metrics.
 
 Randomness comes only from ``np.random.SeedSequence(study.seed, spawn_key=(cell, trial))``
 (never the scenario's own seed streams), so a trial's result does not depend on the worker
@@ -209,23 +210,6 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
     if isinstance(out, str):
         return _failed(out, len(pts), 0.0, C)
     return _metrics(out, T_true, len(pts), C)
-
-
-def run_trial(study: Study, cell: int, trial: int) -> dict:
-    """One trial (module docstring): ``{"cell", "trial", *METRIC_COLUMNS}``."""
-    from twin.studies.normal_trials import normals_trial
-
-    kinds = {"fast": fast_trial, "full": full_trial, "points": points_trial, "normals": normals_trial}
-    return {"cell": int(cell), "trial": int(trial), **kinds[study.kind](study, cell, trial)}
-
-
-def metric_columns(kind: str) -> tuple[str, ...]:
-    """The metric columns of a trial of ``kind``, in order."""
-    if kind == "normals":
-        from twin.studies.normal_trials import NORMALS_COLUMNS
-
-        return NORMALS_COLUMNS
-    return METRIC_COLUMNS
 
 
 def scan_points(scenario: Scenario, geo: NoiseFreeScan, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
