@@ -1,6 +1,7 @@
 """The command line: help everywhere, files written, bad input is one line and a non-zero exit."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -119,3 +120,32 @@ def test_scan_recording_shows_the_true_cell_that_scanned(tmp_path):
 
     assert np.linalg.norm(recorded - wrist("true")) < RECORDING_FLOAT32_M
     assert np.linalg.norm(recorded - wrist("nominal")) > 100 * RECORDING_FLOAT32_M
+
+
+def _closed_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("command", ["run", "demo"])
+@pytest.mark.parametrize("live, message", [
+    (["--connect", "http://127.0.0.1:9876"], "is not a Rerun viewer address"),
+    (["--connect", "rerun+http://127.0.0.1:0/proxy"], "is not a Rerun viewer address"),
+    (["--connect", "rerun+http://127.0.0.1:{port}/proxy"], "no Rerun viewer listens there"),
+    (["--spawn", "--connect", "rerun+http://127.0.0.1:9876/proxy"], "not allowed with argument"),
+    (["--spawn"], "--spawn needs a display"),
+])
+def test_a_live_viewer_that_cannot_be_reached_is_refused_before_any_work(tmp_path, command, live, message):
+    scen = SCENARIOS / "s_surface.toml"
+    out = tmp_path / "out"
+    args = [command, str(scen)] if command == "run" else [command, "--scenario", str(scen)]
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    r = subprocess.run([sys.executable, "-m", "twin.cli", *args, "--out", str(out),
+                        *[a.format(port=_closed_port()) for a in live]], capture_output=True, text=True, env=env)
+    assert r.returncode == 2
+    assert message in r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not out.exists()

@@ -1,8 +1,16 @@
 """Recordings read back (``rerun.chunk.RrdReader``): the stored layout, the estimated pose in
-full precision, one points entity per scan (not one per chunk), a colour per path, and a
-beam that disappears when the scan ends."""
+full precision and its iterations, one points entity per colouring (not one per chunk), a
+colour per path, a beam that disappears when the scan ends, and the same recording streamed
+live to a viewer while the run goes."""
 
 from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import time
+import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,20 +19,68 @@ from rerun.chunk import RrdReader
 from tests.helpers import scenario
 from twin import pipeline
 from twin.realize import realize
-from twin.viz import save_run_recording
+from twin.sensors.base import VALID
+from twin.viz import LiveRecording, save_run_recording
+from twin.viz.scan import STATUS_COLOURS
+
+
+def _chunks(path) -> dict:
+    chunks: dict = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")     # a streamed file has no footer (rerun warns, then scans it)
+        for ch in RrdReader(path).stream().to_chunks():
+            chunks.setdefault(str(ch.entity_path).lstrip("/"), []).append(ch.to_record_batch())
+    return chunks
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _rerun_executable() -> str:
+    """The viewer itself (the ``rerun`` script on the PATH is a wrapper that leaves it running
+    when it is terminated)."""
+    import rerun_cli
+
+    native = Path(rerun_cli.__file__).with_name("rerun")
+    return str(native) if native.exists() else (shutil.which("rerun") or "rerun")
 
 
 @pytest.fixture(scope="module")
 def run_recording(tmp_path_factory):
-    sc = scenario("s_surface", scan={"max_lines": 4}, path={"line_spacing_m": 0.03})
-    result = pipeline.run(realize(sc))
+    """One run, written to a file at the end and streamed stage by stage to a Rerun server
+    (``rerun --port P --save FILE``: a viewer's gRPC endpoint that writes what it receives)."""
+    folder = tmp_path_factory.mktemp("rec")
+    port = _free_port()
+    server = subprocess.Popen([_rerun_executable(), "--port", str(port), "--save", str(folder / "live.rrd")],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+                break
+            except OSError:
+                time.sleep(0.1)
+        live = LiveRecording(f"rerun+http://127.0.0.1:{port}/proxy")
+        events = []
+
+        def watch(event, value):
+            events.append(event)
+            live(event, value)
+
+        sc = scenario("s_surface", scan={"max_lines": 4}, path={"line_spacing_m": 0.03})
+        result = pipeline.run(realize(sc), watch=watch)
+        live.finish(result)
+        time.sleep(1.0)
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
     assert result.complete, result.failure
-    path = tmp_path_factory.mktemp("rec") / "run.rrd"
+    path = folder / "run.rrd"
     save_run_recording(path, result)
-    chunks: dict = {}
-    for ch in RrdReader(path).stream().to_chunks():
-        chunks.setdefault(str(ch.entity_path).lstrip("/"), []).append(ch.to_record_batch())
-    return result, RrdReader(path), chunks
+    return result, RrdReader(path), _chunks(path), events, _chunks(folder / "live.rrd")
 
 
 def _column(batches, name) -> list:
@@ -36,12 +92,12 @@ def _column(batches, name) -> list:
 
 
 def test_the_recording_carries_a_blueprint(run_recording):
-    _, reader, _ = run_recording
+    _, reader, *_ = run_recording
     assert len(reader.blueprints()) == 1
 
 
 def test_the_estimate_is_recorded_in_full_precision(run_recording):
-    result, _, chunks = run_recording
+    result, _, chunks, *_ = run_recording
     T = result.replay_cell.T_world_base @ result.localization.T_world_workpiece
     stored = np.asarray(_column(chunks["world/workpiece/estimate"], "pose_matrix")[0], dtype=np.float64)
     assert np.abs(stored.reshape(4, 4) - T).max() <= 1e-12
@@ -50,15 +106,34 @@ def test_the_estimate_is_recorded_in_full_precision(run_recording):
 
 
 def test_the_scan_points_are_one_entity_per_colouring(run_recording):
-    result, _, chunks = run_recording
+    result, _, chunks, *_ = run_recording
     point_entities = [e for e in chunks if e.startswith("world/scan/points")]
-    assert sorted(point_entities) == ["world/scan/points", "world/scan/points_by_line"]
+    assert sorted(point_entities) == ["world/scan/points", "world/scan/points_by_line", "world/scan/points_by_status"]
     n = sum(len(p) for p in _column(chunks["world/scan/points"], "Points3D:positions"))
     assert n == int(result.scan.valid.sum())
+    # by status: every beam that met the part, the valid ones in the valid colour
+    colours = np.concatenate([np.asarray(c) for c in _column(chunks["world/scan/points_by_status"], "Points3D:colors")])
+    assert len(colours) == int((result.scan.d_true > 0).sum())
+    valid_colour = int.from_bytes(bytes([*STATUS_COLOURS[VALID], 255]), "big")
+    assert int((colours.ravel() == valid_colour).sum()) == int(result.scan.valid.sum())
+
+
+def test_the_estimate_moves_over_the_iterations(run_recording):
+    result, _, chunks, *_ = run_recording
+    loc = result.localization
+    assert len(loc.pose_history) == len(loc.history) >= 2
+    translations = [np.asarray(t).ravel() for t in _column(chunks["world/workpiece/iterations"],
+                                                            "Transform3D:translation") if t is not None]
+    # on two timelines (iteration and sim_time): each pose twice, the last the estimate's
+    assert len(translations) == 2 * len(loc.history)
+    T_last = result.replay_cell.T_world_base @ loc.pose_history[-1]
+    assert np.abs(translations[-1] - T_last[:3, 3]).max() < 1e-6
+    T_first = result.replay_cell.T_world_base @ loc.pose_history[0]
+    assert np.abs(translations[0] - T_first[:3, 3]).max() < 1e-6
 
 
 def test_every_path_has_its_own_colour(run_recording):
-    _, _, chunks = run_recording
+    _, _, chunks, *_ = run_recording
     colours = []
     for name in ("scan_path", "cad_path"):
         colours.append(tuple(np.ravel(_column(chunks[f"world/path/{name}/planned"], "LineStrips3D:colors")[0])))
@@ -67,6 +142,18 @@ def test_every_path_has_its_own_colour(run_recording):
 
 
 def test_the_beam_is_shown_only_while_scanning(run_recording):
-    result, _, chunks = run_recording
+    result, _, chunks, *_ = run_recording
     mats = [np.asarray(m).ravel() for m in _column(chunks["world/scan/beam"], "Transform3D:mat3x3") if m is not None]
     assert np.abs(mats[-1]).max() == 0.0 and np.abs(mats[0]).max() > 0.0
+
+
+def test_the_run_streams_each_stage_to_a_live_viewer(run_recording):
+    result, _, chunks, events, live = run_recording
+    # the stages reach the viewer as they finish, in the loop's order
+    assert events == ["cells", "scan", "localization", "run", "run"]
+    assert set(live) == set(chunks)
+    stored = np.asarray(_column(live["world/workpiece/estimate"], "pose_matrix")[0], dtype=np.float64)
+    T = result.replay_cell.T_world_base @ result.localization.T_world_workpiece
+    assert np.abs(stored.reshape(4, 4) - T).max() <= 1e-12
+    n = sum(len(p) for p in _column(live["world/scan/points"], "Points3D:positions"))
+    assert n == int(result.scan.valid.sum())

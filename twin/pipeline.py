@@ -352,8 +352,16 @@ def _replayed(name: str, path: ProcessPath, ik: PathIK, traj: Trajectory, droppe
 
 
 # ------------------------------------------------------------------ the loop
-def run(realized: Realized, say: Callable[[str], None] = lambda msg: None, strict: bool = False) -> RunResult:
-    """The whole loop (module docstring). ``say`` receives one progress line per stage.
+def _ignore(event: str, value) -> None:
+    pass
+
+
+def run(realized: Realized, say: Callable[[str], None] = lambda msg: None, strict: bool = False,
+        watch: Callable[[str, object], None] = _ignore) -> RunResult:
+    """The whole loop (module docstring). ``say`` receives one progress line per stage;
+    ``watch(event, value)`` each stage's result as it is made, in order: ``"cells"``
+    (replay cell, realized scenario), ``"scan"``, ``"localization"``, then ``"run"`` per
+    replayed path (a live recording follows the run with them).
 
     A failing stage ends the run with ``failure`` set; bad input found before the loop
     starts (cells that do not compile) raises :class:`TwinError`.
@@ -365,8 +373,9 @@ def run(realized: Realized, say: Callable[[str], None] = lambda msg: None, stric
     true_cell = build_cell(realized, "true")
     replay_cell = build_replay_cell(realized)
     timings["build_cells_s"] = time.perf_counter() - t0
+    watch("cells", (replay_cell, realized))
     state = {"scan": None, "localization": None, "covariance": None, "scan_path": None, "skipped": None,
-             "cad": None, "runs": [], "pending": None}
+             "cad": None, "runs": [], "pending": None, "watch": watch}
     failure = None
     with ThreadPoolExecutor(max_workers=1) as pool:
         try:
@@ -412,6 +421,7 @@ def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, 
     scan = run_scan(realized, nominal, true_cell)
     timings["scan_s"] = time.perf_counter() - t0
     state["scan"] = scan
+    state["watch"]("scan", scan)
     say(f"scanned {len(scan.t)} samples ({scan.t[-1]:.1f} s simulated)")
 
     t0 = time.perf_counter()
@@ -423,6 +433,7 @@ def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, 
         loc = dataclasses.replace(loc, T_world_workpiece=nearest_along_free(
             loc.T_world_workpiece, loc.free_directions, realized.T_base_workpiece_nominal))
     state["localization"] = loc
+    state["watch"]("localization", loc)
     state["covariance"] = pose_covariance(scan, loc, index)
     T_est = loc.T_world_workpiece
     free = len(loc.free_directions)
@@ -471,6 +482,7 @@ def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, 
     _collect(state["pending"], state)
     state["runs"].append(_replayed("cad_path", path, ik, traj, dropped, replay_cell, realized, t_offset, timings,
                                    say))
+    state["watch"]("run", state["runs"][-1])
 
 
 def _collect(pending, state: dict) -> None:
@@ -478,3 +490,4 @@ def _collect(pending, state: dict) -> None:
     if pending is not None and not state.get("collected"):
         state["collected"] = True
         state["runs"].append(pending.result())
+        state["watch"]("run", state["runs"][-1])

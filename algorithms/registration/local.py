@@ -324,6 +324,7 @@ def localize_checked(
         rmse_m=rmse,
         iterations=state["iterations"],
         history=tuple(state["history"]),
+        pose_history=tuple(state["poses"]),
         inliers=inliers,
         n_points_used=n_used,
         n_outliers=int(len(Y) - n_used),
@@ -407,6 +408,7 @@ def _iterate_staged(method, Y, index, T0, max_it, tol, outlier_cfg):
                     near_from_start=True)
     full["iterations"] += sub["iterations"]
     full["history"] = sub["history"] + full["history"][1:]
+    full["poses"] = sub["poses"] + full["poses"][1:]
     full["status"] += (f"; the first {sub['iterations']} update(s) on a regular subset of "
                        f"{len(Y[::stride])} points (history: their RMS)")
     return full
@@ -468,6 +470,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
     mask = stages.mask(cp.distance)
     e_prev = mse(cp, mask)
     history = [float(np.sqrt(e_prev))]
+    poses = [T]
     lm_lambda = LM_LAMBDA0
     converged = False
     status = f"not converged: reached max_iterations = {max_it}"
@@ -547,6 +550,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
                 n_updates += 1
                 T, cp, Ym = T_new, cp_new, Ym_new
                 history.append(float(np.sqrt(e_new)))
+                poses.append(T)
                 rel = 1.0 - e_new / e_prev if e_prev > 0 else 0.0
                 new_mask = stages.mask(cp.distance)
                 mask_changed = not same_mask(new_mask, mask)
@@ -586,6 +590,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
         "cp": cp,
         "mask": mask,
         "history": history,
+        "poses": poses,
         "iterations": n_updates,
         "converged": converged,
         "status": status + (f" ({n_fallback} point-to-point fallback step(s))" if n_fallback else ""),

@@ -71,6 +71,8 @@ class RegistrationResult:
         rmse_m: RMS point-to-model distance of the inliers at the result [m].
         iterations: pose updates made.
         history: RMS distance [m] at the start and after every iteration.
+        pose_history: the (4, 4) pose at the start and after every iteration, one per entry
+            of ``history`` (empty where a method does not record its iterations).
         inliers: (N,) bool over the input rows: finite and not an outlier.
         n_points_used: inliers at the result.
         n_outliers: finite points rejected as outliers at the result.
@@ -112,6 +114,7 @@ class RegistrationResult:
     relative_eigenvalues: np.ndarray
     time_s: float
     poor_fit_reason: str | None = None
+    pose_history: tuple = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.status, Status):

@@ -16,6 +16,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, TextIO
 
+from twin.errors import TwinError
 from twin.io.output import check_output_file, check_output_folder
 
 #: Exit statuses of every command (README, "Exit status").
@@ -79,6 +80,47 @@ def add_output_options(p: argparse.ArgumentParser, out_help: str, default_out: s
     p.add_argument("--force", action="store_true",
                    help="replace an existing output folder (and recording) whole; without it they are refused")
     add_print_options(p)
+
+
+#: A Rerun viewer's or server's gRPC address, as ``rerun`` prints it.
+LIVE_URL = re.compile(r"^rerun\+https?://(?P<host>[^/:]+):(?P<port>\d{1,5})/proxy$")
+
+
+def add_live_options(p: argparse.ArgumentParser) -> None:
+    """``--spawn`` / ``--connect URL``: stream the run to a live viewer while it goes."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--spawn", action="store_true",
+                   help="start a Rerun viewer on this machine and stream each stage to it as it finishes "
+                        "(the --rrd file, if any, is still written at the end)")
+    g.add_argument("--connect", metavar="URL",
+                   help="stream each stage as it finishes to a Rerun viewer or server already running, "
+                        "at rerun+http://HOST:PORT/proxy (what `rerun` prints when it starts)")
+
+
+def live_sink(args: argparse.Namespace) -> str | None:
+    """None, ``"spawn"`` or a checked viewer address: refused in one line, before any work,
+    when it is malformed or nothing listens there."""
+    if getattr(args, "spawn", False):
+        if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise TwinError("--spawn needs a display for the viewer's window (neither DISPLAY nor WAYLAND_DISPLAY "
+                            "is set); write the recording with --rrd FILE and open it with `twin view FILE --web`, "
+                            "or stream to a viewer elsewhere with --connect")
+        return "spawn"
+    url = getattr(args, "connect", None)
+    if url is None:
+        return None
+    m = LIVE_URL.match(url)
+    if m is None or not 0 < int(m["port"]) < 65536:
+        raise TwinError(f"--connect {url!r} is not a Rerun viewer address; give rerun+http://HOST:PORT/proxy "
+                        "(PORT 1-65535)")
+    import socket
+
+    try:
+        socket.create_connection((m["host"], int(m["port"])), timeout=2.0).close()
+    except OSError as exc:
+        raise TwinError(f"--connect {url}: no Rerun viewer listens there ({exc.strerror or exc}); "
+                        "start one with `rerun`, or use --spawn") from None
+    return url
 
 
 def checked_outputs(args: argparse.Namespace, default_rrd_name: str | None = None) -> tuple[Path, Path | None]:

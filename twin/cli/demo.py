@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import argparse
 
-from twin.cli.common import add_output_options, checked_outputs, print_result, progress, reporting
+from twin.cli.common import (
+    add_live_options,
+    add_output_options,
+    checked_outputs,
+    live_sink,
+    print_result,
+    progress,
+    reporting,
+)
 from twin.cli.run import exit_code, run_and_report, summary_rows
 from twin.errors import TwinError
 from twin.io import write_scan
@@ -30,6 +38,7 @@ def add_parser(sub) -> None:
     add_output_options(p, "output folder (default: out/demo; refused if it exists, unless --force)",
                        default_out="out/demo", rrd_help="recording path (default: OUT/demo.rrd)")
     p.add_argument("--no-rrd", action="store_true", help="do not write a recording")
+    add_live_options(p)
     p.set_defaults(run=run)
 
 
@@ -38,8 +47,9 @@ def run(args: argparse.Namespace) -> int:
         raise TwinError("--rrd and --no-rrd exclude each other; give one")
     scenario = load_scenario(args.scenario, machine="arm")
     out, rrd = checked_outputs(args, default_rrd_name=None if args.no_rrd else "demo.rrd")
+    live = live_sink(args)
     with reporting(args, "demo") as say, Staged(out) as stage:
-        result, report = run_and_report(scenario, stage, rrd, command="demo", say=say)
+        result, report = run_and_report(scenario, stage, rrd, command="demo", say=say, live=live)
         if result.scan is not None:
             write_scan(result.scan, stage.folder)
             say("wrote samples.parquet, points.ply, scan.json")

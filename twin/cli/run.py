@@ -13,8 +13,10 @@ from twin.cli.common import (
     EXIT_OK,
     EXIT_STAGE_FAILED,
     EXIT_UNTRUSTED,
+    add_live_options,
     add_output_options,
     checked_outputs,
+    live_sink,
     number,
     print_result,
     progress,
@@ -50,21 +52,31 @@ def add_parser(sub) -> None:
     p.add_argument("--strict", action="store_true",
                    help="a path stretch that cannot be processed (unreachable, singular, colliding) fails "
                         "the run instead of being dropped and listed")
+    add_live_options(p)
     p.set_defaults(run=run)
 
 
 def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command: str = "run",
                    strict: bool = False, placement: dict | None = None,
-                   say: Callable[[str], None] | None = None):
+                   say: Callable[[str], None] | None = None, live: str | None = None):
     """Run the loop and write ``report.json`` (and the recording) into the staged folder;
-    returns (result, report). ``say`` gets the stage lines (default: plain lines on stderr).
+    returns (result, report). ``say`` gets the stage lines (default: plain lines on stderr);
+    ``live``: a viewer to stream the stages to as they finish (``"spawn"`` or its address).
     The caller commits the stage: a run that stopped at a stage still leaves its evidence (the
     report says ``complete: false``, the failing stage and why)."""
     if say is None:
         say = partial(progress, command)
     t_all = time.perf_counter()
     realized = realize(scenario)
-    result = pipeline.run(realized, say=say, strict=strict)
+    if live is None:
+        result = pipeline.run(realized, say=say, strict=strict)
+    else:
+        from twin.viz import LiveRecording
+
+        viewer = LiveRecording(live, say=say)
+        result = pipeline.run(realized, say=say, strict=strict, watch=viewer)
+        viewer.finish(result)
+        say("streamed the run to the viewer")
     report = run_report(result, pipeline.sensor_sigma_m(realized.scenario))
     if placement is not None:
         report["placement"] = placement
@@ -139,6 +151,7 @@ def summary_rows(h: dict, files: str | None = None) -> list[tuple[str, str]]:
 def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario, machine="arm")
     out, rrd = checked_outputs(args)
+    live = live_sink(args)
     placement = None
     with reporting(args, "run") as say:
         if args.place_base:
@@ -148,7 +161,8 @@ def run(args: argparse.Namespace) -> int:
             say(f"base placed at {placement['new_base']} (was {placement['old_base']}; "
                 f"margin {placement['margin']:.2f}, {placement['time_s']:.1f} s)")
         with Staged(out) as stage:
-            _, report = run_and_report(scenario, stage, rrd, strict=args.strict, placement=placement, say=say)
+            _, report = run_and_report(scenario, stage, rrd, strict=args.strict, placement=placement, say=say,
+                                       live=live)
             stage.commit()
     h = headline(report)
     print_result(args, h, summary_rows(h), indent=2)

@@ -6,6 +6,6 @@ Entity paths mirror the frame tree: ``world/robot/<body>`` (geometry static, pos
 ``plots/...``. Long runs are logged in columns (``rr.send_columns``).
 """
 
-from twin.viz.recording import save_run_recording, save_scan_recording
+from twin.viz.recording import LiveRecording, save_run_recording, save_scan_recording
 
-__all__ = ["save_run_recording", "save_scan_recording"]
+__all__ = ["LiveRecording", "save_run_recording", "save_scan_recording"]

@@ -16,6 +16,8 @@ import rerun.blueprint as rrb
 
 TIMELINE = "sim_time"
 REPORT_ENTITY = "report"
+#: Entities that show the scan points coloured otherwise, hidden until switched on.
+ALTERNATIVE_COLOURINGS = ("world/scan/points_by_line", "world/scan/points_by_status")
 
 
 def cumulative() -> rrb.VisibleTimeRange:
@@ -44,7 +46,11 @@ def send_blueprint(focus_world: np.ndarray, extent_m: float, plots: list[tuple[s
         plots: (entity, title with units) of each time series, one tab each.
     """
     eye = eye_on(focus_world, extent_m)
-    main = rrb.Spatial3DView(origin="world", name="cell", eye_controls=eye, time_ranges=cumulative())
+    # one colouring of the points at a time: by deviation; by scan line and by sensor status
+    # are there to switch on
+    hidden = {e: rrb.EntityBehavior(visible=False) for e in ALTERNATIVE_COLOURINGS}
+    main = rrb.Spatial3DView(origin="world", name="cell", eye_controls=eye, time_ranges=cumulative(),
+                             overrides=hidden)
     # the part view shows every point whatever the cursor: the deviation map of the whole scan
     # (the solid true part left out, so nothing hides the points)
     part = rrb.Spatial3DView(origin="world", name="part: points by signed deviation",

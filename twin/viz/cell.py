@@ -63,10 +63,10 @@ def log_cell(cell: Cell) -> None:
     _log_mesh("world/workpiece/true/mesh", cell.mesh, (0.75, 0.6, 0.35))
     _log_pose_static("world/workpiece/nominal", cell.scenario.workpiece.T_world_workpiece_nominal)
     rr.log("world/workpiece/nominal/mesh", rr.LineStrips3D(
-        _mesh_outline(cell.mesh), colors=[[120, 120, 120]], radii=0.0003), static=True)
+        mesh_outline(cell.mesh), colors=[[120, 120, 120]], radii=0.0003), static=True)
 
 
-def _mesh_outline(mesh: trimesh.Trimesh) -> list[np.ndarray]:
+def mesh_outline(mesh: trimesh.Trimesh) -> list[np.ndarray]:
     edges = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(30)]
     return [mesh.vertices[e] for e in edges]
 
@@ -110,4 +110,4 @@ def log_pose_with_outline(entity: str, T_world: np.ndarray, mesh: trimesh.Trimes
     T = np.asarray(T_world, dtype=np.float64)
     rr.log(entity, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
     rr.log(entity, rr.AnyValues(pose_matrix=T.ravel()), static=True)
-    rr.log(f"{entity}/mesh", rr.LineStrips3D(_mesh_outline(mesh), colors=[colour], radii=0.0003), static=True)
+    rr.log(f"{entity}/mesh", rr.LineStrips3D(mesh_outline(mesh), colors=[colour], radii=0.0003), static=True)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -12,11 +13,14 @@ from algorithms.geometry.se3 import transform_points
 from twin import evaluate
 from twin.cell import Cell
 from twin.viz.blueprint import PATH_COLOURS, REPORT_ENTITY, send_blueprint
-from twin.viz.cell import log_cell, log_pose_with_outline
+from twin.viz.cell import log_cell, log_pose_with_outline, mesh_outline
 from twin.viz.paths import log_normals, log_path_lines, log_replay, log_tool_frames
-from twin.viz.scan import DEVIATION_SCALE_M, log_scan
+from twin.viz.scan import DEVIATION_SCALE_M, STATUS_LEGEND, log_scan
 
 PATH_TITLES = {"scan_path": "scan path", "cad_path": "CAD path"}
+#: The localization's iterations are shown on ``sim_time`` over this span after the scan [s]
+#: (less than the gap before the first replay).
+ITERATION_SPAN_S = 0.8
 
 
 def save_scan_recording(path: str | Path, cell: Cell, scan, app_id: str = "scan_twin") -> Path:
@@ -38,52 +42,137 @@ def _save(path: str | Path, cell: Cell, scan, result, app_id: str) -> Path:
     runs = result.runs if result is not None else ()
     with rec:
         rec.save(str(path))
-        plots = [("plots/scan", "distance d [mm]")] + [(f"plots/{r.name}", f"{PATH_TITLES.get(r.name, r.name)} "
-                                                                             "deviation [um]") for r in runs]
-        if getattr(result, "localization", None) is not None:
-            plots.append(("plots/localization", "localization residual rms [um] per iteration"))
-        send_blueprint(_focus(cell), float(np.ptp(cell.mesh.vertices, axis=0).max()), plots)
-        rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        log_cell(cell)
+        begin(cell, [r.name for r in runs], getattr(result, "localization", None) is not None)
         index = result.realized.workpiece.index if result is not None else None
         if scan is not None:
             log_scan(cell, scan, cell.T_world_base, index)
         loc = getattr(result, "localization", None)
         if loc is not None:
-            log_pose_with_outline("world/workpiece/estimate", cell.T_world_base @ loc.T_world_workpiece, cell.mesh,
-                                  [40, 200, 255])
-            # the residual falling over the iterations, on a timeline of its own
-            hist = np.asarray(loc.history, dtype=np.float64)
-            if len(hist):
-                rr.send_columns("plots/localization/rms_um",
-                                indexes=[rr.TimeColumn("localization_iteration", sequence=np.arange(len(hist)))],
-                                columns=rr.Scalars.columns(scalars=hist * 1e6))
+            log_estimate(cell, loc, float(scan.t[-1]))
         for run in runs:
-            ent = f"world/path/{run.name}"
-            planned, actual = PATH_COLOURS.get(run.name, ([90, 90, 90], [255, 200, 0]))
-            p = run.path
-            lines = [p.T_tool[a:b + 1, :3, 3] for a, b, kind, _ in p.segments if kind == "process"]
-            log_path_lines(f"{ent}/planned", lines, cell.T_world_base, planned)
-            log_tool_frames(f"{ent}/tool_frames", p.T_tool[p.process_mask()], cell.T_world_base)
-            log_normals(f"{ent}/normals", run.normals_points, run.normals, cell.T_world_base, planned)
-            log_replay(cell, run.log, run.t_offset_s, ent, actual)
-            bad = [c for c in run.log.contacts if not c.intended]
-            if bad:
-                rr.log(f"{ent}/contacts", rr.Points3D(transform_points(cell.T_world_base,
-                                                                       np.array([c.position_m for c in bad])),
-                                                      radii=0.002, colors=[255, 0, 255],
-                                                      labels=[f"{c.geom} x {c.other}" for c in bad]), static=True)
-            if run.dropped:
-                # The stretches left out (unreachable, singular, colliding), as markers.
-                pts = np.array([d.position_m for d in run.dropped])
-                rr.log(f"{ent}/dropped", rr.Points3D(transform_points(cell.T_world_base, pts), radii=0.0015,
-                                                     colors=[255, 140, 0],
-                                                     labels=[d.reason.split(":")[0] for d in run.dropped]),
-                       static=True)
-        rr.log(REPORT_ENTITY, rr.TextDocument(_summary(scan, result, runs), media_type=rr.MediaType.MARKDOWN),
-               static=True)
+            log_path_run(cell, run)
+        log_summary(scan, result, runs)
         rec.flush()
     return path
+
+
+class LiveRecording:
+    """A run streamed to a Rerun viewer while it goes: each stage is logged as it finishes
+    (:func:`twin.pipeline.run`'s ``watch`` events), with the same entities and layout as the
+    file :func:`save_run_recording` writes.
+
+    Args:
+        sink: ``"spawn"`` (start a viewer on this machine) or the gRPC address of a running
+            viewer or server (``rerun+http://HOST:PORT/proxy``).
+    """
+
+    def __init__(self, sink: str, app_id: str = "scan_twin_run", say: Callable[[str], None] = lambda msg: None):
+        self.rec = rr.RecordingStream(app_id)
+        if sink == "spawn":
+            self.rec.spawn()
+        else:
+            self.rec.connect_grpc(sink)
+        self.say = say
+        self.lost = False
+        self.cell: Cell | None = None
+        self.index = None
+        self.t_scan_end_s = 0.0
+
+    def __call__(self, event: str, value) -> None:
+        """One stage's result: ``cells`` (replay cell, realized scenario), ``scan``,
+        ``localization`` or ``run`` (a :class:`twin.pipeline.PathRun`)."""
+        if self.lost:
+            return
+        with self.rec:
+            if event == "cells":
+                self.cell, realized = value
+                self.index = realized.workpiece.index
+                names = (["scan_path"] if realized.scenario.sensor.kind == "point" else []) + ["cad_path"]
+                begin(self.cell, names, True)
+            elif event == "scan":
+                log_scan(self.cell, value, self.cell.T_world_base, self.index)
+                self.t_scan_end_s = float(value.t[-1])
+            elif event == "localization":
+                log_estimate(self.cell, value, self.t_scan_end_s)
+            elif event == "run":
+                log_path_run(self.cell, value)
+            self._flush()
+
+    def finish(self, result) -> None:
+        """The report's text panel, then the stream is closed."""
+        if not self.lost:
+            with self.rec:
+                log_summary(result.scan, result, result.runs)
+                self._flush()
+        self.rec.disconnect()
+
+    def _flush(self) -> None:
+        """Send what was logged; a viewer that went away ends the stream, not the run."""
+        try:
+            self.rec.flush()
+        except RuntimeError as exc:
+            self.lost = True
+            self.say(f"the live viewer cannot be reached ({exc}); the run goes on without it")
+
+
+def begin(cell: Cell, path_names: list[str], localized: bool) -> None:
+    """The layout and the static cell, first in every recording."""
+    plots = [("plots/scan", "distance d [mm]")] + [(f"plots/{n}", f"{PATH_TITLES.get(n, n)} deviation [um]")
+                                                    for n in path_names]
+    if localized:
+        plots.append(("plots/localization", "localization residual rms [um] per iteration"))
+    send_blueprint(_focus(cell), float(np.ptp(cell.mesh.vertices, axis=0).max()), plots)
+    rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    log_cell(cell)
+
+
+def log_estimate(cell: Cell, loc, t_scan_end_s: float) -> None:
+    """The estimated pose (static, full precision), the residual falling over the iterations,
+    and the estimate moving (``world/workpiece/iterations``): on the ``localization_iteration``
+    timeline, and on ``sim_time`` from the nominal pose during the scan to the estimate, the
+    iterations spread over the :data:`ITERATION_SPAN_S` after the scan's end."""
+    log_pose_with_outline("world/workpiece/estimate", cell.T_world_base @ loc.T_world_workpiece, cell.mesh,
+                          [40, 200, 255])
+    hist = np.asarray(loc.history, dtype=np.float64)
+    if not len(hist):
+        return
+    steps = rr.TimeColumn("localization_iteration", sequence=np.arange(len(hist)))
+    rr.send_columns("plots/localization/rms_um", indexes=[steps], columns=rr.Scalars.columns(scalars=hist * 1e6))
+    if len(loc.pose_history) != len(hist):
+        return
+    T = cell.T_world_base @ np.asarray(loc.pose_history)
+    for index in (steps, rr.TimeColumn("sim_time", duration=np.r_[0.0, t_scan_end_s + ITERATION_SPAN_S *
+                                                                 np.arange(1, len(hist)) / max(len(hist) - 1, 1)])):
+        rr.send_columns("world/workpiece/iterations", indexes=[index],
+                        columns=rr.Transform3D.columns(translation=T[:, :3, 3], mat3x3=T[:, :3, :3]))
+    rr.log("world/workpiece/iterations/mesh", rr.LineStrips3D(mesh_outline(cell.mesh), colors=[[255, 220, 0]],
+                                                              radii=0.0002), static=True)
+
+
+def log_path_run(cell: Cell, run) -> None:
+    """One process path: planned lines, tool frames, normals, the replay, contacts and drops."""
+    ent = f"world/path/{run.name}"
+    planned, actual = PATH_COLOURS.get(run.name, ([90, 90, 90], [255, 200, 0]))
+    p = run.path
+    lines = [p.T_tool[a:b + 1, :3, 3] for a, b, kind, _ in p.segments if kind == "process"]
+    log_path_lines(f"{ent}/planned", lines, cell.T_world_base, planned)
+    log_tool_frames(f"{ent}/tool_frames", p.T_tool[p.process_mask()], cell.T_world_base)
+    log_normals(f"{ent}/normals", run.normals_points, run.normals, cell.T_world_base, planned)
+    log_replay(cell, run.log, run.t_offset_s, ent, actual)
+    bad = [c for c in run.log.contacts if not c.intended]
+    if bad:
+        where = transform_points(cell.T_world_base, np.array([c.position_m for c in bad]))
+        rr.log(f"{ent}/contacts", rr.Points3D(where, radii=0.002, colors=[255, 0, 255],
+                                              labels=[f"{c.geom} x {c.other}" for c in bad]), static=True)
+    if run.dropped:
+        # The stretches left out (unreachable, singular, colliding), as markers.
+        pts = transform_points(cell.T_world_base, np.array([d.position_m for d in run.dropped]))
+        rr.log(f"{ent}/dropped", rr.Points3D(pts, radii=0.0015, colors=[255, 140, 0],
+                                             labels=[d.reason.split(":")[0] for d in run.dropped]), static=True)
+
+
+def log_summary(scan, result, runs) -> None:
+    rr.log(REPORT_ENTITY, rr.TextDocument(_summary(scan, result, runs), media_type=rr.MediaType.MARKDOWN), static=True)
 
 
 def _focus(cell: Cell) -> np.ndarray:
@@ -98,7 +187,8 @@ def _summary(scan, result, runs) -> str:
         out.append(f"- scan: {len(scan.t)} samples, t = 0 - {scan.t[-1]:.2f} s")
         out.append(f"- points coloured by signed distance to the true surface: blue -{DEVIATION_SCALE_M * 1e6:.0f} um, "
                    f"white 0, red +{DEVIATION_SCALE_M * 1e6:.0f} um, grey off the part "
-                   "(`world/scan/points_by_line`: by scan line)")
+                   "(`world/scan/points_by_line`: by scan line; `world/scan/points_by_status`: every beam "
+                   f"that met the part, by sensor status: {STATUS_LEGEND})")
     if result is not None and result.failure is not None:
         out.append(f"- **stopped at {result.failure[0]}**: {result.failure[1]}")
     loc = getattr(result, "localization", None)
@@ -107,7 +197,10 @@ def _summary(scan, result, runs) -> str:
         free = len(loc.free_directions)
         err = (f"{np.degrees(e.rotation_rad):.4f} deg, {e.translation_m * 1e6:.1f} um from the truth" if not free
                else f"{free} free direction(s)")
-        out.append(f"- estimate (`world/workpiece/estimate`, cyan): {loc.status.value}, {err}")
+        out.append(f"- estimate (`world/workpiece/estimate`, cyan): {loc.status.value}, {err}; its "
+                   f"{len(loc.history) - 1} iteration(s) (`world/workpiece/iterations`, yellow) on the "
+                   f"`localization_iteration` timeline and from t = {scan.t[-1]:.2f} s to "
+                   f"{scan.t[-1] + ITERATION_SPAN_S:.2f} s")
         d = evaluate.determined_errors(loc, result.realized, result.pose_covariance)
         if d["std"]:
             out.append(f"- errors along the determined directions: max {d['max_sigmas']} standard deviations "

@@ -3,7 +3,9 @@
 The points are one entity (``world/scan/points``) logged chunk by chunk as they are measured
 and coloured by their signed distance to the TRUE surface on a fixed scale
 (:data:`DEVIATION_SCALE_M`, blue - white - red; grey off the part); ``world/scan/points_by_line``
-holds the same points coloured by scan line. The beam is a unit segment in its own frame,
+holds the same points coloured by scan line, and ``world/scan/points_by_status`` every sample
+whose beam met the part, at the ideal hit, coloured by the sensor's status
+(:data:`STATUS_COLOURS`: the points the sensor refused, and why). The beam is a unit segment in its own frame,
 scaled to the measured distance, and hidden when the scan ends.
 """
 
@@ -14,6 +16,8 @@ import rerun as rr
 
 from twin import evaluate
 from twin.cell import Cell
+from twin.robot import UR5E_DH
+from twin.sensors.base import INCIDENCE, OCCLUDED, OUT_OF_WINDOW, STATUS_NAMES, VALID
 from twin.viz.blueprint import deviation_colours
 from twin.viz.cell import body_poses, sensor_poses
 
@@ -24,6 +28,10 @@ OFF_PART_M = 1e-3    # a point farther than this from the true surface is off th
 LINE_PALETTE = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
                          [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207]],
                         dtype=np.uint8)
+#: Colour of each sensor status in ``world/scan/points_by_status`` (no hit: no point to show).
+STATUS_COLOURS = {VALID: (40, 180, 70), OUT_OF_WINDOW: (150, 60, 200), INCIDENCE: (240, 150, 20),
+                  OCCLUDED: (220, 40, 40)}
+STATUS_LEGEND = ", ".join(f"{STATUS_NAMES[k]} rgb{v}" for k, v in STATUS_COLOURS.items())
 
 
 def log_scan(cell: Cell, scan, T_world_base: np.ndarray, index=None) -> None:
@@ -70,8 +78,31 @@ def log_scan(cell: Cell, scan, T_world_base: np.ndarray, index=None) -> None:
         lines = line[i0:i0 + POINT_CHUNK][sel]
         rr.log("world/scan/points_by_line", rr.Points3D(chunk, radii=0.0003,
                                                         colors=LINE_PALETTE[np.maximum(lines, 0) % len(LINE_PALETTE)]))
+    _log_status(scan, T_world_base)
     rr.send_columns("plots/scan/d_mm", indexes=[rr.TimeColumn("sim_time", duration=scan.t)],
                     columns=rr.Scalars.columns(scalars=np.nan_to_num(d * 1e3, nan=np.nan)))
+
+
+def _log_status(scan, T_world_base: np.ndarray) -> None:
+    """Every sample whose beam met the part, at its ideal hit as the controller would place it
+    (logged joints, believed hand-eye), coloured by status and appearing as measured."""
+    n = len(scan.t)
+    d_hit = np.where(scan.d_true > 0, scan.d_true, np.nan)
+    hits = scan.sensor.reconstruct(scan.q, d_hit, UR5E_DH, scan.T_flange_sensor_nominal).reshape(n, -1, 3)
+    status = scan.status.reshape(n, -1)
+    met = np.isfinite(hits).all(axis=2)
+    palette = np.zeros((int(status.max(initial=0)) + 1, 3), dtype=np.uint8)
+    for code, colour in STATUS_COLOURS.items():
+        if code < len(palette):
+            palette[code] = colour
+    R, p = T_world_base[:3, :3], T_world_base[:3, 3]
+    for i0 in range(0, n, POINT_CHUNK):
+        sel = met[i0:i0 + POINT_CHUNK]
+        if not sel.any():
+            continue
+        rr.set_time("sim_time", duration=float(scan.t[i0]))
+        rr.log("world/scan/points_by_status", rr.Points3D(hits[i0:i0 + POINT_CHUNK][sel] @ R.T + p, radii=0.0003,
+                                                          colors=palette[status[i0:i0 + POINT_CHUNK][sel]]))
 
 
 def _deviation(cell: Cell, scan, points_base: np.ndarray, index) -> np.ndarray:

@@ -281,6 +281,7 @@ def algorithm2(
 
     e_prev = mse(dist, mask)
     history = [float(np.sqrt(e_prev))]
+    poses = [T]
     converged, message = False, f"not converged: reached max_iterations = {max_iterations}"
     it = 0
     while True:
@@ -314,6 +315,7 @@ def algorithm2(
             T = T @ exp_se3(xi)
             Ym, foot, normals, dist, smooth, _ = cand
             history.append(float(np.sqrt(e_new)))
+            poses.append(T)
             rel = 1.0 - e_new / e_prev if e_prev > 0 else 0.0
             new_mask = stages.mask(dist)
             changed = not same_mask(new_mask, mask)
@@ -366,6 +368,7 @@ def algorithm2(
         rmse_m=rmse,
         iterations=it,
         history=tuple(history),
+        pose_history=tuple(poses),
         inliers=inliers,
         n_points_used=n_used,
         n_outliers=int(len(Y) - n_used),
@@ -476,6 +479,7 @@ def localize_symmetric(
             T_world_workpiece=T1, method=res1.method, converged=res1.converged,
             status=fit_status(res1.converged, len(weak), res1.poor_fit_reason),
             message=res1.message, rmse_m=res1.rmse_m, iterations=res1.iterations, history=res1.history,
+            pose_history=res1.pose_history,
             inliers=res1.inliers, n_points_used=res1.n_points_used, n_outliers=res1.n_outliers,
             n_dropped_nonfinite=res1.n_dropped_nonfinite, sigma_m=res1.sigma_m,
             determined_directions=determined, covariance=cov, free_directions=weak, solutions=(T1,),
@@ -528,7 +532,8 @@ def localize_symmetric(
     return SymmetricResult(
         T_world_workpiece=sols[0], method=res2.method, converged=res2.converged, status=status,
         message=message, rmse_m=res2.rmse_m, iterations=res1.iterations + res2.iterations,
-        history=res1.history + res2.history[1:], inliers=inliers, n_points_used=res2.n_points_used,
+        history=res1.history + res2.history[1:], pose_history=res1.pose_history + res2.pose_history[1:],
+        inliers=inliers, n_points_used=res2.n_points_used,
         n_outliers=int(finite.sum() - res2.n_points_used), n_dropped_nonfinite=int(len(P) - finite.sum()),
         sigma_m=res2.sigma_m,
         determined_directions=_move_twists(res2.determined_directions, T2, sols[0]),
