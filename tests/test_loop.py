@@ -168,6 +168,9 @@ def test_bad_regions_are_refused(kw, message):
     ("region_cone_deg = 120", "region_cone_deg"),
     ("region_axis = [0, 0, 0]", "region_axis"),
     ("region_box_m = [[0, 0, 0], [0.1, 0.1]]", "region_box_m"),
+    ("max_tilt_deg = 90", "max_tilt_deg"),
+    ("max_tilt_deg = -1", "max_tilt_deg"),
+    ("max_tilt_deg = 20\nlead_deg = 5", "max_tilt_deg chooses the tool axis"),
 ])
 def test_bad_region_keys_are_one_line_errors(tmp_path, key, message):
     scen = tmp_path / "bad.toml"

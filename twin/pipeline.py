@@ -327,7 +327,8 @@ def determined_part(lines_wp, normals_wp, localization, index: MeshIndex) -> tup
     if len(F) == 0:
         return list(lines_wp), list(normals_wp)
     keep = [invariant_points(index, ln, F) for ln in lines_wp]
-    return split_kept(lines_wp, normals_wp, keep)
+    lines, normals = split_kept(lines_wp, normals_wp, keep)
+    return lines, normals
 
 
 def _timed(name: str, path: ProcessPath, ik: PathIK, dropped, realized: Realized,

@@ -344,6 +344,10 @@ class PathSpec:
             are processed (default 60: what a ball-end tool reaches from above).
         region_box_m: ((x, y, z), (x, y, z)) corners of a box the processed points must lie
             in (workpiece frame), or None.
+        max_tilt_deg: the ball-end tool may tilt its axis this far from the surface normal,
+            about the ball's centre (the contact point stays the same), where the shank or
+            holder would otherwise come too close to the part [deg]; 0: the axis stays on the
+            normal (eq. 11).
     """
 
     T_flange_tool: np.ndarray
@@ -375,6 +379,7 @@ class PathSpec:
     region_axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     region_cone_deg: float = 60.0
     region_box_m: tuple | None = None
+    max_tilt_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -829,6 +834,7 @@ def _parse_path(s: _Section) -> PathSpec:
     empty = s.choice("empty_lines", "error", ("error", "drop"))
     region_axis = s.vector("region_axis", [0.0, 0.0, 1.0], 3)
     cone = s.number("region_cone_deg", 60.0, 0.0, 90.0, lo_open=True)
+    max_tilt = s.number("max_tilt_deg", 0.0, 0.0, 89.0)
     box = s._get("region_box_m", None)
     s.done()
     if box is not None:
@@ -840,12 +846,15 @@ def _parse_path(s: _Section) -> PathSpec:
     for name, v in (("heading_direction", heading_dir), ("axis_direction", axis_dir), ("region_axis", region_axis)):
         if np.linalg.norm(v) < 1e-9:
             raise TwinError(f"path.{name} must be a non-zero vector")
+    if max_tilt > 0 and (axis != "normal" or lead != 0 or tilt != 0):
+        raise TwinError("path.max_tilt_deg chooses the tool axis itself: it needs axis = \"normal\" and "
+                        f"lead_deg = tilt_deg = 0, got axis = {axis!r}, lead_deg = {lead:g}, tilt_deg = {tilt:g}")
     if np.linalg.norm(T_ft[:3, 3]) <= tip:
         raise TwinError(f"path.tool: the tool tip must lie farther from the flange than tip_radius_m = {tip:g} m")
     return PathSpec(T_ft, tip, shank, holder, holder_len, feed, transit, acc, acc_td, point_spacing, line_spacing,
                     margin, axis_name, retract, heading, heading_dir / np.linalg.norm(heading_dir), axis,
                     axis_dir / np.linalg.norm(axis_dir), lead, tilt, knots, simplify, window, k, gap, empty,
-                    region_axis / np.linalg.norm(region_axis), cone, box)
+                    region_axis / np.linalg.norm(region_axis), cone, box, max_tilt)
 
 
 def default_probe_mount() -> np.ndarray:

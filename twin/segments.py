@@ -20,6 +20,7 @@ import numpy as np
 
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
+from algorithms.paths.tilt import ToolProfile, clear_axes, tool_profile
 from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, transform_path
 from twin.cell import Cell
 from twin.errors import TwinError
@@ -62,6 +63,14 @@ class StageFailed(TwinError):
 
 
 
+def _profile(scenario: Scenario) -> ToolProfile:
+    """The tool above its ball, sampled every CLEARANCE_STEP_M up to the flange."""
+    p = scenario.path
+    reach = float(np.linalg.norm(p.T_flange_tool[:3, 3])) - p.tip_radius_m
+    return tool_profile(reach, p.tip_radius_m, p.shank_radius_m, p.holder_radius_m, p.holder_length_m,
+                        CLEARANCE_STEP_M)
+
+
 def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: np.ndarray,
                        index: MeshIndex) -> list[PathProblem]:
     """Poses whose shank or holder comes within CLEARANCE_M of the part (at the estimate),
@@ -71,17 +80,15 @@ def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: 
     CLEARANCE_STEP_M beyond the ball, each sample with the radius of what is there.
     """
     p = scenario.path
-    reach = float(np.linalg.norm(p.T_flange_tool[:3, 3])) - p.tip_radius_m
-    s = np.arange(p.tip_radius_m + CLEARANCE_STEP_M, reach, CLEARANCE_STEP_M)
-    if len(s) == 0:
+    profile = _profile(scenario)
+    if len(profile.distance_m) == 0:
         return []
-    radius = np.where(s > reach - p.holder_length_m, max(p.holder_radius_m, p.shank_radius_m), p.shank_radius_m)
     T_wb = inv_pose(T_base_workpiece)
     T = T_wb @ path.T_tool
     centre = T[:, :3, 3] + p.tip_radius_m * T[:, :3, 2]
-    samples = centre[:, None, :] + s[None, :, None] * T[:, None, :3, 2]
-    d = index.signed_distance(samples.reshape(-1, 3)).reshape(len(T), len(s))
-    short = d - radius[None, :]
+    samples = centre[:, None, :] + profile.distance_m[None, :, None] * T[:, None, :3, 2]
+    d = index.signed_distance(samples.reshape(-1, 3)).reshape(len(T), len(profile.distance_m))
+    short = d - profile.radius_m[None, :]
     bad = np.flatnonzero(np.min(short, axis=1) < CLEARANCE_M)
     out = []
     # the ball itself on moves in the air (approach, retract, transit): never into the part
@@ -92,8 +99,25 @@ def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: 
     for i in bad:
         j = int(np.argmin(short[i]))
         out.append(PathProblem(int(i), "collision", tuple(path.T_tool[i, :3, 3]),
-                               f"the tool {s[j] * 1e3:.0f} mm up its axis comes {short[i, j] * 1e3:.2f} mm "
-                               "from the part"))
+                               f"the tool {profile.distance_m[j] * 1e3:.0f} mm up its axis comes "
+                               f"{short[i, j] * 1e3:.2f} mm from the part"))
+    return out
+
+
+def tilted_axes(lines, normals, scenario: Scenario, T_base_workpiece: np.ndarray, index: MeshIndex,
+                T_base_frame: np.ndarray | None) -> list[np.ndarray]:
+    """The tool axis at each contact point (:func:`algorithms.paths.tilt.clear_axes`): the
+    normal, tilted within ``path.max_tilt_deg`` where the shank or holder would not clear the
+    part; in the lines' frame (``T_base_frame`` maps it to the base; None: the base)."""
+    p = scenario.path
+    T_wp_frame = inv_pose(T_base_workpiece) @ (np.eye(4) if T_base_frame is None else T_base_frame)
+    R = T_wp_frame[:3, :3]
+    profile = _profile(scenario)
+    out = []
+    for ln, nm in zip(lines, normals, strict=True):
+        axes_wp = clear_axes(transform_points(T_wp_frame, np.asarray(ln)), np.asarray(nm) @ R.T, p.tip_radius_m,
+                             profile, index.signed_distance, float(np.radians(p.max_tilt_deg)), CLEARANCE_M)
+        out.append(axes_wp @ R)
     return out
 
 
@@ -160,17 +184,19 @@ def _drop_masks(path: ProcessPath, problems, lines, margin: int) -> tuple[list[n
     return keep, dropped
 
 
-def split_kept(lines, normals, keep) -> tuple[list, list]:
-    out_l, out_n = [], []
-    for ln, nm, k in zip(lines, normals, keep, strict=True):
+def split_kept(lines, normals, keep, *more) -> tuple[list, ...]:
+    """The runs of kept points (two or more) of each line, as new lines; ``more``: other
+    per-point arrays (e.g. tool axes) split the same way."""
+    out: tuple[list, ...] = tuple([] for _ in range(2 + len(more)))
+    for k, *arrays in zip(keep, lines, normals, *more, strict=True):
         idx = np.flatnonzero(k)
         if len(idx) < 2:
             continue
         for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
             if len(run) >= 2:
-                out_l.append(ln[run])
-                out_n.append(nm[run])
-    return out_l, out_n
+                for dest, arr in zip(out, arrays, strict=True):
+                    dest.append(arr[run])
+    return out
 
 
 def _count_kinds(problems) -> str:
@@ -196,9 +222,11 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
     p = sc.path
     dropped: list[Dropped] = []
     lines, normals = list(lines), list(normals)
+    axes = tilted_axes(lines, normals, sc, T_base_workpiece, index, T_base_frame) if p.max_tilt_deg > 0 else None
     clear, safe_plane = _transit_check(sc, index, T_base_workpiece, T_base_frame)
     for round_ in range(MAX_DROP_ROUNDS):
-        path = build_path(lines, normals, settings, T_frame_ref=T_frame_ref, clear=clear, safe_plane=safe_plane)
+        path = build_path(lines, normals, settings, T_frame_ref=T_frame_ref, clear=clear, safe_plane=safe_plane,
+                          lines_axis=axes)
         if T_base_frame is not None:
             path = transform_path(T_base_frame, path)
         # the tool against the part first (geometry only); the IK once the tool is clear
@@ -217,7 +245,10 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
             at = transform_points(T_base_frame, np.array([d.position_m for d in more]).reshape(-1, 3))
             more = [dataclasses.replace(d, position_m=tuple(p_base)) for d, p_base in zip(more, at, strict=True)]
         dropped += more
-        lines, normals = split_kept(lines, normals, keep)
+        if axes is None:
+            lines, normals = split_kept(lines, normals, keep)
+        else:
+            lines, normals, axes = split_kept(lines, normals, keep, axes)
         if not lines:
             raise StageFailed(name, f"no stretch of the path can be processed ({_count_kinds(problems)}); "
                                     f"first: {problems[0].describe()}")

@@ -344,7 +344,7 @@ class ToolSettings:
 
 
 def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSettings(), T_frame_ref=None,
-               clear=None, safe_plane=None) -> ProcessPath:
+               clear=None, safe_plane=None, lines_axis=None) -> ProcessPath:
     """Contact points and normals per line -> a zig-zag :class:`ProcessPath` of tool poses.
 
     Args:
@@ -354,22 +354,35 @@ def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSetting
         T_frame_ref: optional (4, 4) pose of the frame the fixed directions are given in
             (e.g. ``T_base_workpiece``: heading along the part's x); default: the points' frame.
         clear, safe_plane: collision-checked transits (:func:`assemble_path`).
+        lines_axis: optional L arrays (n_i, 3) of unit tool axes, one per contact point (a
+            ball-end tool tilted about its ball's centre: the ball touches the same point, the
+            tip sits at ``c + r (n - axis)``); they replace the settings' axis, lead and tilt.
     """
     R_ref = np.eye(3) if T_frame_ref is None else as_pose(T_frame_ref, "T_frame_ref")[:3, :3]
     hd = R_ref @ _fixed_vector(settings.heading_direction, "heading_direction")
     ad = R_ref @ _fixed_vector(settings.axis_direction, "axis_direction")
+    if lines_axis is not None and len(lines_axis) != len(lines_contact):
+        raise ToolPathError(f"lines_axis must hold one array per line ({len(lines_contact)}), got {len(lines_axis)}")
     Ts, cs, ns = [], [], []
     for i, (c, n) in enumerate(zip(lines_contact, lines_normal, strict=True)):
         c = np.asarray(c, dtype=np.float64)
         n = np.asarray(n, dtype=np.float64)
+        a = None if lines_axis is None else np.asarray(lines_axis[i], dtype=np.float64)
+        if a is not None and a.shape != n.shape:
+            raise ToolPathError(f"line {i}: lines_axis {a.shape} must match its normals {n.shape}")
         rev = settings.zigzag and i % 2 == 1
         if rev:
             c, n = c[::-1], n[::-1]
+            a = None if a is None else a[::-1]
         try:
-            Tc = contact_frames(c, n, settings.heading, hd, settings.axis, ad)
+            if a is None:
+                Tc = contact_frames(c, n, settings.heading, hd, settings.axis, ad)
+                T = tool_frames(Tc, settings.lead_rad, settings.tilt_rad, settings.tip_radius_m)
+            else:
+                T = contact_frames(c, a, settings.heading, hd, "normal", ad)
+                T[:, :3, 3] += settings.tip_radius_m * (n - T[:, :3, 2])
         except ToolPathError as exc:
             raise ToolPathError(f"line {i}: {exc}") from None
-        T = tool_frames(Tc, settings.lead_rad, settings.tilt_rad, settings.tip_radius_m)
         Ts.append(T)
         cs.append(c)
         ns.append(n)

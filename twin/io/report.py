@@ -104,7 +104,12 @@ def ik_report(ik, traj) -> dict:
 def _run_blocks(run) -> dict:
     if run is None:
         return {}
+    on = run.path.process_mask()
+    tilt = np.degrees(np.arccos(np.clip(np.sum(run.path.T_tool[on, :3, 2] * run.path.normal[on], axis=1), -1.0, 1.0)))
     return {"dropped": [d.to_dict() for d in run.dropped], "ik": ik_report(run.ik, run.trajectory),
+            # the tool axis against the surface normal at the processed points (lead, tilt, max_tilt_deg)
+            "max_tool_tilt_deg": round(float(tilt.max()) if len(tilt) else 0.0, 3),
+            "tilted_points": int(np.count_nonzero(tilt > 0.01)),
             "verification": run.log.summary(),
             # the replay's own times (contacts, limits) start at 0: add this for the recording's sim_time
             "recording_t_offset_s": round(float(run.t_offset_s), 6)}

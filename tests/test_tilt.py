@@ -1,0 +1,90 @@
+"""Tool axes tilted within a cone so that the shank and holder clear the part
+(``algorithms.paths.tilt``), and the ball-end path built on them."""
+
+import numpy as np
+import pytest
+
+from algorithms.paths.tilt import clear_axes, clearance_m, tool_profile
+from algorithms.paths.toolpath import ToolSettings, build_path
+from tests.tolerances import ORTHONORMAL
+
+TIP_M, SHANK_M, HOLDER_M, HOLDER_LEN_M, REACH_M = 0.004, 0.004, 0.015, 0.05, 0.13
+WALL_X_M = 0.02          # a wall 0.2 m high stands on the floor z = 0 from x = 20 mm on
+MIN_GAP_M = 0.003
+PROFILE = tool_profile(REACH_M, TIP_M, SHANK_M, HOLDER_M, HOLDER_LEN_M, 0.002)
+
+
+def _box_sdf(p, lo, hi):
+    centre, half = (np.asarray(lo) + hi) / 2, (np.asarray(hi) - lo) / 2
+    q = np.abs(p - centre) - half
+    return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(np.max(q, axis=1), 0.0)
+
+
+def floor_and_wall(p):
+    """Signed distance [m] to a floor slab (z < 0) with a wall on it (x > 20 mm)."""
+    p = np.asarray(p, dtype=np.float64)
+    return np.minimum(_box_sdf(p, (-0.5, -0.5, -0.05), (0.5, 0.5, 0.0)),
+                      _box_sdf(p, (WALL_X_M, -0.5, -0.05), (0.06, 0.5, 0.2)))
+
+
+def _floor_line(x_m):
+    contacts = np.column_stack([x_m, np.zeros_like(x_m), np.zeros_like(x_m)])
+    return contacts, np.tile([0.0, 0.0, 1.0], (len(x_m), 1))
+
+
+def test_the_holder_clears_a_wall_by_tilting_away_from_it():
+    x = np.arange(-0.04, 0.0121, 0.002)
+    contacts, normals = _floor_line(x)
+    centres = contacts + TIP_M * normals
+    upright = clearance_m(centres, normals, PROFILE, floor_and_wall)
+    assert np.any(upright < MIN_GAP_M)                   # the holder meets the wall near it
+    max_tilt = np.radians(30.0)
+    axes = clear_axes(contacts, normals, TIP_M, PROFILE, floor_and_wall, max_tilt, MIN_GAP_M)
+    assert np.allclose(np.linalg.norm(axes, axis=1), 1.0, atol=ORTHONORMAL)
+    tilt = np.arccos(np.clip(axes[:, 2], -1.0, 1.0))
+    assert np.all(tilt <= max_tilt + 1e-12)
+    assert np.all(clearance_m(centres, axes, PROFILE, floor_and_wall) >= MIN_GAP_M)
+    tilted = tilt > 1e-9
+    assert np.all(axes[tilted, 0] < 0)                   # away from the wall
+    assert np.all(tilt[x < -0.015] == 0.0)               # far from it the axis is the normal
+    assert np.all(np.diff(tilt) >= -1e-12)               # ramps in towards the wall, no jumps back
+
+
+def test_no_tilt_allowed_or_nothing_in_the_way_leaves_the_normals():
+    contacts, normals = _floor_line(np.arange(-0.04, 0.0121, 0.002))
+    assert np.array_equal(clear_axes(contacts, normals, TIP_M, PROFILE, floor_and_wall, 0.0, MIN_GAP_M), normals)
+    far, n_far = _floor_line(np.arange(-0.2, -0.1, 0.002))
+    assert np.array_equal(clear_axes(far, n_far, TIP_M, PROFILE, floor_and_wall, np.radians(30), MIN_GAP_M), n_far)
+
+
+def test_a_point_no_axis_in_the_cone_clears_keeps_its_normal():
+    # 3.5 mm from the wall the 4 mm shank touches it right above the ball, at any tilt up to 30 deg
+    contacts, normals = _floor_line(np.array([WALL_X_M - 0.0035]))
+    axes = clear_axes(contacts, normals, TIP_M, PROFILE, floor_and_wall, np.radians(30), MIN_GAP_M)
+    assert np.array_equal(axes, normals)
+    assert clearance_m(contacts + TIP_M * normals, axes, PROFILE, floor_and_wall)[0] < MIN_GAP_M
+
+
+@pytest.mark.parametrize("zigzag", [False, True])
+def test_a_tilted_ball_end_touches_the_same_point(zigzag):
+    x = np.arange(-0.04, 0.0121, 0.002)
+    contacts, normals = _floor_line(x)
+    axes = clear_axes(contacts, normals, TIP_M, PROFILE, floor_and_wall, np.radians(30), MIN_GAP_M)
+    lines = [contacts, contacts + [0.0, 0.004, 0.0]]
+    path = build_path(lines, [normals, normals], ToolSettings(tip_radius_m=TIP_M, zigzag=zigzag),
+                      lines_axis=[axes, axes])
+    on = path.process_mask()
+    T = path.T_tool[on]
+    # the ball's centre (tip + r axis) is the contact's centre (c + r n), and the axis is the planned one
+    assert np.allclose(T[:, :3, 3] + TIP_M * T[:, :3, 2], path.contact[on] + TIP_M * path.normal[on], atol=1e-12)
+    planned = np.concatenate([axes, axes[::-1] if zigzag else axes])
+    assert np.allclose(T[:, :3, 2], planned, atol=1e-12)
+    assert np.abs(T[:, :3, 2] @ [1.0, 0.0, 0.0]).max() > 0.1     # some poses do tilt
+
+
+def test_tool_axes_must_match_the_lines():
+    contacts, normals = _floor_line(np.arange(0.0, 0.01, 0.002))
+    with pytest.raises(Exception, match="lines_axis"):
+        build_path([contacts], [normals], ToolSettings(), lines_axis=[normals, normals])
+    with pytest.raises(Exception, match="lines_axis"):
+        build_path([contacts], [normals], ToolSettings(), lines_axis=[normals[:2]])
