@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from algorithms.paths.tilt import clear_axes, clearance_m, tool_profile
+from algorithms.paths.tilt import clear_axes, clearance_m, foot_gap_m, tool_profile
 from algorithms.paths.toolpath import ToolSettings, build_path
 from tests.tolerances import ORTHONORMAL
 
@@ -48,6 +48,30 @@ def test_the_holder_clears_a_wall_by_tilting_away_from_it():
     assert np.all(axes[tilted, 0] < 0)                   # away from the wall
     assert np.all(tilt[x < -0.015] == 0.0)               # far from it the axis is the normal
     assert np.all(np.diff(tilt) >= -1e-12)               # ramps in towards the wall, no jumps back
+
+
+def test_the_foot_of_a_tilted_shank_drops_towards_the_surface():
+    centre = np.array([[-0.2, 0.0, TIP_M]])          # the ball on the floor, far from the wall
+    for tilt_deg in (0.0, 30.0):
+        a = np.radians(tilt_deg)
+        axis = np.array([[np.sin(a), 0.0, np.cos(a)]])
+        # the lowest point of the shank's rim at the ball's equator: r (1 - sin tilt) above the floor
+        assert foot_gap_m(centre, axis, PROFILE, floor_and_wall)[0] == pytest.approx(TIP_M * (1 - np.sin(a)), abs=1e-12)
+    # 0.5 mm beside the wall: leaning 30 deg away clears the shank above the ball, not its foot
+    near = np.array([[WALL_X_M - TIP_M - 0.0005, 0.0, TIP_M]])
+    up, away = np.array([[0.0, 0.0, 1.0]]), np.array([[-0.5, 0.0, np.sqrt(0.75)]])
+    assert clearance_m(near, up, PROFILE, floor_and_wall)[0] < MIN_GAP_M
+    assert clearance_m(near, away, PROFILE, floor_and_wall)[0] >= MIN_GAP_M
+    assert foot_gap_m(near, away, PROFILE, floor_and_wall)[0] < 0.0015
+
+
+def test_tilts_keep_the_foot_of_the_shank_clear():
+    x = np.arange(-0.04, 0.0121, 0.002)
+    contacts, normals = _floor_line(x)
+    centres = contacts + TIP_M * normals
+    axes = clear_axes(contacts, normals, TIP_M, PROFILE, floor_and_wall, np.radians(30.0), MIN_GAP_M, 0.0015)
+    assert np.all(clearance_m(centres, axes, PROFILE, floor_and_wall) >= MIN_GAP_M)
+    assert np.all(foot_gap_m(centres, axes, PROFILE, floor_and_wall) >= 0.0015)
 
 
 def test_no_tilt_allowed_or_nothing_in_the_way_leaves_the_normals():

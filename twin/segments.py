@@ -20,7 +20,7 @@ import numpy as np
 
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
-from algorithms.paths.tilt import ToolProfile, clear_axes, tool_profile
+from algorithms.paths.tilt import ToolProfile, clear_axes, foot_gap_m, tool_profile
 from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, transform_path
 from twin.cell import Cell
 from twin.errors import TwinError
@@ -35,6 +35,11 @@ MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
 # bottle punch's shank touch the height field by 26 um).
 CLEARANCE_M = 0.003
 CLEARANCE_STEP_M = 0.002   # spacing of the clearance checks along the tool
+# The foot of a tilted shank (from the ball's equator to the first profile sample, as near a
+# wall as the ball is) keeps this far from the exact part: more than the replay's height field
+# stands out from a wall (a cell, 1 mm). An axis on the normal needs no such check: a wall near
+# its foot is as near the first profile sample, held CLEARANCE_M off.
+SHANK_FOOT_GAP_M = 0.0015
 BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not enter the part in the air
 
 
@@ -101,7 +106,22 @@ def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: 
         out.append(PathProblem(int(i), "collision", tuple(path.T_tool[i, :3, 3]),
                                f"the tool {profile.distance_m[j] * 1e3:.0f} mm up its axis comes "
                                f"{short[i, j] * 1e3:.2f} mm from the part"))
+    out += _tilted_shank_problems(path, T, centre, T_wb, profile, index)
     return out
+
+
+def _tilted_shank_problems(path: ProcessPath, T: np.ndarray, centre: np.ndarray, T_wb: np.ndarray,
+                           profile: ToolProfile, index: MeshIndex) -> list[PathProblem]:
+    """Process poses whose axis is tilted from the normal ([path] max_tilt_deg) and whose shank's
+    foot comes within SHANK_FOOT_GAP_M of the part (:func:`algorithms.paths.tilt.foot_gap_m`)."""
+    on = np.flatnonzero(path.process_mask())
+    axis = T[on, :3, 2]
+    tilted = np.sum(axis * (path.normal[on] @ T_wb[:3, :3].T), axis=1) < np.cos(1e-6)
+    on = on[tilted]
+    gap = foot_gap_m(centre[on], axis[tilted], profile, index.signed_distance)
+    return [PathProblem(int(i), "collision", tuple(path.T_tool[i, :3, 3]),
+                        f"the tilted shank's foot comes {g * 1e3:.2f} mm from the part")
+            for i, g in zip(on, gap, strict=True) if g < SHANK_FOOT_GAP_M]
 
 
 def tilted_axes(lines, normals, scenario: Scenario, T_base_workpiece: np.ndarray, index: MeshIndex,
@@ -116,7 +136,8 @@ def tilted_axes(lines, normals, scenario: Scenario, T_base_workpiece: np.ndarray
     out = []
     for ln, nm in zip(lines, normals, strict=True):
         axes_wp = clear_axes(transform_points(T_wp_frame, np.asarray(ln)), np.asarray(nm) @ R.T, p.tip_radius_m,
-                             profile, index.signed_distance, float(np.radians(p.max_tilt_deg)), CLEARANCE_M)
+                             profile, index.signed_distance, float(np.radians(p.max_tilt_deg)), CLEARANCE_M,
+                             SHANK_FOOT_GAP_M)
         out.append(axes_wp @ R)
     return out
 
