@@ -311,6 +311,8 @@ def test_export_mesh_refuses_an_existing_file_and_force_replaces_it(exported, ca
     res = json.loads(out)
     assert res["triangles"] == len(mesh.faces) and res["path"] == str(d / "part.stl")
     assert np.allclose(res["bounds_m"], mesh.bounds)
+    assert res["features"] == {name: len(f) for name, f in mesh.metadata["features"].items()}
+    assert sum(res["features"].values()) == len(mesh.faces) and "s_surface" in res["features"]
     assert leftovers(d) == []
 
 

@@ -171,6 +171,8 @@ def test_bad_regions_are_refused(kw, message):
     ("max_tilt_deg = 90", "max_tilt_deg"),
     ("max_tilt_deg = -1", "max_tilt_deg"),
     ("max_tilt_deg = 20\nlead_deg = 5", "max_tilt_deg chooses the tool axis"),
+    ("region_features = 3", "region_features"),
+    ("region_features = [\"\"]", "region_features"),
 ])
 def test_bad_region_keys_are_one_line_errors(tmp_path, key, message):
     scen = tmp_path / "bad.toml"
@@ -187,4 +189,36 @@ def test_a_region_that_selects_no_face_is_bad_input(tmp_path):
     out = tmp_path / "out"
     r = run_cli("run", str(scen), "--out", str(out))
     assert r.returncode == 2 and "selects no face" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_a_region_on_named_features(tmp_path):
+    """``region_features`` keeps the CAD raster on those faces of the part, and only there."""
+    from twin.pipeline import cad_path_lines
+    from twin.realize import realize
+
+    base = (ROOT / "scenarios" / "hemisphere_punch.toml").read_text()
+    for features in ('"hemisphere"', '["pin_1", "pin_2", "plate_top"]'):
+        scen = tmp_path / "features.toml"
+        scen.write_text(with_path_keys(base, {"region_features": features, "line_spacing_m": "0.008"}))
+        realized = realize(load_scenario(scen))
+        lines, _ = cad_path_lines(realized)
+        index, mesh = realized.workpiece.index, realized.workpiece.mesh
+        names = json.loads(features)
+        wanted = np.concatenate([mesh.metadata["features"][f] for f in ([names] if isinstance(names, str) else names)])
+        on = np.isin(index.query(np.concatenate(lines)).face, wanted)
+        assert len(lines) > 3 and on.all()
+
+
+@pytest.mark.parametrize("scenario, feature, words", [
+    ("hemisphere_punch.toml", "bowl", "its features: hemisphere, pin_1"),
+    ("bracket.toml", "pocket", "a loaded mesh names no features"),
+])
+def test_an_unknown_feature_is_bad_input(tmp_path, scenario, feature, words):
+    scen = tmp_path / "unknown.toml"
+    text = with_path_keys((ROOT / "scenarios" / scenario).read_text(), {"region_features": f'"{feature}"'})
+    scen.write_text(text.replace('mesh = "meshes/', f'mesh = "{ROOT / "scenarios" / "meshes"}/'))
+    out = tmp_path / "out"
+    r = run_cli("run", str(scen), "--out", str(out))
+    assert r.returncode == 2 and f"no feature '{feature}'" in r.stderr and words in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()

@@ -86,6 +86,30 @@ def test_solid_is_closed_outward_and_well_shaped(meshes, name):
 
 
 @pytest.mark.parametrize("name", WORKPIECE_NAMES)
+def test_every_face_belongs_to_one_named_feature(meshes, name):
+    features = meshes[name].metadata["features"]
+    faces = np.concatenate(list(features.values()))
+    assert np.array_equal(np.sort(faces), np.arange(len(meshes[name].faces)))
+    top = [f for f in features if f.endswith("_top") or f == "s_surface"]
+    assert len(top) == 1
+    for f in [f for f in features if f.endswith(("_top", "_bottom", "_front", "_back", "_left", "_right"))]:
+        normal = {"top": (0, 0, 1), "bottom": (0, 0, -1), "front": (0, -1, 0), "back": (0, 1, 0),
+                  "left": (-1, 0, 0), "right": (1, 0, 0)}[f.rsplit("_", 1)[1]]
+        assert np.allclose(meshes[name].face_normals[features[f]], normal, atol=1e-9), f
+
+
+def test_the_hemisphere_feature_is_the_hemisphere(meshes):
+    mesh = meshes["hemisphere_punch"]
+    faces = mesh.metadata["features"]["hemisphere"]
+    centre = np.array([0.01, 0.0, 0.02])     # the generator's defaults: offset 10 mm, plate 20 mm
+    r = np.linalg.norm(mesh.vertices[mesh.faces[faces].ravel()] - centre, axis=1)
+    assert np.allclose(r, 0.035, atol=1e-9)
+    others = np.setdiff1d(np.arange(len(mesh.faces)), faces)
+    assert not np.any(np.all(np.isclose(np.linalg.norm(mesh.vertices[mesh.faces[others]] - centre, axis=2),
+                                        0.035, atol=1e-9), axis=1) & (mesh.triangles_center[others, 2] > 0.0201))
+
+
+@pytest.mark.parametrize("name", WORKPIECE_NAMES)
 def test_part_rests_on_z0_centred_in_xy(meshes, name):
     mesh = meshes[name]
     assert mesh.bounds[0, 2] == 0.0

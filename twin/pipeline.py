@@ -40,6 +40,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+import trimesh
 
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
@@ -169,11 +170,23 @@ def tool_settings(scenario: Scenario) -> ToolSettings:
                         p.retract_m)
 
 
-def process_region(scenario: Scenario) -> ProcessRegion:
-    """The scenario's process region (workpiece frame)."""
+def process_region(scenario: Scenario, mesh: trimesh.Trimesh) -> ProcessRegion:
+    """The scenario's process region (workpiece frame) on its part ``mesh``.
+
+    Raises:
+        TwinError: ``path.region_features`` names a feature the part does not have.
+    """
     p = scenario.path
     lo, hi = (None, None) if p.region_box_m is None else (tuple(p.region_box_m[0]), tuple(p.region_box_m[1]))
-    return ProcessRegion(tuple(p.region_axis), float(np.radians(p.region_cone_deg)), lo, hi)
+    faces = None
+    if p.region_features:
+        known = mesh.metadata.get("features", {})
+        unknown = [f for f in p.region_features if f not in known]
+        if unknown:
+            allowed = ", ".join(known) if known else "none: a loaded mesh names no features"
+            raise TwinError(f"path.region_features: the part has no feature {unknown[0]!r}; its features: {allowed}")
+        faces = np.unique(np.concatenate([known[f] for f in p.region_features]))
+    return ProcessRegion(tuple(p.region_axis), float(np.radians(p.region_cone_deg)), lo, hi, faces)
 
 
 def sensor_sigma_m(scenario: Scenario) -> float:
@@ -242,20 +255,19 @@ def _pieces(cloud: LineCloud, T_base_workpiece: np.ndarray, index: MeshIndex, re
         p_wp = transform_points(T_wb, line)
         cp = index.query(p_wp)
         n_wp = index.smooth_normals(cp.face, cp.foot)
-        runs = split_runs(p_wp, n_wp, region.select(cp.foot, n_wp), max_gap_m=max_gap_m)
+        runs = split_runs(p_wp, n_wp, region.select(cp.foot, n_wp, cp.face), max_gap_m=max_gap_m)
         out.append([line[r] for r in runs if np.linalg.norm(line[r[-1]] - line[r[0]]) >= min_length_m])
     return out
 
 
-def scan_path(scan: Scan, T_base_workpiece_estimate: np.ndarray, index: MeshIndex) -> ScanPath:
+def scan_path(scan: Scan, T_base_workpiece_estimate: np.ndarray, index: MeshIndex, region: ProcessRegion) -> ScanPath:
     """Document 004's pipeline from the scan points to process lines (robot base frame), per
-    pass and per patch (module docstring, step 3)."""
+    pass and per patch, on the process ``region`` (module docstring, step 3)."""
     sc = scan.scenario
     if scan.beams != 1:
         raise TwinError("the scan-derived path needs one beam per sample (sensor.kind = 'point')")
     t0 = time.perf_counter()
     params = cloud_params(sc)
-    region = process_region(sc)
     link_m = 3.0 * _max_line_spacing_m(sc)
     lines, normals, tool_normals, left_out = [], [], [], []
     removed: dict = {}
@@ -310,7 +322,7 @@ def cad_path_lines(realized: Realized) -> tuple[list, list]:
     p = realized.scenario.path
     wp = realized.workpiece
     return cad_raster(wp.mesh, p.line_spacing_m, p.point_spacing_m, p.margin_m, p.line_axis,
-                      normals=wp.index.smooth_normals, process_region=process_region(realized.scenario))
+                      normals=wp.index.smooth_normals, process_region=process_region(realized.scenario, wp.mesh))
 
 
 def cad_path(realized: Realized) -> ProcessPath:
@@ -397,11 +409,13 @@ def check_process_region(realized: Realized) -> None:
     """Bad input, before anything runs: a process region that selects no face of the part."""
     mesh = realized.workpiece.mesh
     centres = np.asarray(mesh.triangles_center)
-    if not process_region(realized.scenario).select(centres, np.asarray(mesh.face_normals)).any():
+    region = process_region(realized.scenario, mesh)
+    if not region.select(centres, np.asarray(mesh.face_normals), np.arange(len(mesh.faces))).any():
         p = realized.scenario.path
+        features = f", region_features {list(p.region_features)}" if p.region_features else ""
         raise TwinError(f"the process region (path.region_axis {np.round(p.region_axis, 3).tolist()}, "
-                        f"region_cone_deg {p.region_cone_deg:g}, region_box_m {p.region_box_m}) selects no face "
-                        "of the part")
+                        f"region_cone_deg {p.region_cone_deg:g}, region_box_m {p.region_box_m}{features}) "
+                        "selects no face of the part")
 
 
 def _current_stage(state: dict) -> str:
@@ -446,7 +460,7 @@ def _run(realized: Realized, nominal: Cell, true_cell: Cell, replay_cell: Cell, 
     if scan.beams == 1:
         t0 = time.perf_counter()
         try:
-            sp = scan_path(scan, T_est, index)
+            sp = scan_path(scan, T_est, index, process_region(scenario, realized.workpiece.mesh))
         except (TwinError, AlgorithmError) as exc:
             raise StageFailed("scan_path", str(exc)) from None
         state["scan_path"] = sp

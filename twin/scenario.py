@@ -348,6 +348,8 @@ class PathSpec:
             about the ball's centre (the contact point stays the same), where the shank or
             holder would otherwise come too close to the part [deg]; 0: the axis stays on the
             normal (eq. 11).
+        region_features: names of the part's CAD features (faces of a generated part, e.g.
+            "hemisphere", "plate_top") the processed points must also lie on; () : any.
     """
 
     T_flange_tool: np.ndarray
@@ -380,6 +382,7 @@ class PathSpec:
     region_cone_deg: float = 60.0
     region_box_m: tuple | None = None
     max_tilt_deg: float = 0.0
+    region_features: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -836,7 +839,12 @@ def _parse_path(s: _Section) -> PathSpec:
     cone = s.number("region_cone_deg", 60.0, 0.0, 90.0, lo_open=True)
     max_tilt = s.number("max_tilt_deg", 0.0, 0.0, 89.0)
     box = s._get("region_box_m", None)
+    features = s._get("region_features", [])
     s.done()
+    if isinstance(features, str):
+        features = [features]
+    if not (isinstance(features, list) and all(isinstance(f, str) and f for f in features)):
+        raise TwinError(f"path.region_features must be a feature name or a list of names, got {features!r}")
     if box is not None:
         ok = (isinstance(box, list) and len(box) == 2
               and all(isinstance(c, list) and len(c) == 3 and all(_is_number(v) for v in c) for c in box))
@@ -854,7 +862,7 @@ def _parse_path(s: _Section) -> PathSpec:
     return PathSpec(T_ft, tip, shank, holder, holder_len, feed, transit, acc, acc_td, point_spacing, line_spacing,
                     margin, axis_name, retract, heading, heading_dir / np.linalg.norm(heading_dir), axis,
                     axis_dir / np.linalg.norm(axis_dir), lead, tilt, knots, simplify, window, k, gap, empty,
-                    region_axis / np.linalg.norm(region_axis), cone, box, max_tilt)
+                    region_axis / np.linalg.norm(region_axis), cone, box, max_tilt, tuple(features))
 
 
 def default_probe_mount() -> np.ndarray:

@@ -5,7 +5,8 @@ frame (:class:`ProcessRegion`):
 
 * a normal cone: the normal within ``max_angle_rad`` of ``axis`` (default: the surfaces a
   ball-end tool reaches from above within a tilt limit: ``axis`` = +z);
-* a box: the point inside ``[lo, hi]``.
+* a box: the point inside ``[lo, hi]``;
+* faces: the point on one of the given faces of the CAD mesh (a named feature's faces).
 
 Lines end at sharp edges and steps (:func:`split_runs`): a line of contact or scan points is
 cut wherever a point leaves the region, two consecutive points are farther apart than a gap
@@ -43,12 +44,14 @@ class ProcessRegion:
         axis: (3,) unit axis of the normal cone.
         max_angle_rad: half-angle of the cone, in (0, pi/2].
         box_lo_m, box_hi_m: optional (3,) corners of a box the points must lie in.
+        faces: optional indices of the mesh faces the points must lie on.
     """
 
     axis: tuple = (0.0, 0.0, 1.0)
     max_angle_rad: float = np.radians(60.0)
     box_lo_m: tuple | None = None
     box_hi_m: tuple | None = None
+    faces: np.ndarray | None = None
 
     def __post_init__(self):
         a = np.asarray(self.axis, dtype=np.float64)
@@ -65,8 +68,9 @@ class ProcessRegion:
                 raise RegionError(f"a region box needs finite corners with lo < hi, got "
                                   f"{self.box_lo_m}, {self.box_hi_m}")
 
-    def select(self, points_m, normals) -> np.ndarray:
-        """(N,) bool: the points (N, 3) with unit normals (N, 3) this region processes."""
+    def select(self, points_m, normals, faces=None) -> np.ndarray:
+        """(N,) bool: the points (N, 3) with unit normals (N, 3), on the mesh faces ``faces``
+        (N,) (needed when the region names faces), that this region processes."""
         p = np.asarray(points_m, dtype=np.float64)
         n = np.asarray(normals, dtype=np.float64)
         a = np.asarray(self.axis, dtype=np.float64)
@@ -74,6 +78,10 @@ class ProcessRegion:
         keep = n @ a >= np.cos(self.max_angle_rad) - 1e-12
         if self.box_lo_m is not None:
             keep &= np.all((p >= np.asarray(self.box_lo_m)) & (p <= np.asarray(self.box_hi_m)), axis=1)
+        if self.faces is not None:
+            if faces is None:
+                raise RegionError("this region selects faces: the points' faces are needed")
+            keep &= np.isin(np.asarray(faces), self.faces)
         return keep
 
 

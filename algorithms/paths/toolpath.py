@@ -448,7 +448,7 @@ def cad_raster(mesh, line_spacing_m: float = 0.004, point_spacing_m: float = 0.0
         else:
             n = np.asarray(normals(f, p), dtype=np.float64)
         # Lines end at holes, steps, sharp edges and the border of the process region.
-        keep = None if process_region is None else process_region.select(p, n)
+        keep = None if process_region is None else process_region.select(p, n, f)
         for run in split_runs(p, n, keep, max_gap_m=STEP_FACTOR * point_spacing_m, min_points=2):
             lines.append(p[run])
             norms.append(n[run])

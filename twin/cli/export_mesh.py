@@ -91,12 +91,15 @@ def run(args: argparse.Namespace) -> int:
         "bounds_m": bounds.tolist(),
         "frame": "workpiece",
         "units": "m",
+        # the part's named CAD features ([path] region_features) and their triangle counts
+        "features": {name: int(len(f)) for name, f in mesh.metadata.get("features", {}).items()},
     }
     size = " x ".join(f"{v * 1e3:.6g}" for v in bounds[1] - bounds[0])
     rows = [("wrote", f"{out} ({result['format']}, metres, workpiece frame)"),
             ("triangles", f"{result['triangles']} ({result['vertices']} vertices)"),
             ("bounds", "min [" + ", ".join(f"{v:.6g}" for v in bounds[0]) + "] m, max ["
              + ", ".join(f"{v:.6g}" for v in bounds[1]) + "] m"),
-            ("size", f"{size} mm")]
+            ("size", f"{size} mm"),
+            ("features", ", ".join(result["features"]) or "none (a loaded mesh names none)")]
     print_result(args, result, rows)
     return 0

@@ -18,6 +18,7 @@ from twin.parts.kernel import (
     CHORD_TOL_M,
     PLANAR_MAX_EDGE_M,
     assemble,
+    box_features,
     box_patches,
     check_nonnegative,
     check_positive,
@@ -134,7 +135,7 @@ def inner_sphere(
         box_patches((-length / 2, -width / 2, 0.0), (length / 2, width / 2, height),
                      max(res, PLANAR_MAX_EDGE_M), top_holes=[v[rings[0]]])
     )
-    return assemble(patches, "inner_sphere")
+    return assemble(patches, "inner_sphere", ["bowl", *box_features("block")])
 
 
 def through_hole(
@@ -196,4 +197,4 @@ def through_hole(
                      max(res, PLANAR_MAX_EDGE_M),
                      end_holes={1: [v[rings[0]]], -1: [v[rings[-1]]]})
     )
-    return assemble(patches, "through_hole")
+    return assemble(patches, "through_hole", ["hole", *box_features("block")])

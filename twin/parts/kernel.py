@@ -822,16 +822,29 @@ def box_patches(
     return patches
 
 
-def assemble(patches: Sequence[tuple[np.ndarray, np.ndarray]], name: str) -> trimesh.Trimesh:
+BOX_FACES = ("top", "bottom", "front", "back", "left", "right")
+"""Names of :func:`box_patches`' six faces, in its order (+z, -z, -y, +y, -x, +x)."""
+
+
+def box_features(prefix: str) -> list[str]:
+    """Feature names of :func:`box_patches`' faces: ``PREFIX_top``, ``PREFIX_bottom``, ..."""
+    return [f"{prefix}_{face}" for face in BOX_FACES]
+
+
+def assemble(patches: Sequence[tuple[np.ndarray, np.ndarray]], name: str,
+             features: Sequence[str] | None = None) -> trimesh.Trimesh:
     """Stitch patches into one mesh by merging coincident vertices, and check the solid.
 
     Args:
         patches: (vertices (N_i, 3) [m], triangles (M_i, 3) int) pairs, each wound outward.
         name: the part's name, for the messages.
+        features: optional name of each patch (the CAD feature it is; patches may share a
+            name), kept as ``mesh.metadata["features"]``: {name: (K,) face indices}.
 
     Returns:
         Closed, consistently wound mesh of positive volume (``process=False``: vertices are
-        the patches' in order of first appearance, merged within 1 nm).
+        the patches' in order of first appearance, merged within 1 nm; faces in the patches'
+        order).
 
     Raises:
         TwinError: more faces than MuJoCo accepts (200,000).
@@ -857,6 +870,12 @@ def assemble(patches: Sequence[tuple[np.ndarray, np.ndarray]], name: str) -> tri
             f"{_MAX_FACES} (MuJoCo refuses larger meshes): use a coarser resolution_m"
         )
     mesh = trimesh.Trimesh(vertices=v_merged, faces=f_merged, process=False)
+    if features is not None:
+        if len(features) != len(patches):
+            raise RuntimeError(f"internal error: {name}: {len(features)} feature names for {len(patches)} patches")
+        owner = np.repeat(np.arange(len(patches)), [len(f) for _, f in patches])
+        names = np.asarray(features, dtype=object)[owner]
+        mesh.metadata["features"] = {n: np.flatnonzero(names == n) for n in dict.fromkeys(features)}
     problems = []
     if np.any(f_merged[:, 0] == f_merged[:, 1]) or np.any(f_merged[:, 1] == f_merged[:, 2]) or (
         np.any(f_merged[:, 0] == f_merged[:, 2])

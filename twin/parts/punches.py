@@ -19,6 +19,7 @@ from twin.parts.kernel import (
     CHORD_TOL_M,
     PLANAR_MAX_EDGE_M,
     assemble,
+    box_features,
     box_patches,
     check_finite,
     check_positive,
@@ -135,7 +136,8 @@ def hemisphere_punch(
         box_patches((-length / 2, -width / 2, 0.0), (length / 2, width / 2, thick),
                      max(res, PLANAR_MAX_EDGE_M), top_holes=holes)
     )
-    return assemble(patches, "hemisphere_punch")
+    features = ["hemisphere"] + [f"pin_{i + 1}" for i in range(len(pins))] + box_features("plate")
+    return assemble(patches, "hemisphere_punch", features)
 
 
 # --------------------------------------------------------------------------------------------
@@ -313,4 +315,4 @@ def bottle_punch(
         box_patches((-length / 2, -width / 2, 0.0), (length / 2, width / 2, thick),
                      max(res, PLANAR_MAX_EDGE_M), top_holes=[footprint])
     )
-    return assemble(patches, "bottle_punch")
+    return assemble(patches, "bottle_punch", ["bottle", *box_features("plate")])

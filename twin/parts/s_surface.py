@@ -264,4 +264,6 @@ def s_surface(
             np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, -1.0]), coarse,
         )
     )
-    return assemble(patches, "s_surface")
+    # the top, the walls in the order of ``outward`` (-y, +x, +y, -x), the bottom
+    return assemble(patches, "s_surface", ["s_surface", "side_front", "side_right", "side_back", "side_left",
+                                           "bottom"])

@@ -34,6 +34,7 @@ from twin.parts.kernel import (
     CHORD_TOL_M,
     PLANAR_MAX_EDGE_M,
     assemble,
+    box_features,
     box_patches,
     check_finite,
     check_nonnegative,
@@ -104,7 +105,7 @@ def bore_and_face(
     patches = [(v, f)]
     patches.extend(box_patches((-length / 2, -width / 2, 0.0), (length / 2, width / 2, thick),
                                max(res, PLANAR_MAX_EDGE_M), top_holes=[v[rings[0]]]))
-    return assemble(patches, "bore_and_face")
+    return assemble(patches, "bore_and_face", ["bore", *box_features("plate")])
 
 
 def sphere(
@@ -148,7 +149,7 @@ def sphere(
     patches = [(v, f)]
     patches.extend(box_patches((-base / 2, -base / 2, 0.0), (base / 2, base / 2, thick),
                                max(res, PLANAR_MAX_EDGE_M), top_holes=[v[rings[0]]]))
-    return assemble(patches, "sphere")
+    return assemble(patches, "sphere", ["sphere", *box_features("base")])
 
 
 def cube(side_m: float = 0.04, resolution_m: float = 0.001,
@@ -162,7 +163,7 @@ def cube(side_m: float = 0.04, resolution_m: float = 0.001,
     res, _ = check_resolution(resolution_m, chord_tolerance_m)
     require(0.005 <= a <= 0.5, f"side_m must be between 5 mm and 500 mm, got {format_mm(a)}")
     patches = box_patches((-a / 2, -a / 2, 0.0), (a / 2, a / 2, a), max(res, PLANAR_MAX_EDGE_M))
-    return assemble(patches, "cube")
+    return assemble(patches, "cube", box_features("cube"))
 
 
 # ------------------------------------------------------------------------------ cast blank
@@ -287,7 +288,8 @@ def cast_blank(
         holes.append(v[rings[0]])
     patches.extend(box_patches((-L / 2, -W / 2, 0.0), (L / 2, W / 2, T),
                                max(res, PLANAR_MAX_EDGE_M), top_holes=holes))
-    return assemble(patches, "cast_blank")
+    bosses = [f"boss_{i + 1}" for i in range(len(g["bosses"]))]
+    return assemble(patches, "cast_blank", bosses + box_features("plate"))
 
 
 def cast_blank_finished(
@@ -323,7 +325,8 @@ def cast_blank_finished(
         holes.append(v[rings[0]])
     patches.extend(box_patches((-L / 2, -W / 2, 0.0), (L / 2, W / 2, T),
                                max(res, PLANAR_MAX_EDGE_M), top_holes=holes))
-    return assemble(patches, "cast_blank_finished")
+    bosses = [f"boss_{i + 1}" for i in range(len(g["bosses"]))]
+    return assemble(patches, "cast_blank_finished", bosses + box_features("plate"))
 
 
 def cast_blank_rough_points(n: int, rng: np.random.Generator, max_slope_deg: float = 60.0,
