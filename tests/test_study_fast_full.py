@@ -11,8 +11,7 @@ within four standard errors and the spreads within a factor two. The same tests 
 fast trials whose sensor sigma is four times the scenario's (their power).
 
 CI runs 150 fast trials per sigma against 8 full trials (about 90 s with 2 workers on the
-2-core machine); ``pytest -m slow`` runs 300 against 200 (about 20 min: 200 full trials at
-0.18 a second).
+2-core machine); ``pytest -m slow`` runs 300 against 200.
 """
 
 import numpy as np
