@@ -41,7 +41,10 @@ Readings and choices:
   points (:mod:`.verify`) and the best is polished with the library's local method
   (:func:`algorithms.registration.local.localize`).
 * The document stops at the first start that passes all tests. Here every start is run
-  (unless ``stop_at_first=True``), because hypotheses are verified (:mod:`.verify`).
+  (unless ``stop_at_first=True``), because hypotheses are verified (:mod:`.verify`); but once
+  one start has passed, the others are no longer perturbed out of their local minima (step 6
+  is for a search that has not reached the noise level; each start's own minimum still goes
+  to the verification).
 """
 
 from __future__ import annotations
@@ -178,7 +181,13 @@ def descend(
         # Gauss-Newton step on the point-to-plane residual, about the centroid c
         c = x.mean(axis=1)
         xc = x - c[:, None, :]
-        J = np.concatenate([np.cross(xc, normal), normal], axis=2)
+        # J = [xc x n, n], the cross product written out (np.cross's own arithmetic, bit for bit; 1.7x
+        # faster than np.cross + concatenate at 60 lanes x 150 points)
+        J = np.empty(xc.shape[:2] + (6,))
+        J[..., 0] = xc[..., 1] * normal[..., 2] - xc[..., 2] * normal[..., 1]
+        J[..., 1] = xc[..., 2] * normal[..., 0] - xc[..., 0] * normal[..., 2]
+        J[..., 2] = xc[..., 0] * normal[..., 1] - xc[..., 1] * normal[..., 0]
+        J[..., 3:] = normal
         Jt = J.transpose(0, 2, 1)
         H = Jt @ J
         g = (Jt @ r[:, :, None])[:, :, 0]
@@ -206,7 +215,10 @@ def descend(
         # out of iterations with a small residual but still moving: stop, not accepted
         active[a[exhausted & small_eps & ~done_ok]] = False
         # step 6: perturb out of a local minimum, or give the start up
-        if do_perturb and rng is not None:
+        # once a start has passed every test, the others are not perturbed out of their local
+        # minima: each has given its minimum to the verification, and the perturbations are for
+        # a search that has not yet reached the noise level
+        if do_perturb and rng is not None and not accepted.any():
             pm = a[local_min]
             if len(pm):
                 give_up = level[pm] >= len(perturbation_deg)

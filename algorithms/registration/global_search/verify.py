@@ -16,7 +16,8 @@ confident unique success.
 
 The distinct solutions come from the multistart's coarse minima (for ``"genetic"`` and
 ``"pso"`` too: the coarse multistart phase runs for them as pre-registration or as this
-check), at most ``max_candidates`` of them, refined on ``n_verify`` points. Besides, every
+check), at most ``max_candidates`` of them, refined on ``n_verify`` points (screened: a candidate
+still in a clearly worse basin after SCREEN_ITERATIONS steps is not refined further). Besides, every
 rigid motion ``S`` that maps the model onto itself
 (:func:`algorithms.registration.symmetric.model_symmetries`: a cube's 24 rotations, a block's
 half turns) gives the pose ``T S``, which fits any points exactly as well as ``T``: those
@@ -106,11 +107,33 @@ def refine_candidates(exact, y_v, primary, lanes: LaneResult, extent: float, max
     return refine(exact, y_v, cand_T[keep], L)
 
 
+#: Exact refinement: at most REFINE_ITERATIONS Gauss-Newton steps per candidate; after the
+#: first SCREEN_ITERATIONS, a candidate whose RMS residual is still above SCREEN_RMS_FACTOR x
+#: the best's plus SCREEN_RMS_FRAC x L (a wrong basin: millimetres against micrometres) stops
+#: there, since it cannot come near the best; the others go on.
+REFINE_ITERATIONS = 15
+SCREEN_ITERATIONS = 3
+SCREEN_RMS_FACTOR = 2.0
+SCREEN_RMS_FRAC = 1e-3
+
+
 def refine(exact, y_v, T: np.ndarray, L: float) -> tuple[np.ndarray, np.ndarray]:
-    """A short exact descent from each pose of T (B, 4, 4) on the points y_v."""
-    ref = descend(exact, y_v, T, L=L, delta1=1e-6, delta2=np.inf, delta3=1e-7, max_iter_per_descent=15,
-                  rng=None)
-    return ref.T, ref.eps
+    """A short exact descent from each pose of T (B, 4, 4) on the points y_v (screened: see
+    REFINE_ITERATIONS)."""
+    def run(T0, iterations):
+        return descend(exact, y_v, T0, L=L, delta1=1e-6, delta2=np.inf, delta3=1e-7,
+                       max_iter_per_descent=iterations, rng=None)
+
+    ref = run(T, SCREEN_ITERATIONS)
+    T_out, eps = ref.T.copy(), ref.eps.copy()
+    rms = np.sqrt(eps / len(y_v))
+    go_on = (ref.iterations >= SCREEN_ITERATIONS) & (rms <= SCREEN_RMS_FACTOR * rms.min() + SCREEN_RMS_FRAC * L)
+    if go_on.any():
+        more = run(T_out[go_on], REFINE_ITERATIONS - SCREEN_ITERATIONS)
+        better = more.eps < eps[go_on]
+        idx = np.flatnonzero(go_on)[better]
+        T_out[idx], eps[idx] = more.T[better], more.eps[better]
+    return T_out, eps
 
 
 _SYMMETRY_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
