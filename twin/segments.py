@@ -20,7 +20,7 @@ import numpy as np
 
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
-from algorithms.paths.tilt import ToolProfile, clear_axes, foot_gap_m, tool_profile
+from algorithms.paths.tilt import ToolProfile, clear_axes, foot_gap_m, profile_gaps_m, tool_profile
 from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, transform_path
 from twin.cell import Cell
 from twin.errors import TwinError
@@ -91,9 +91,7 @@ def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: 
     T_wb = inv_pose(T_base_workpiece)
     T = T_wb @ path.T_tool
     centre = T[:, :3, 3] + p.tip_radius_m * T[:, :3, 2]
-    samples = centre[:, None, :] + profile.distance_m[None, :, None] * T[:, None, :3, 2]
-    d = index.signed_distance(samples.reshape(-1, 3)).reshape(len(T), len(profile.distance_m))
-    short = d - profile.radius_m[None, :]
+    short = profile_gaps_m(centre, T[:, :3, 2], profile, index.signed_distance)
     bad = np.flatnonzero(np.min(short, axis=1) < CLEARANCE_M)
     out = []
     # the ball itself on moves in the air (approach, retract, transit): never into the part

@@ -38,13 +38,15 @@ from scipy.ndimage import uniform_filter1d
 @dataclass(frozen=True)
 class ToolProfile:
     """The tool above its ball, for clearance checks: the distances [m] from the ball's centre
-    up the axis at which it is sampled, and the tool's radius [m] at each; the ball's and the
-    shank's radii [m] (for the shank's foot, below the first sample: :func:`foot_gap_m`)."""
+    up the axis at which it is sampled (every ``step_m`` from ``tip_radius_m + step_m``), the
+    tool's radius [m] at each, and the shank's radius [m] (for the shank's foot, below the
+    first sample: :func:`foot_gap_m`)."""
 
     distance_m: np.ndarray
     radius_m: np.ndarray
-    tip_radius_m: float = 0.0
-    shank_radius_m: float = 0.0
+    tip_radius_m: float
+    shank_radius_m: float
+    step_m: float
 
 
 def tool_profile(reach_m: float, tip_radius_m: float, shank_radius_m: float, holder_radius_m: float,
@@ -53,7 +55,16 @@ def tool_profile(reach_m: float, tip_radius_m: float, shank_radius_m: float, hol
     from the ball's centre), the holder's radius over its last ``holder_length_m``."""
     s = np.arange(tip_radius_m + step_m, reach_m, step_m)
     r = np.where(s > reach_m - holder_length_m, max(holder_radius_m, shank_radius_m), shank_radius_m)
-    return ToolProfile(s, r, tip_radius_m, shank_radius_m)
+    return ToolProfile(s, r, tip_radius_m, shank_radius_m, step_m)
+
+
+def profile_gaps_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
+                   signed_distance: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """(N, S) gap [m] between the part and the tool at each profile sample (along ``axes``
+    from the ball ``centres``)."""
+    samples = centres[:, None, :] + profile.distance_m[None, :, None] * axes[:, None, :]
+    d = signed_distance(samples.reshape(-1, 3)).reshape(len(centres), len(profile.distance_m))
+    return d - profile.radius_m[None, :]
 
 
 def clearance_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
@@ -61,15 +72,7 @@ def clearance_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
     """(N,) smallest gap [m] between the tool (along ``axes`` from the ball ``centres``) and the part."""
     if len(centres) == 0 or len(profile.distance_m) == 0:
         return np.full(len(centres), np.inf)
-    samples = centres[:, None, :] + profile.distance_m[None, :, None] * axes[:, None, :]
-    d = signed_distance(samples.reshape(-1, 3)).reshape(len(centres), -1)
-    return np.min(d - profile.radius_m[None, :], axis=1)
-
-
-# Below this length of ``up``'s projection (a face within about 15 deg of facing ``up``) its
-# direction is set by the normal's noise; such points take a fixed reference direction instead,
-# so that neighbours on a flat face share one tangent basis.
-_LEVEL_PROJECTION = 0.25
+    return np.min(profile_gaps_m(centres, axes, profile, signed_distance), axis=1)
 
 
 FOOT_AZIMUTHS = 12
@@ -85,9 +88,7 @@ def foot_gap_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
     the wall as the ball is. Above a plane the foot is ``tip_radius_m (1 - sin tilt)`` high."""
     if len(centres) == 0 or profile.shank_radius_m <= 0:
         return np.full(len(centres), np.inf)
-    top = profile.distance_m[0] if len(profile.distance_m) else profile.tip_radius_m
-    step = profile.distance_m[1] - profile.distance_m[0] if len(profile.distance_m) > 1 else top
-    heights = np.arange(0.0, top, step)
+    heights = np.arange(0.0, profile.tip_radius_m + profile.step_m, profile.step_m)
     e1 = np.cross(axes, np.where(np.abs(axes[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(axes, e1)
@@ -96,6 +97,12 @@ def foot_gap_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
     pts = (centres[:, None, None, :] + heights[None, :, None, None] * axes[:, None, None, :]
            + profile.shank_radius_m * ring[:, None, :, :])
     return signed_distance(pts.reshape(-1, 3)).reshape(len(centres), -1).min(axis=1)
+
+
+# Below this length of ``up``'s projection (a face within about 15 deg of facing ``up``) its
+# direction is set by the normal's noise; such points take a fixed reference direction instead,
+# so that neighbours on a flat face share one tangent basis.
+_LEVEL_PROJECTION = 0.25
 
 
 def _tangent_towards(normals: np.ndarray, up: np.ndarray) -> np.ndarray:
