@@ -11,7 +11,7 @@ from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
 from tests.helpers import scenario
 from tests.tolerances import ANALYTIC_DISTANCE_M, ON_SURFACE_M
-from twin.cell import build_cell, build_spec, compile_cell
+from twin.cell import build_spec, compile_cell
 from twin.ik import IKSolver
 from twin.realize import load_workpiece_mesh, realize
 from twin.robot import HOME_Q
@@ -195,13 +195,3 @@ def test_scan_files(tmp_path, noise_off_scan):
     assert np.array_equal(pts, noise_off_scan.valid_points_base)
     assert (out / "scan.json").is_file()
     assert VALID == 0
-
-
-def test_line_profiler_fan_matches_the_camera_rays():
-    sc = scenario("s_surface", sensor={"kind": "line", "beams": 16, "fan_deg": 30.0})
-    cell = build_cell(realize(sc), "true")
-    cell.set_q(HOME_Q)
-    R = cell.data.site_xmat[cell.sensor_site].reshape(3, 3)
-    adr = cell.model.sensor("laser_ray").adr[0]
-    dirs_w = cell.data.sensordata[adr:adr + 16 * 7].reshape(16, 7)[:, 1:4]
-    assert np.allclose(dirs_w @ R, cell.sensor.beam_dirs_sensor(), atol=1e-9)

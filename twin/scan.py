@@ -13,8 +13,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-import mujoco
-import mujoco.batch
 import numpy as np
 from scipy.interpolate import CubicSpline
 
@@ -27,7 +25,6 @@ from twin.robot import HOME_Q, JOINT_NAMES, UR5E_DH
 from twin.scenario import Scenario
 from twin.sensors import RaySensor
 from twin.sensors.base import Measurement, RawRays, sensor_slice
-from twin.sensors.laser import RAY_THREADS
 from twin.sim import simulate
 
 IK_KNOT_STEPS = 10   # IK every 10 ms; joint references in between by a cubic spline
@@ -171,10 +168,9 @@ def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan 
     timings["simulate_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    batch = mujoco.batch.Batch(true_cell.model, RAY_THREADS, nthread=RAY_THREADS)
     meas, q_log, points = measure_samples(scenario, true_cell, plan.t, log.q_enc, log.rays(),
                                           realized.streams.generator("sensor"),
-                                          realized.streams.generator("encoder"), batch)
+                                          realized.streams.generator("encoder"))
     timings["sensor_model_s"] = time.perf_counter() - t0
     q_true = log.q_true
     t = plan.t.copy()
@@ -198,7 +194,9 @@ class SampleLog:
         self.cell = true_cell
         b = true_cell.sensor.beams
         self.dist = np.empty((n, b))
-        self.origin, self.direction, self.normal, self.receiver = (np.empty((n, b, 3)) for _ in range(4))
+        self.direction, self.normal = np.empty((n, b, 3)), np.empty((n, b, 3))
+        # the beams of a sample share the emitter and the receiver
+        self.origin, self.receiver = np.empty((n, 3)), np.empty((n, 3))
         self.q_enc = np.empty((n, 6))
         self.q_true = np.empty((n, 6))
         self.enc_cols = [sensor_slice(true_cell.model, f"enc_{j}").start for j in JOINT_NAMES]
@@ -207,19 +205,20 @@ class SampleLog:
         i1 = i0 + len(sens)
         self.q_enc[i0:i1] = sens[:, self.enc_cols]
         self.q_true[i0:i1] = q_before
-        r = self.cell.sensor.decode(self.cell.model, sens)
-        self.dist[i0:i1], self.origin[i0:i1], self.direction[i0:i1] = r.dist, r.origin, r.direction
-        self.normal[i0:i1], self.receiver[i0:i1] = r.normal, r.receiver
+        r = self.cell.sensor.decode(self.cell.model, sens, q_before)
+        self.dist[i0:i1], self.origin[i0:i1], self.direction[i0:i1] = r.dist, r.origin[:, 0], r.direction
+        self.normal[i0:i1], self.receiver[i0:i1] = r.normal, r.receiver[:, 0]
 
     def rays(self, rows: slice | np.ndarray = slice(None)) -> RawRays:
         """The ideal rays of the logged steps (``rows`` of them)."""
-        return RawRays(self.dist[rows], self.origin[rows], self.direction[rows], self.normal[rows],
-                       self.receiver[rows])
+        dist = self.dist[rows]
+        return RawRays(dist, np.broadcast_to(self.origin[rows][:, None], dist.shape + (3,)), self.direction[rows],
+                       self.normal[rows], np.broadcast_to(self.receiver[rows][:, None], dist.shape + (3,)))
 
 
 def measure_samples(scenario: Scenario, true_cell: Cell, t: np.ndarray, q_enc: np.ndarray, rays: RawRays,
-                    rng_sensor: np.random.Generator, rng_encoder: np.random.Generator,
-                    batch: mujoco.batch.Batch | None = None) -> tuple[Measurement, np.ndarray, np.ndarray]:
+                    rng_sensor: np.random.Generator,
+                    rng_encoder: np.random.Generator) -> tuple[Measurement, np.ndarray, np.ndarray]:
     """What the cell reports for simulated samples, and the points rebuilt from it.
 
     The sensor's error model on the ideal rays, then the robot-side error sources on the
@@ -233,7 +232,7 @@ def measure_samples(scenario: Scenario, true_cell: Cell, t: np.ndarray, q_enc: n
     Returns:
         (measurement, q_log (N, 6) [rad] as logged, points (N, B, 3) [m] robot base frame).
     """
-    meas = true_cell.sensor.measure(rays, rng_sensor, true_cell.model, batch)
+    meas = true_cell.sensor.measure(rays, rng_sensor, true_cell.model)
     q_log = q_enc.copy()
     if scenario.noise.time_skew_s != 0.0:
         # The distance at t pairs with the joints read at t - skew.

@@ -723,18 +723,18 @@ def _corner_normals(vertices, faces, face_normals, crease_deg: float = 30.0):
     # all pairs (corner owner face f, neighbour face g) sharing the vertex
     pair_vert = np.repeat(vert_s, deg[vert_s])
     pair_f = np.repeat(f_s, deg[vert_s])
-    pair_corner_pos = np.repeat(np.arange(len(vert_s)), deg[vert_s])
-    offs = np.arange(len(pair_vert)) - np.repeat(np.cumsum(deg[vert_s]) - deg[vert_s], deg[vert_s])
-    pair_g = f_s[starts[pair_vert] + offs]
+    run_start = np.cumsum(deg[vert_s]) - deg[vert_s]   # each (vertex, f)'s first pair
+    offs = np.arange(len(pair_vert)) - np.repeat(run_start, deg[vert_s])
+    incidence = starts[pair_vert] + offs          # position of (vertex, g) in the sorted list
+    pair_g = f_s[incidence]
     cos_crease = np.cos(np.radians(crease_deg))
     keep = np.einsum("ij,ij->i", face_normals[pair_f], face_normals[pair_g]) >= cos_crease
-    # angle of face g at this vertex
-    corner_of_g = np.argmax(faces[pair_g] == pair_vert[:, None], axis=1)
-    wgt = ang[pair_g, corner_of_g] * keep
-    acc = np.zeros((len(vert_s), 3))
-    np.add.at(acc, pair_corner_pos, wgt[:, None] * face_normals[pair_g])
+    # angle of face g at this vertex (element i of faces.reshape(-1) is corner i % 3)
+    wgt = ang.reshape(-1)[order[incidence]] * keep
+    # the pairs of one (vertex, f) are contiguous: sum each run
+    acc = np.add.reduceat(wgt[:, None] * face_normals[pair_g], run_start, axis=0)
     # back to (face, corner) order
-    corner_of_f = np.argmax(faces[f_s] == vert_s[:, None], axis=1)
+    corner_of_f = order % 3
     out = np.zeros((len(faces), 3, 3))
     out[f_s, corner_of_f] = acc
     norm = np.linalg.norm(out, axis=2, keepdims=True)

@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import mujoco
-import mujoco.batch
 import numpy as np
 from scipy.interpolate import CubicSpline
 
@@ -42,7 +41,6 @@ from twin.realize import Realized
 from twin.replay import HeightField, add_collision_checks, contact_columns, contact_records
 from twin.robot import HOME_Q, UR5E_DH
 from twin.scan import IK_ORIENTATION_TOL_RAD, IK_POSITION_TOL_M, SampleLog, measure_samples
-from twin.sensors.laser import RAY_THREADS
 from twin.sim import simulate
 from twin.trajectory import TABLE_CLEARANCE_M, TableCheck, joint_move
 
@@ -137,7 +135,6 @@ class ScanArm:
         self.solver = IKSolver(nominal.model, nominal.sensor.site, IK_POSITION_TOL_M, IK_ORIENTATION_TOL_RAD)
         self.rng_sensor = realized.streams.generator("sensor")
         self.rng_encoder = realized.streams.generator("encoder")
-        self.batch = mujoco.batch.Batch(true_cell.model, RAY_THREADS, nthread=RAY_THREADS)
         self.contact_names, self.contact_cols = contact_columns(true_cell.model)
         self.T_base_world = inv_pose(true_cell.T_world_base)
         self.clearance = TableCheck(clearance_cell, TABLE_CLEARANCE_M, PART_CLEARANCE_M)
@@ -256,7 +253,7 @@ class ScanArm:
         t = self.t_s + np.arange(n) * self.dt
         rows = slice(motion.line_start, n)
         meas, _, points = measure_samples(self.realized.scenario, self.cell, t[rows], log.q_enc[rows],
-                                          log.rays(rows), self.rng_sensor, self.rng_encoder, self.batch)
+                                          log.rays(rows), self.rng_sensor, self.rng_encoder)
         contacts = contact_records(self.contact_names, cdata, t, self.T_base_world) if k else []
         self.q = motion.q_end
         self.t_s += n * self.dt

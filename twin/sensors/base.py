@@ -5,8 +5,8 @@ the site whose pose is its frame and its MuJoCo sensors. Two families build on i
 sensors (:class:`RaySensor`: the laser point sensor and the laser line profiler) and the
 touch-trigger probe (:mod:`twin.sensors.touch_probe`).
 
-A ray sensor decodes the
-per-step ``sensordata`` of the 1 ms rollout into ideal readings, turns them into what the
+A ray sensor turns the
+per-step ``sensordata`` and joints of the 1 ms rollout into ideal readings, turns them into what the
 real device reports (its error model) and rebuilds points in the robot base frame from the
 encoder readings (document 004, eq. 2). Every array it returns has a fixed ``(N, B)`` leading
 shape: N samples (1 ms apart) by B beams (B = 1 for a point sensor), so no stage needs to
@@ -35,10 +35,11 @@ class RawRays:
 
     Attributes:
         dist: (N, B) distance from the emitter to the hit [m], -1 for no hit.
-        origin: (N, B, 3) emitter position, world [m].
+        origin: (N, B, 3) emitter position, world [m] (the beams of a sample share it: may be
+            a read-only broadcast of (N, 1, 3)).
         direction: (N, B, 3) unit beam direction, world.
         normal: (N, B, 3) outward surface normal at the hit, world (0 on a miss).
-        receiver: (N, B, 3) receiver position, world [m].
+        receiver: (N, B, 3) receiver position, world [m] (shared likewise).
     """
 
     dist: np.ndarray
@@ -100,13 +101,14 @@ class RaySensor(Sensor):
         """(B, 3) unit beam directions in the sensor frame."""
 
     @abstractmethod
-    def decode(self, model: mujoco.MjModel, sensordata: np.ndarray) -> RawRays:
-        """Ideal readings of a chunk of steps from their ``sensordata`` rows ((n, nsensordata))."""
+    def decode(self, model: mujoco.MjModel, sensordata: np.ndarray, q: np.ndarray) -> RawRays:
+        """Ideal readings of a chunk of steps from their ``sensordata`` rows ((n, nsensordata))
+        and the joints (n, 6) [rad] the sensors were evaluated at."""
 
     @abstractmethod
-    def measure(self, rays: RawRays, rng: np.random.Generator, model: mujoco.MjModel,
-                batch: mujoco.batch.Batch | None = None) -> Measurement:
-        """The device's error model applied to ideal readings (vectorised over (N, B))."""
+    def measure(self, rays: RawRays, rng: np.random.Generator, model: mujoco.MjModel) -> Measurement:
+        """The device's error model applied to ideal readings (vectorised over (N, B)) in the
+        cell compiled as ``model``."""
 
     @abstractmethod
     def reconstruct(self, q: np.ndarray, d: np.ndarray, dh: DHTable, T_flange_sensor: np.ndarray) -> np.ndarray:

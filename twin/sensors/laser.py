@@ -1,7 +1,8 @@
 """Laser triangulation displacement sensor model (defaults: Keyence IL-065).
 
-The geometry comes from MuJoCo's rangefinder (exact ray against the mesh triangles); this
-module turns the ideal hit into what the sensor reports. Every effect is switchable in the
+The geometry comes from exact rays against the mesh triangles (MuJoCo's rangefinder for the
+point sensor, :mod:`twin.sensors.raycast` for the line profiler's beams and every receiver
+ray); this module turns the ideal hit into what the sensor reports. Every effect is switchable in the
 scenario's ``[noise]`` table:
 
 * no hit, or a measured distance outside ``window_m``: invalid (``d`` = NaN, never 0 or clamped);
@@ -23,17 +24,15 @@ Status codes per sample (``status`` column): 0 valid, 1 no hit, 2 outside the wi
 from __future__ import annotations
 
 import mujoco
-import mujoco.batch
 import numpy as np
 
-from twin.robot import GROUP_ARM, STATIC_GROUPS
+from twin.robot import GROUP_ARM, JOINT_NAMES, STATIC_GROUPS
 from twin.scenario import NoiseSpec, SensorSpec
 from twin.sensors.base import INCIDENCE, NO_HIT, OCCLUDED, OUT_OF_WINDOW, VALID, Measurement, RawRays, RaySensor
+from twin.sensors.raycast import BLOCK_RAYS, CellRays
 
 # Start the receiver ray this far off the surface so it does not hit its own start point.
 OCCLUSION_RAY_OFFSET_M = 1e-7
-# The receiver rays of a long scan are cast on this many threads.
-RAY_THREADS = 2
 
 
 def linearity_error_m(d: np.ndarray, sensor: SensorSpec) -> np.ndarray:
@@ -43,48 +42,43 @@ def linearity_error_m(d: np.ndarray, sensor: SensorSpec) -> np.ndarray:
     return sensor.linearity_m * np.sin(np.pi * u)
 
 
-def cast_static_rays(batch, start: np.ndarray, unit: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """Distances of many rays against static geoms, split over the batch's simulations (threads).
+def occluded(rays: RawRays, check: np.ndarray, static_groups: np.ndarray, cast: CellRays) -> np.ndarray:
+    """True where the receiver cannot see the laser spot (the surface faces away, or a static
+    geom is in the way), for the rays ``check`` selects; False elsewhere. Only the spots that
+    face the receiver cost a ray. Samples are taken in blocks (see ``raycast.BLOCK_RAYS``)."""
+    out = np.zeros(check.shape, dtype=bool)
 
-    The geoms hit are static, so every simulation of the batch sees the same scene whatever
-    its joint state; -1 where a ray hits nothing.
-    """
-    nsim = batch.nsim if hasattr(batch, "nsim") else 1
-    n = len(start)
-    per = -(-n // nsim)
-    pad = per * nsim - n
-    if pad:
-        start = np.vstack([start, np.repeat(start[-1:], pad, axis=0)])
-        unit = np.vstack([unit, np.repeat(unit[-1:], pad, axis=0)])
-    dist, _ = batch.ray(start.reshape(nsim, per, 3), unit.reshape(nsim, per, 3),
-                        geomgroup=groups, flg_static=True)
-    return dist.reshape(-1)[:n]
+    def block(rows: slice) -> None:
+        part = RawRays(rays.dist[rows], rays.origin[rows], rays.direction[rows], rays.normal[rows],
+                       rays.receiver[rows])
+        out[rows] = _occluded_block(part, check[rows], static_groups, cast)
+
+    per_row = check.shape[1] if check.ndim > 1 else 1
+    cast.map_blocks(block, len(check), max(1, BLOCK_RAYS // per_row), check.size)
+    return out
 
 
-def occluded(model: mujoco.MjModel, rays: RawRays, hit: np.ndarray, static_groups: np.ndarray,
-             batch: mujoco.batch.Batch | None = None) -> np.ndarray:
-    """True where the receiver cannot see the laser spot (blocked, or the surface faces away)."""
-    out = np.zeros(hit.shape, dtype=bool)
-    if not np.any(hit):
+def _occluded_block(rays: RawRays, check: np.ndarray, static_groups: np.ndarray, cast: CellRays) -> np.ndarray:
+    # whole-array arithmetic, then one gather: origin and receiver may be broadcast views,
+    # which a boolean index gathers slowly
+    spot = rays.origin + rays.direction * rays.dist[..., None]
+    to_rx = rays.receiver - spot
+    with np.errstate(invalid="ignore"):   # misses carry dist -1 and a zero normal: not checked
+        facing = np.einsum("...i,...i->...", to_rx, rays.normal) > 0.0
+    out = check & ~facing
+    cast_rays = check & facing
+    if not np.any(cast_rays):
         return out
-    spot = rays.origin[hit] + rays.direction[hit] * rays.dist[hit, None]
-    n = rays.normal[hit]
-    to_rx = rays.receiver[hit] - spot
-    length = np.linalg.norm(to_rx, axis=1)
-    unit = to_rx / np.maximum(length, 1e-300)[:, None]
-    facing = np.einsum("ij,ij->i", unit, n) > 0.0
-    start = spot + OCCLUSION_RAY_OFFSET_M * n
-    if batch is None:
-        batch = mujoco.batch.Batch(model, RAY_THREADS, nthread=RAY_THREADS)
-    dist = cast_static_rays(batch, start, unit, static_groups)
-    blocked = (dist >= 0.0) & (dist < length)
-    out[hit] = blocked | ~facing
+    to_rx = to_rx[cast_rays]
+    length = np.sqrt(np.einsum("ij,ij->i", to_rx, to_rx))
+    n = rays.normal[cast_rays]
+    start = spot[cast_rays] + OCCLUSION_RAY_OFFSET_M * n
+    out[cast_rays] = cast.blocked(start, to_rx / length[:, None], length, static_groups)
     return out
 
 
 def measure(rays: RawRays, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.Generator,
-            model: mujoco.MjModel, static_groups: np.ndarray = STATIC_GROUPS,
-            batch: mujoco.batch.Batch | None = None) -> Measurement:
+            cast: CellRays, static_groups: np.ndarray = STATIC_GROUPS) -> Measurement:
     """Apply the sensor model to ideal rays (vectorised over all samples and beams)."""
     dist = np.asarray(rays.dist, dtype=np.float64)
     hit = dist >= 0.0
@@ -96,8 +90,7 @@ def measure(rays: RawRays, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
         too_steep = hit & (incidence > np.radians(sensor.max_incidence_deg))
         status[too_steep] = INCIDENCE
     if noise.occlusion:
-        blocked = occluded(model, rays, hit, static_groups, batch) & (status == VALID)
-        status[blocked] = OCCLUDED
+        status[occluded(rays, status == VALID, static_groups, cast)] = OCCLUDED
 
     d = np.where(hit, dist, np.nan)
     # Draw noise for every sample so the stream does not depend on which samples are valid.
@@ -121,9 +114,23 @@ def measure(rays: RawRays, sensor: SensorSpec, noise: NoiseSpec, rng: np.random.
 class LaserSensor(RaySensor):
     """A laser triangulation sensor on the flange (the IL-065 model above); point or line."""
 
-    def measure(self, rays: RawRays, rng: np.random.Generator, model: mujoco.MjModel,
-                batch: mujoco.batch.Batch | None = None) -> Measurement:
-        return measure(rays, self.spec, self.noise, rng, model, STATIC_GROUPS, batch)
+    _rays: CellRays | None = None
+    _rays_of: mujoco.MjModel | None = None
+
+    def cell_rays(self, model: mujoco.MjModel) -> CellRays:
+        """The bulk ray caster of the cell compiled as ``model`` (built on first use and kept:
+        a scan asks for it once per chunk of steps)."""
+        if self._rays is None or self._rays_of is not model:
+            qpos_adr = np.array([model.joint(name).qposadr[0] for name in JOINT_NAMES])
+            self._rays, self._rays_of = CellRays(model, qpos_adr), model
+        return self._rays
+
+    def __getstate__(self) -> dict:
+        # The caster holds Embree scenes and MuJoCo data: rebuilt where the sensor is unpickled.
+        return {k: v for k, v in self.__dict__.items() if k not in ("_rays", "_rays_of")}
+
+    def measure(self, rays: RawRays, rng: np.random.Generator, model: mujoco.MjModel) -> Measurement:
+        return measure(rays, self.spec, self.noise, rng, self.cell_rays(model), STATIC_GROUPS)
 
     def _attach_body(self, spec: mujoco.MjSpec, body: mujoco.MjsBody) -> None:
         """Housing, emitter site ``laser`` (the sensor frame), ``receiver`` site, and the frame-axis

@@ -54,10 +54,10 @@ from twin.pipeline import run as run_loop
 from twin.pipeline import sensor_sigma_m
 from twin.plan import ScanPlan, plan_scan
 from twin.realize import Realized, realize
-from twin.robot import JOINT_NAMES, UR5E_DH
-from twin.scan import solve_joint_references
+from twin.robot import UR5E_DH
+from twin.scan import SampleLog, solve_joint_references
 from twin.scenario import Scenario, load_scenario, merge_tables
-from twin.sensors.base import RawRays, sensor_slice
+from twin.sensors.base import RawRays
 from twin.sim import simulate
 from twin.studies.methods import Outcome, run_method
 from twin.studies.point_sets import Design, make_design, measured_points, model_points
@@ -111,22 +111,9 @@ def noise_free_scan(scenario: Scenario) -> NoiseFreeScan:
     nominal, true_cell = build_cell(realized, "nominal"), build_cell(realized, "true")
     plan = plan_scan(nominal)
     q_ref, qd_ref = solve_joint_references(nominal, plan)
-    sensor, model = true_cell.sensor, true_cell.model
-    n, b = len(q_ref), sensor.beams
-    dist = np.empty((n, b))
-    origin, direction, normal, receiver = (np.empty((n, b, 3)) for _ in range(4))
-    q_enc = np.empty((n, 6))
-    enc_cols = [sensor_slice(model, f"enc_{j}").start for j in JOINT_NAMES]
-
-    def on_chunk(i0, sens, q_before):
-        i1 = i0 + len(sens)
-        q_enc[i0:i1] = sens[:, enc_cols]
-        r = sensor.decode(model, sens)
-        dist[i0:i1], origin[i0:i1], direction[i0:i1] = r.dist, r.origin, r.direction
-        normal[i0:i1], receiver[i0:i1] = r.normal, r.receiver
-
-    simulate(true_cell, q_ref, qd_ref, on_chunk)
-    out = NoiseFreeScan(realized, RawRays(dist, origin, direction, normal, receiver), q_enc, plan, model, sensor)
+    log = SampleLog(true_cell, len(q_ref))
+    simulate(true_cell, q_ref, qd_ref, log.on_chunk)
+    out = NoiseFreeScan(realized, log.rays(), log.q_enc, plan, true_cell.model, true_cell.sensor)
     if len(_CACHE) >= _CACHE_SIZE:
         _CACHE.pop(next(iter(_CACHE)))
     _CACHE[key] = out
