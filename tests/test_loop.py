@@ -222,3 +222,56 @@ def test_an_unknown_feature_is_bad_input(tmp_path, scenario, feature, words):
     r = run_cli("run", str(scen), "--out", str(out))
     assert r.returncode == 2 and f"no feature '{feature}'" in r.stderr and words in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_the_tilt_freedom_spares_the_arm_its_discontinuities():
+    # The bottle punch's CAD raster (12 mm between lines) crosses fillets where the normal turns
+    # 15 deg from one contact point to the next: followed as it is, the wrist jumps there
+    # (discontinuous poses, dropped). Re-chosen within the 30 deg cone for the arm, at least
+    # half of them are followed instead (the rest: lines too short to re-tilt, or no clear
+    # tilt that helps), and every axis stays in its cone.
+    from twin.cell import build_cell
+    from twin.pipeline import cad_path_lines, tool_settings
+    from twin.realize import realize
+    from twin.segments import solve_with_drops
+
+    sc = load_scenario(ROOT / "scenarios" / "bottle_punch.toml", SHORT)
+    realized = realize(sc)
+    nominal = build_cell(realized, "nominal")
+    T = realized.T_base_workpiece_nominal
+    lines, normals = cad_path_lines(realized)
+    runs = {}
+    for steer in (False, True):
+        path, ik, dropped = solve_with_drops("cad_path", lines, normals, tool_settings(sc), None, nominal, T,
+                                             realized.workpiece.index, False, T_base_frame=T, steer=steer)
+        runs[steer] = (path, ik, [d.reason.split(":")[0] for d in dropped])
+    before, after = (runs[k][2].count("discontinuous") for k in (False, True))
+    print(f"discontinuous stretches dropped: {before} followed as they are, {after} re-chosen for the arm")
+    assert before >= 4 and after <= before // 2
+    path, ik, _ = runs[True]
+    assert not ik.problems
+    on = path.process_mask()   # the path in the base frame: its axes and normals alike
+    tilt = np.degrees(np.arccos(np.clip(np.sum(path.T_tool[on, :3, 2] * path.normal[on], axis=1), -1.0, 1.0)))
+    assert tilt.max() <= sc.path.max_tilt_deg + 1e-6
+
+
+def test_the_arms_cost_sees_wrist_jumps_and_poses_out_of_reach():
+    from twin.cell import build_cell
+    from twin.realize import realize
+    from twin.robot import HOME_Q
+    from twin.segments import _branch_of, _flange_to_ball, arm_cost
+
+    sc = load_scenario(ROOT / "scenarios" / "bottle_punch.toml")
+    realized = realize(sc)
+    nominal = build_cell(realized, "nominal")
+    T = realized.T_base_workpiece_nominal
+    branch = _branch_of(HOME_Q)
+    cost = arm_cost(_flange_to_ball(nominal), T, branch, sc.path.retract_m)
+    centres = np.column_stack([np.arange(10) * 0.001, np.zeros(10), np.full(10, 0.06)])   # 1 mm apart, wp frame
+    up = np.tile([0.0, 0.0, 1.0], (10, 1))
+    smooth = cost(centres, up)
+    assert smooth < 0.02
+    turned = up.copy()
+    turned[5:] = [np.sin(0.35), 0.0, np.cos(0.35)]       # the axis turns 20 deg between two points
+    assert cost(centres, turned) > 0.2 > smooth
+    assert cost(centres + [2.0, 0.0, 0.0], up) == np.inf  # two metres further: out of the arm's reach

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from algorithms.paths.tilt import clear_axes, clearance_m, foot_gap_m, tool_profile
+from algorithms.paths.tilt import clear_axes, clearance_m, foot_gap_m, steer_axes, tool_profile
 from algorithms.paths.toolpath import ToolSettings, build_path
 from tests.tolerances import ORTHONORMAL
 
@@ -112,3 +112,73 @@ def test_tool_axes_must_match_the_lines():
         build_path([contacts], [normals], ToolSettings(), lines_axis=[normals, normals])
     with pytest.raises(Exception, match="lines_axis"):
         build_path([contacts], [normals], ToolSettings(), lines_axis=[normals[:2]])
+
+
+def _leaning(direction):
+    """A made-up cost for the arm: lower the more the axes lean towards ``direction``."""
+    return lambda centres, axes: -float(np.mean(axes @ np.asarray(direction, dtype=float)))
+
+
+def _far_floor(p):
+    return np.asarray(p)[:, 2] + 1.0     # nothing within a metre below: every axis is clear
+
+
+def test_the_arm_gets_the_tilt_it_asks_for_on_the_stretch_with_ramps():
+    contacts, normals = _floor_line(np.arange(-0.2, -0.1, 0.002))
+    max_tilt = np.radians(30.0)
+    out = steer_axes(contacts, normals, normals, 20, 30, _leaning([1, 0, 0]), TIP_M, PROFILE, floor_and_wall,
+                     max_tilt, MIN_GAP_M, 0.0015, ramp=3)
+    tilt = np.degrees(np.arccos(np.clip(out[:, 2], -1.0, 1.0)))
+    assert np.allclose(tilt[20:30], 30.0) and np.allclose(out[20:30, 0], 0.5)     # all the cone allows, +x
+    assert np.array_equal(out[:17], normals[:17]) and np.array_equal(out[33:], normals[33:])
+    assert np.all(np.diff(tilt[16:21]) > 0) and np.all(np.diff(tilt[29:34]) < 0)   # ramps in and out
+    assert np.allclose(np.linalg.norm(out, axis=1), 1.0, atol=ORTHONORMAL)
+    # an arm that wants the axis on the normal gets nothing new
+    assert steer_axes(contacts, normals, normals, 20, 30, _leaning([0, 0, 1]), TIP_M, PROFILE, floor_and_wall,
+                      max_tilt, MIN_GAP_M, 0.0015) is None
+
+
+def test_a_fast_turning_normal_is_followed_slower_within_the_cones():
+    # a bend: the normal turns 24 deg from one point to the next; the arm's cost is the largest
+    # turn of the axis between neighbours (the wrist's step)
+    n_pts = 41
+    x = np.arange(n_pts) * 0.001
+    angle = np.where(np.arange(n_pts) < 20, 0.0, np.radians(24.0))
+    normals = np.column_stack([np.sin(angle), np.zeros(n_pts), np.cos(angle)])
+    contacts = np.column_stack([x, np.zeros(n_pts), np.zeros(n_pts)])
+
+    def largest_turn(centres, axes):
+        return float(np.max(np.arccos(np.clip(np.sum(axes[1:] * axes[:-1], axis=1), -1.0, 1.0))))
+
+    max_tilt = np.radians(20.0)
+    out = steer_axes(contacts, normals, normals, 17, 23, largest_turn, TIP_M, PROFILE, _far_floor, max_tilt,
+                     MIN_GAP_M)
+    assert out is not None
+    assert largest_turn(None, out) < 0.5 * largest_turn(None, normals)
+    assert np.all(np.sum(out * normals, axis=1) >= np.cos(max_tilt) - 1e-12)       # every axis in its cone
+    assert np.allclose(np.linalg.norm(out, axis=1), 1.0, atol=ORTHONORMAL)
+
+
+def test_the_arm_never_gets_a_tilt_that_brings_the_tool_into_the_part():
+    # next to the wall (+x) the arm would like the axis leaning along it (+y): a tilt towards
+    # +y alone keeps the holder as near the wall as upright (not clear), so it gets the best
+    # clear one, leaning along the wall and away from it
+    x = np.arange(-0.03, 0.0121, 0.002)
+    contacts, normals = _floor_line(x)
+    centres = contacts + TIP_M * normals
+    max_tilt = np.radians(30.0)
+    axes = clear_axes(contacts, normals, TIP_M, PROFILE, floor_and_wall, max_tilt, MIN_GAP_M, 0.0015)
+    lo, hi = len(x) - 6, len(x)
+    out = steer_axes(contacts, normals, axes, lo, hi, _leaning([0, 1, 0]), TIP_M, PROFILE, floor_and_wall,
+                     max_tilt, MIN_GAP_M, 0.0015)
+    assert out is not None
+    assert np.all(out[lo:hi, 1] > 0.1) and np.all(out[lo:hi, 0] < -0.1)
+    assert np.all(clearance_m(centres, out, PROFILE, floor_and_wall) >= MIN_GAP_M)
+    tilted = out[:, 2] < np.cos(1e-6)
+    assert np.all(foot_gap_m(centres[tilted], out[tilted], PROFILE, floor_and_wall) >= 0.0015)
+    assert np.all(np.degrees(np.arccos(np.clip(out[:, 2], -1.0, 1.0))) <= 30.0 + 1e-9)
+    # an arm that wants the axis leaning into the wall gets at most what keeps the tool clear
+    towards = steer_axes(contacts, normals, axes, lo, hi, _leaning([1, 0, 0]), TIP_M, PROFILE, floor_and_wall,
+                         max_tilt, MIN_GAP_M, 0.0015)
+    assert towards is not None
+    assert np.all(clearance_m(centres, towards, PROFILE, floor_and_wall) >= MIN_GAP_M)

@@ -8,7 +8,8 @@ exact part at the estimate (:func:`clearance_problems`) and the arm's links agai
 (:func:`table_problems`). A bad stretch is dropped (its line split there, with a retract, a
 transit and a re-approach), listed as :class:`Dropped`, and the path rebuilt and solved
 again, the dropped margin doubling each round; with ``strict`` the first bad pose fails the
-stage instead (:class:`StageFailed`).
+stage instead (:class:`StageFailed`). Before the first drop for the arm's sake, the tool's
+tilt freedom is used for it (:func:`steer_for_the_arm`).
 """
 
 from __future__ import annotations
@@ -16,14 +17,17 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 
+from algorithms.geometry.kinematics import dh_forward, ur_inverse
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
-from algorithms.paths.tilt import ToolProfile, clear_axes, foot_gap_m, profile_gaps_m, tool_profile
+from algorithms.paths.tilt import ToolProfile, clear_axes, foot_gap_m, profile_gaps_m, steer_axes, tool_profile
 from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, transform_path
-from twin.cell import Cell
+from twin.cell import TOOL_BALL_SITE, Cell
 from twin.errors import TwinError
+from twin.robot import UR5E_DH
 from twin.scenario import Scenario
 from twin.trajectory import TABLE_CLEARANCE_M, PathIK, PathProblem, TableCheck, solve_tool_path
 
@@ -41,6 +45,15 @@ CLEARANCE_STEP_M = 0.002   # spacing of the clearance checks along the tool
 # its foot is as near the first profile sample, held CLEARANCE_M off.
 SHANK_FOOT_GAP_M = 0.0015
 BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not enter the part in the air
+# The tilt freedom against the arm's problems (unreachable, singular, discontinuous poses): the
+# stretch around each is re-tilted for the arm (:func:`steer_for_the_arm`) before anything is dropped.
+STEER_WINDOW_POINTS = 8    # contact points on each side of an arm problem that share the new tilt
+STEER_RAMP_POINTS = 4      # ... and over which it ramps in and out
+# A line this short is not re-tilted: its approach, few points and retract follow each other too
+# closely (on the bottle punch, 3-point lines at a fillet, re-tilted, replayed 0.45-0.50 mm off).
+STEER_MIN_LINE_POINTS = 2 * STEER_WINDOW_POINTS + 1
+WRIST_SIN_MIN = 0.05       # |sin q5| below this: too near the wrist singularity for a steered axis
+ARM_PROBLEMS = ("unreachable", "singular", "discontinuous")
 
 
 @dataclass(frozen=True)
@@ -140,6 +153,111 @@ def tilted_axes(lines, normals, scenario: Scenario, T_base_workpiece: np.ndarray
     return out
 
 
+def _flange_to_ball(nominal: Cell) -> np.ndarray:
+    """(4, 4) the tool's ball-centre site in the flange site's frame (DH frame 6)."""
+    data = mujoco.MjData(nominal.model)
+    mujoco.mj_kinematics(nominal.model, data)
+    T = []
+    for name in ("flange", TOOL_BALL_SITE):
+        M = np.eye(4)
+        M[:3, :3] = data.site(name).xmat.reshape(3, 3)
+        M[:3, 3] = data.site(name).xpos
+        T.append(M)
+    return inv_pose(T[0]) @ T[1]
+
+
+def _wrapped(q: np.ndarray) -> np.ndarray:
+    return (q + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def arm_cost(T_flange_ball: np.ndarray, T_base_workpiece: np.ndarray, branch: int, retract_m: float):
+    """The arm's trouble along consecutive ball centres and tool axes (workpiece frame), on one
+    branch of the closed-form IK: the largest step of a joint between consecutive points
+    [rad] (joints 1-5: the spin about the tool axis is free); inf where the branch has no
+    solution (there, or ``retract_m`` up the axis from the first and the last point, where a
+    line's approach starts and its retract ends) or the wrist comes within WRIST_SIN_MIN of
+    its singularity. Returns the function (centres (M, 3), axes (M, 3)) -> float."""
+    R, t = T_base_workpiece[:3, :3], T_base_workpiece[:3, 3]
+    T_ball_flange = inv_pose(T_flange_ball)
+
+    def cost(centres: np.ndarray, axes: np.ndarray) -> float:
+        ends = [0, len(centres) - 1]
+        c = np.concatenate([centres, centres[ends] + retract_m * axes[ends]]) @ R.T + t
+        z = np.concatenate([axes, axes[ends]]) @ R.T
+        # one reference for the spin along the whole run, so the frames turn continuously
+        ref = np.eye(3)[int(np.argmin(np.abs(z.mean(axis=0))))]
+        x = np.cross(z, ref)
+        x /= np.linalg.norm(x, axis=1, keepdims=True)
+        T = np.tile(np.eye(4), (len(z), 1, 1))
+        T[:, :3, 0], T[:, :3, 1], T[:, :3, 2], T[:, :3, 3] = x, np.cross(z, x), z, c
+        sol = ur_inverse(T @ T_ball_flange, UR5E_DH, branches=[branch])
+        if not np.all(sol.valid[:, branch]) or np.min(sol.wrist_sin[:, branch]) < WRIST_SIN_MIN:
+            return np.inf
+        q = sol.q[: len(centres), branch, :5]
+        return float(np.max(np.abs(_wrapped(np.diff(q, axis=0))), initial=0.0))
+
+    return cost
+
+
+def _branch_of(q: np.ndarray) -> int:
+    """The closed-form IK branch a joint vector lies on (the nearest solution of its own
+    flange pose, joints 1-5)."""
+    sol = ur_inverse(dh_forward(q, UR5E_DH), UR5E_DH)
+    d = np.linalg.norm(_wrapped(sol.q[0, :, :5] - q[None, :5]), axis=1)
+    return int(np.argmin(np.where(sol.valid[0], d, np.inf)))
+
+
+def steer_for_the_arm(path: ProcessPath, ik: PathIK, problems, lines, normals, axes, sc: Scenario, nominal: Cell,
+                      T_base_workpiece: np.ndarray, index: MeshIndex,
+                      T_base_frame: np.ndarray | None) -> tuple[list[np.ndarray], int]:
+    """Use the tilt freedom against the arm's problems: around every
+    unreachable, singular or discontinuous pose (STEER_WINDOW_POINTS on each side of its
+    contact point; a pose in the air counts for the end of its line) the
+    axes are re-chosen in the cone (:func:`algorithms.paths.tilt.steer_axes`: the axes
+    smoothed along the line, or one tilt for the stretch) for the smallest joint step on the
+    branch the arm took coming in (:func:`arm_cost`), the tool kept clear of the part. Lines
+    shorter than STEER_MIN_LINE_POINTS are left as they are (dropped as before). Returns the
+    axes (in the lines' frame) and the number of stretches re-chosen."""
+    p = sc.path
+    T_wp_frame = inv_pose(T_base_workpiece) @ (np.eye(4) if T_base_frame is None else T_base_frame)
+    R = T_wp_frame[:3, :3]
+    profile = _profile(sc)
+    T_flange_ball = _flange_to_ball(nominal)
+    stretches: dict[int, list[int]] = {}
+    for prob in problems:   # a pose in the air counts for the end of the line it leaves or reaches
+        if prob.kind in ARM_PROBLEMS:
+            at = _line_point(path, prob.index)
+            if at is not None:
+                stretches.setdefault(at[0], []).append(at[1])
+    out = [np.array(a) for a in axes]
+    done = 0
+    for line, points in stretches.items():
+        poses = _line_poses(path, line)
+        if len(poses) < STEER_MIN_LINE_POINTS:
+            continue
+        for lo, hi in _merge_windows(sorted(points), STEER_WINDOW_POINTS, len(poses)):
+            cost = arm_cost(T_flange_ball, T_base_workpiece, _branch_of(ik.q[poses[max(0, lo - 1)]]), p.retract_m)
+            new = steer_axes(transform_points(T_wp_frame, np.asarray(lines[line])), np.asarray(normals[line]) @ R.T,
+                             out[line] @ R.T, lo, hi, cost, p.tip_radius_m, profile, index.signed_distance,
+                             float(np.radians(p.max_tilt_deg)), CLEARANCE_M, SHANK_FOOT_GAP_M, ramp=STEER_RAMP_POINTS)
+            if new is not None:
+                out[line] = new @ R
+                done += 1
+    return out, done
+
+
+def _merge_windows(points: list[int], half: int, n: int) -> list[tuple[int, int]]:
+    """Windows [j - half, j + half] around sorted points, merged where they overlap: (lo, hi)."""
+    out: list[tuple[int, int]] = []
+    for j in points:
+        lo, hi = max(0, j - half), min(n, j + half + 1)
+        if out and lo <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], hi))
+        else:
+            out.append((lo, hi))
+    return out
+
+
 def table_problems(nominal: Cell, path: ProcessPath, q: np.ndarray) -> list[PathProblem]:
     """Poses at which a link of the arm comes within TABLE_CLEARANCE_M of the table."""
     check = TableCheck(nominal, TABLE_CLEARANCE_M)
@@ -172,29 +290,44 @@ def _transit_check(scenario: Scenario, index: MeshIndex, T_base_workpiece: np.nd
     return clear, (safe_point, up)
 
 
+def _line_point(path: ProcessPath, index: int) -> tuple[int, int] | None:
+    """(line, point) of the contact point a pose belongs to, in the lines' own order; a move in
+    the air belongs to the end of the line it leaves or the start of the one it reaches."""
+    a, b, kind, line = path.segments[path.segment[index]]
+    if kind == "process":
+        j = index - a
+    else:
+        nxt = [s for s in path.segments if s[2] == "process" and s[0] >= b]
+        prv = [s for s in path.segments if s[2] == "process" and s[1] <= a]
+        if kind == "retract" and prv:
+            line, j = prv[-1][3], prv[-1][1] - prv[-1][0]
+        elif nxt:
+            line, j = nxt[0][3], 0
+        else:
+            return None
+    a_line = next(s for s in path.segments if s[2] == "process" and s[3] == line)
+    n = a_line[1] - a_line[0] + 1
+    return line, ((n - 1 - j) if line % 2 == 1 else j)   # odd lines run reversed (zig-zag)
+
+
+def _line_poses(path: ProcessPath, line: int) -> np.ndarray:
+    """The pose index of each contact point of a line, in the line's own order."""
+    a, b = next((s[0], s[1]) for s in path.segments if s[2] == "process" and s[3] == line)
+    idx = np.arange(a, b + 1)
+    return idx[::-1] if line % 2 == 1 else idx
+
+
 def _drop_masks(path: ProcessPath, problems, lines, margin: int) -> tuple[list[np.ndarray], list[Dropped]]:
     """Keep-masks over the lines' points after dropping ``margin`` points on each side of
     every pose in ``problems``."""
     keep = [np.ones(len(ln), dtype=bool) for ln in lines]
-    seg_of_line = {seg[3]: seg for seg in path.segments if seg[2] == "process"}
     reasons: dict[tuple[int, int], str] = {}
     for prob in problems:
-        a, b, kind, line = path.segments[path.segment[prob.index]]
-        if kind == "process":
-            j = prob.index - a
-        else:
-            # A move in the air: the end of the line it leaves, or the start of the one it reaches.
-            nxt = [s for s in path.segments if s[2] == "process" and s[0] >= b]
-            prv = [s for s in path.segments if s[2] == "process" and s[1] <= a]
-            if kind == "retract" and prv:
-                line, j = prv[-1][3], prv[-1][1] - prv[-1][0]
-            elif nxt:
-                line, j = nxt[0][3], 0
-            else:
-                continue
-        a_line = seg_of_line[line]
-        n = a_line[1] - a_line[0] + 1
-        j_orig = (n - 1 - j) if line % 2 == 1 else j   # odd lines run reversed (zig-zag)
+        at = _line_point(path, prob.index)
+        if at is None:
+            continue
+        line, j_orig = at
+        n = len(_line_poses(path, line))
         lo, hi = max(0, j_orig - margin), min(n, j_orig + margin + 1)
         keep[line][lo:hi] = False
         reasons.setdefault((line, j_orig), f"{prob.kind}: {prob.detail}")
@@ -227,10 +360,13 @@ def _count_kinds(problems) -> str:
 
 def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_ref, nominal: Cell,
                      T_base_workpiece: np.ndarray, index: MeshIndex, strict: bool,
-                     T_base_frame: np.ndarray | None = None) -> tuple[ProcessPath, PathIK, list[Dropped]]:
+                     T_base_frame: np.ndarray | None = None,
+                     steer: bool = True) -> tuple[ProcessPath, PathIK, list[Dropped]]:
     """Build the path and check the tool's clearance, then (once the tool is clear) solve the
     five-axis IK and check the arm against the table; drop every bad stretch and rebuild,
-    until nothing is bad (module docstring).
+    until nothing is bad (module docstring). With a tilt cone (``[path] max_tilt_deg``) and
+    ``steer``, the first time the arm has problems the axes around them are re-chosen for it
+    (:func:`steer_for_the_arm`) and the path solved again before anything is dropped.
 
     ``lines``/``normals`` are in the frame ``T_base_frame`` maps to the base (None: the base).
 
@@ -243,6 +379,7 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
     lines, normals = list(lines), list(normals)
     axes = tilted_axes(lines, normals, sc, T_base_workpiece, index, T_base_frame) if p.max_tilt_deg > 0 else None
     clear, safe_plane = _transit_check(sc, index, T_base_workpiece, T_base_frame)
+    steered = axes is None or not steer   # the tilt is re-chosen for the arm once, before anything is dropped for it
     for round_ in range(MAX_DROP_ROUNDS):
         path = build_path(lines, normals, settings, T_frame_ref=T_frame_ref, clear=clear, safe_plane=safe_plane,
                           lines_axis=axes)
@@ -255,6 +392,12 @@ def solve_with_drops(name: str, lines, normals, settings: ToolSettings, T_frame_
             problems = sorted(table_problems(nominal, path, ik.q) + list(ik.problems), key=lambda q: q.index)
             if not problems:
                 return path, ik, dropped
+            if not steered:
+                steered = True
+                axes, n_steered = steer_for_the_arm(path, ik, problems, lines, normals, axes, sc, nominal,
+                                                    T_base_workpiece, index, T_base_frame)
+                if n_steered:
+                    continue
         if strict:
             raise StageFailed(name, f"{len(problems)} bad pose(s) (--strict: {_count_kinds(problems)}); "
                                     f"first: {problems[0].describe()}")

@@ -19,6 +19,11 @@ A tilted shank's foot (from the ball's equator to the first profile sample) stay
 wall as the ball is, while the samples above lean clear of it: :func:`foot_gap_m` checks it
 (``min_foot_gap_m``).
 
+The same freedom serves the arm: where it cannot follow the axes (a wrist that would jump
+where the normal turns fast, a pose out of reach), :func:`steer_axes` re-chooses the axes
+around the trouble within the cone, for the lowest cost the caller measures on the arm (the
+twin: its largest joint step on the closed-form IK), the tool kept clear.
+
 Measured with ``twin run`` on the idle 2-core machine (README, "Measured"): at 30 deg the
 stretches dropped fell from 524 / 539 (scan / CAD path) to 391 / 419 on hemisphere_punch, from
 443 / 458 to 366 / 349 on bottle_punch, from 464 / 357 to 384 / 295 on cast_blank and from
@@ -179,3 +184,94 @@ def clear_axes(contacts: np.ndarray, normals: np.ndarray, tip_radius_m: float, p
     direction = np.divide(direction, norm, out=np.zeros_like(direction), where=norm > 0)
     axes = np.cos(theta)[:, None] * n + np.sin(theta)[:, None] * direction
     return axes / np.linalg.norm(axes, axis=1, keepdims=True)
+
+
+def into_cone(axes: np.ndarray, normals: np.ndarray, max_tilt_rad: float) -> np.ndarray:
+    """Unit axes (N, 3): each axis, or where it leans more than ``max_tilt_rad`` from its
+    normal, the axis in the cone's boundary nearest it."""
+    a = axes / np.linalg.norm(axes, axis=1, keepdims=True)
+    cos = np.sum(a * normals, axis=1)
+    out = a.copy()
+    far = cos < np.cos(max_tilt_rad)
+    if far.any():
+        t = a[far] - cos[far, None] * normals[far]
+        norm = np.linalg.norm(t, axis=1, keepdims=True)
+        t = np.divide(t, norm, out=np.zeros_like(t), where=norm > 0)
+        out[far] = np.cos(max_tilt_rad) * normals[far] + np.sin(max_tilt_rad) * t
+    return out
+
+
+def steer_axes(contacts: np.ndarray, normals: np.ndarray, axes: np.ndarray, lo: int, hi: int,
+               cost: Callable[[np.ndarray, np.ndarray], float], tip_radius_m: float, profile: ToolProfile,
+               signed_distance: Callable[[np.ndarray], np.ndarray], max_tilt_rad: float, min_clearance_m: float,
+               min_foot_gap_m: float = 0.0, windows=(5, 9, 17, 33), up=(0.0, 0.0, 1.0), levels: int = 4,
+               azimuths: int = 8, ramp: int = 3) -> np.ndarray | None:
+    """Re-choose the axes around one stretch of a line for the arm: the line's axes (N, 3)
+    with the stretch ``lo:hi`` and its surroundings changed to the candidate of the lowest
+    ``cost``, or None when no candidate keeps the tool clear and costs less than the current
+    axes. The contact points stay where they are (every axis passes through its ball centre).
+
+    Candidates, each within every point's cone and blended into the current axes over
+    ``ramp`` points on each side:
+
+    * the current axes smoothed along the line (a running mean over each of ``windows``
+      points, pulled back into the cones) over the stretch widened by half the window: the
+      axis turns as far, over more points, so the wrist turns slower;
+    * one tilt for the whole stretch (``levels`` angles up to the limit, ``azimuths``
+      directions in each point's tangent basis, as :func:`clear_axes` gives them).
+
+    Args:
+        contacts, normals, axes: (N, 3) the line's contact points [m], unit outward normals and
+            current tool axes, in the frame ``signed_distance`` takes.
+        lo, hi: the stretch (points ``lo`` to ``hi - 1``).
+        cost: (M, 3) ball centres, (M, 3) axes of consecutive points around the stretch ->
+            the arm's trouble there (e.g. its largest joint step); lower is better.
+        tip_radius_m, profile, signed_distance, max_tilt_rad, min_clearance_m, min_foot_gap_m,
+            up: as :func:`clear_axes`.
+    """
+    n = np.asarray(normals, dtype=np.float64)
+    axes = np.asarray(axes, dtype=np.float64)
+    N = len(n)
+    centres = np.asarray(contacts, dtype=np.float64) + tip_radius_m * n
+    reach = max(windows) // 2 + ramp
+    ea, eb = max(0, lo - reach), min(N, hi + reach)          # every candidate changes only ea:eb
+
+    def blended(target: np.ndarray, a: int, b: int) -> np.ndarray:
+        """The axes with ``target`` (N, 3) on a:b, ramping from the current ones over ``ramp``."""
+        w = np.zeros(N)
+        w[a:b] = 1.0
+        for k in range(1, ramp + 1):
+            if a - k >= 0:
+                w[a - k] = 1.0 - k / (ramp + 1)
+            if b - 1 + k < N:
+                w[b - 1 + k] = 1.0 - k / (ramp + 1)
+        out = (1.0 - w)[:, None] * axes + w[:, None] * target
+        return into_cone(out, n, max_tilt_rad)
+
+    candidates = []
+    for window in windows:
+        h = window // 2
+        smooth = uniform_filter1d(axes, size=window, axis=0, mode="nearest")
+        candidates.append(blended(into_cone(smooth, n, max_tilt_rad), max(0, lo - h), min(N, hi + h)))
+    t1 = _tangent_towards(n, np.asarray(up, dtype=np.float64))
+    t2 = np.cross(n, t1)
+    for level in range(1, levels + 1):
+        theta = max_tilt_rad * level / levels
+        for psi in 2.0 * np.pi * np.arange(azimuths) / azimuths:
+            target = np.cos(theta) * n + np.sin(theta) * (np.cos(psi) * t1 + np.sin(psi) * t2)
+            candidates.append(blended(target, lo, hi))
+    best_cost, best = cost(centres[ea:eb], axes[ea:eb]), None
+    for cand in candidates:
+        c = cost(centres[ea:eb], cand[ea:eb])
+        if not c < best_cost:
+            continue
+        changed = np.flatnonzero(np.any(np.abs(cand - axes) > 1e-12, axis=1))
+        if np.min(clearance_m(centres[changed], cand[changed], profile, signed_distance), initial=np.inf) \
+                < min_clearance_m:
+            continue
+        tilted = changed[np.sum(cand[changed] * n[changed], axis=1) < np.cos(1e-6)]
+        if min_foot_gap_m > 0 and len(tilted) and np.min(
+                foot_gap_m(centres[tilted], cand[tilted], profile, signed_distance)) < min_foot_gap_m:
+            continue
+        best_cost, best = c, cand
+    return best
