@@ -1,8 +1,9 @@
 """Bulk ray casting against a cell, with MuJoCo's ray semantics at Embree's speed.
 
 A scan of the 1024-beam line profiler casts about a million beams and as many receiver rays
-per simulated second; MuJoCo's ray casts against a large mesh run at about 0.7 M rays/s, so the
-scan could not keep up with real time. Here the static mesh geoms (the workpiece, a meshed
+per simulated second; MuJoCo's camera rangefinder cast them at 1.0 M rays/s against the
+87k-face S-surface inside the rollout (benchmarks/results_scan.md), so the scan could not keep
+up with real time. Here the static mesh geoms (the workpiece, a meshed
 fixture) go to Embree (embreex), a well-kept bulk ray caster; each Embree hit is then refined
 in double precision on the triangle it found, so the distance and the face normal are MuJoCo's
 (the same float32 vertices, the same plane intersection). On the 2.3 M beams of a 1024-beam
