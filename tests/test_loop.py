@@ -256,17 +256,18 @@ def test_the_tilt_freedom_spares_the_arm_its_discontinuities():
 
 
 def test_the_arms_cost_sees_wrist_jumps_and_poses_out_of_reach():
-    from twin.cell import build_cell
+    from twin.cell import TOOL_BALL_SITE, build_cell
     from twin.realize import realize
     from twin.robot import HOME_Q
-    from twin.segments import _branch_of, _flange_to_ball, arm_cost
+    from twin.segments import _branch_of, arm_cost
+    from twin.trajectory import site_in_flange
 
     sc = load_scenario(ROOT / "scenarios" / "bottle_punch.toml")
     realized = realize(sc)
     nominal = build_cell(realized, "nominal")
     T = realized.T_base_workpiece_nominal
     branch = _branch_of(HOME_Q)
-    cost = arm_cost(_flange_to_ball(nominal), T, branch, sc.path.retract_m)
+    cost = arm_cost(site_in_flange(nominal, TOOL_BALL_SITE), T, branch, sc.path.retract_m)
     centres = np.column_stack([np.arange(10) * 0.001, np.zeros(10), np.full(10, 0.06)])   # 1 mm apart, wp frame
     up = np.tile([0.0, 0.0, 1.0], (10, 1))
     smooth = cost(centres, up)

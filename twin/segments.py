@@ -17,10 +17,9 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
-from algorithms.geometry.kinematics import dh_forward, ur_inverse
+from algorithms.geometry.kinematics import dh_forward, ur_inverse, wrap_angle
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.tilt import ToolProfile, clear_axes, foot_gap_m, profile_gaps_m, steer_axes, tool_profile
@@ -29,7 +28,7 @@ from twin.cell import TOOL_BALL_SITE, Cell
 from twin.errors import TwinError
 from twin.robot import UR5E_DH
 from twin.scenario import Scenario
-from twin.trajectory import TABLE_CLEARANCE_M, PathIK, PathProblem, TableCheck, solve_tool_path
+from twin.trajectory import TABLE_CLEARANCE_M, PathIK, PathProblem, TableCheck, site_in_flange, solve_tool_path
 
 DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose (first round)
 MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
@@ -153,23 +152,6 @@ def tilted_axes(lines, normals, scenario: Scenario, T_base_workpiece: np.ndarray
     return out
 
 
-def _flange_to_ball(nominal: Cell) -> np.ndarray:
-    """(4, 4) the tool's ball-centre site in the flange site's frame (DH frame 6)."""
-    data = mujoco.MjData(nominal.model)
-    mujoco.mj_kinematics(nominal.model, data)
-    T = []
-    for name in ("flange", TOOL_BALL_SITE):
-        M = np.eye(4)
-        M[:3, :3] = data.site(name).xmat.reshape(3, 3)
-        M[:3, 3] = data.site(name).xpos
-        T.append(M)
-    return inv_pose(T[0]) @ T[1]
-
-
-def _wrapped(q: np.ndarray) -> np.ndarray:
-    return (q + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def arm_cost(T_flange_ball: np.ndarray, T_base_workpiece: np.ndarray, branch: int, retract_m: float):
     """The arm's trouble along consecutive ball centres and tool axes (workpiece frame), on one
     branch of the closed-form IK: the largest step of a joint between consecutive points
@@ -194,7 +176,7 @@ def arm_cost(T_flange_ball: np.ndarray, T_base_workpiece: np.ndarray, branch: in
         if not np.all(sol.valid[:, branch]) or np.min(sol.wrist_sin[:, branch]) < WRIST_SIN_MIN:
             return np.inf
         q = sol.q[: len(centres), branch, :5]
-        return float(np.max(np.abs(_wrapped(np.diff(q, axis=0))), initial=0.0))
+        return float(np.max(np.abs(wrap_angle(np.diff(q, axis=0))), initial=0.0))
 
     return cost
 
@@ -203,7 +185,7 @@ def _branch_of(q: np.ndarray) -> int:
     """The closed-form IK branch a joint vector lies on (the nearest solution of its own
     flange pose, joints 1-5)."""
     sol = ur_inverse(dh_forward(q, UR5E_DH), UR5E_DH)
-    d = np.linalg.norm(_wrapped(sol.q[0, :, :5] - q[None, :5]), axis=1)
+    d = np.linalg.norm(wrap_angle(sol.q[0, :, :5] - q[None, :5]), axis=1)
     return int(np.argmin(np.where(sol.valid[0], d, np.inf)))
 
 
@@ -222,7 +204,7 @@ def steer_for_the_arm(path: ProcessPath, ik: PathIK, problems, lines, normals, a
     T_wp_frame = inv_pose(T_base_workpiece) @ (np.eye(4) if T_base_frame is None else T_base_frame)
     R = T_wp_frame[:3, :3]
     profile = _profile(sc)
-    T_flange_ball = _flange_to_ball(nominal)
+    T_flange_ball = site_in_flange(nominal, TOOL_BALL_SITE)
     stretches: dict[int, list[int]] = {}
     for prob in problems:   # a pose in the air counts for the end of the line it leaves or reaches
         if prob.kind in ARM_PROBLEMS:

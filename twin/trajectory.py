@@ -238,6 +238,17 @@ class TableCheck:
         return self.model.geom(int(other[k])).name, float(c.dist[k])
 
 
+def site_in_flange(cell: Cell, site: str) -> np.ndarray:
+    """(4, 4) a site's pose in the flange site's frame (DH frame 6): fixed, whatever the joints."""
+    data = mujoco.MjData(cell.model)
+    mujoco.mj_kinematics(cell.model, data)
+    T_world_flange, T_world_site = (np.eye(4), np.eye(4))
+    for T, name in ((T_world_flange, "flange"), (T_world_site, site)):
+        T[:3, :3] = data.site(name).xmat.reshape(3, 3)
+        T[:3, 3] = data.site(name).xpos
+    return inv_pose(T_world_flange) @ T_world_site
+
+
 def first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
                 q_start: np.ndarray) -> tuple[float, float, int]:
     """Solve the first pose from ``q_start``; if that ends off target (stuck at a joint limit,
@@ -250,14 +261,7 @@ def first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
     if reachable(pe, oe) and table.nearest(s.q) is None:
         return pe, oe, its
     best = (pe, oe, its, s.q)
-    data = mujoco.MjData(cell.model)
-    mujoco.mj_kinematics(cell.model, data)
-    T_world_flange, T_world_site = (np.eye(4), np.eye(4))
-    for T, name in ((T_world_flange, "flange"), (T_world_site, site)):
-        T[:3, :3] = data.site(name).xmat.reshape(3, 3)
-        T[:3, 3] = data.site(name).xpos
-    T_flange_site = inv_pose(T_world_flange) @ T_world_site
-    T_base_flange = inv_pose(cell.T_world_base) @ T_world_target @ inv_pose(T_flange_site)
+    T_base_flange = inv_pose(cell.T_world_base) @ T_world_target @ inv_pose(site_in_flange(cell, site))
     sol = ur_inverse(T_base_flange, UR5E_DH)
     seeds = sol.q[0][sol.valid[0]]
     for q in seeds[np.argsort(np.linalg.norm(seeds - q_start, axis=1))]:

@@ -156,7 +156,7 @@ def _check_ur_geometry(dh: DHTable) -> None:
                              "alpha = (pi/2, 0, 0, pi/2, -pi/2, 0), no joint offsets")
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
     """Angles wrapped to (-pi, pi]."""
     return np.pi - np.mod(np.pi - angle, 2 * np.pi)
 
@@ -251,7 +251,7 @@ def ur_inverse(T_base_flange, dh: DHTable, branches=None) -> URInverse:
                 q4 = q234 - q2 - q3
                 ok = shoulder_ok & elbow_ok
                 sol = np.column_stack([q1, q2, q3, q4, q5, q6])
-                q[:, b] = np.where(ok[:, None], _wrap(sol), np.nan)
+                q[:, b] = np.where(ok[:, None], wrap_angle(sol), np.nan)
                 valid[:, b] = ok
                 wrist_sin[:, b] = np.abs(s5)
                 elbow_sin[:, b] = np.abs(np.sin(q3))

@@ -49,6 +49,11 @@ def _visible(model: mujoco.MjModel) -> np.ndarray:
     return alpha > 0
 
 
+def _one_thread(n: int, rays: int | None) -> bool:
+    """Whether a job of ``n`` items (``rays`` rays, default ``n``) is too small to split."""
+    return (n if rays is None else rays) < THREADED_MIN_RAYS or RAY_THREADS < 2 or n < RAY_THREADS
+
+
 class CellRays:
     """Rays against the geoms of one compiled cell.
 
@@ -149,7 +154,7 @@ class CellRays:
         worker = getattr(self._local, "thread", None)
         if worker is not None:
             return [fn(worker, slice(0, n))]
-        if (n if rays is None else rays) < THREADED_MIN_RAYS or RAY_THREADS < 2 or n < RAY_THREADS:
+        if _one_thread(n, rays):
             return [fn(0, slice(0, n))]
         return self._on_threads(fn, n)
 
@@ -175,7 +180,7 @@ class CellRays:
             finally:
                 self._local.thread = None
 
-        if (n if rays is None else rays) < THREADED_MIN_RAYS or RAY_THREADS < 2 or n < RAY_THREADS:
+        if _one_thread(n, rays):
             work(0, slice(0, n))
         else:
             self._on_threads(work, n)
