@@ -6,7 +6,11 @@
   and how many points had to search the tree again;
 * ``step``: a whole ``localize`` call with the compiled parts of the pose update (the normal
   equations and the 6x6 minimum-norm solve) against the numpy path, 5 deg / 10 mm starts, CPU
-  time of the calling thread, median of the paired ratios.
+  time of the calling thread, median of the paired ratios;
+* ``far``: a whole ``localize`` call with the far points' closest points looked up to within
+  ``local.FAR_REL_ERROR`` of their distance (the default) against exact look-ups throughout
+  (``FAR_REL_ERROR = 0``), the same starts, timing and ratio; and the largest difference of the
+  two results in units of the pose's standard deviation.
 
 Run from the repository root: ``python -m benchmarks.bench_speed_ideas`` (prints markdown).
 """
@@ -23,6 +27,7 @@ import algorithms.registration.local as local
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import exp_se3
 from algorithms.registration import localize
+from algorithms.registration.uncertainty import pose_error_twist, whitened_error
 from benchmarks.bench_localization import random_world_pose, sample_design, start_pose
 from twin.parts import make_workpiece
 
@@ -57,21 +62,25 @@ def near_vs_tree(rows, reps=7):
                         f"{np.median(rebuilt):.0f} |")
 
 
+def _starts(index, mesh, name, n, trials, sigma):
+    feet, _ = sample_design(mesh, index, name, n, 2024)
+    c_model = mesh.center_mass if mesh.is_watertight else mesh.centroid
+    rng = np.random.default_rng(7)
+    cases = []
+    for _ in range(trials):
+        T_true = random_world_pose(rng)
+        T0 = start_pose(T_true, c_model, 5.0, rng)
+        cases.append((feet @ T_true[:3, :3].T + T_true[:3, 3] + rng.normal(0.0, sigma, feet.shape), T0))
+    return cases
+
+
 def compiled_vs_numpy(rows, trials=16):
     kernels = (local._nb_plane_system, local._nb_solve)
     for name in PARTS:
         mesh = make_workpiece(name)
         index = MeshIndex(mesh)
-        c_model = mesh.center_mass if mesh.is_watertight else mesh.centroid
         for n in (150, 1000):
-            feet, _ = sample_design(mesh, index, name, n, 2024)
-            rng = np.random.default_rng(7)
-            cases = []
-            for _ in range(trials):
-                T_true = random_world_pose(rng)
-                T0 = start_pose(T_true, c_model, 5.0, rng)
-                y = feet @ T_true[:3, :3].T + T_true[:3, 3] + rng.normal(0.0, 5e-6, feet.shape)
-                cases.append((y, T0))
+            cases = _starts(index, mesh, name, n, trials, 5e-6)
             localize(cases[0][0], index=index, init=cases[0][1], sigma=5e-6)
             ta, tb = [], []
             for y, T0 in cases:
@@ -88,9 +97,38 @@ def compiled_vs_numpy(rows, trials=16):
             rows.append(f"| {name} | {n} | {np.median(ta) * 1e3:.2f} | {np.median(tb) * 1e3:.2f} | {ratio:.2f} |")
 
 
+def far_vs_exact(rows, trials=20, sigma=50e-6):
+    default = local.FAR_REL_ERROR
+    for name in PARTS:
+        mesh = make_workpiece(name)
+        index = MeshIndex(mesh)
+        for n in (150, 1000):
+            cases = _starts(index, mesh, name, n, trials, sigma)
+            localize(cases[0][0], index=index, init=cases[0][1], sigma=sigma)
+            ta, tb, diff = [], [], []
+            try:
+                for y, T0 in cases:
+                    local.FAR_REL_ERROR = 0.0
+                    t0 = time.thread_time()
+                    a = localize(y, index=index, init=T0, sigma=sigma)
+                    t1 = time.thread_time()
+                    local.FAR_REL_ERROR = default
+                    b = localize(y, index=index, init=T0, sigma=sigma)
+                    t2 = time.thread_time()
+                    ta.append(t1 - t0)
+                    tb.append(t2 - t1)
+                    xi = pose_error_twist(b.T_world_workpiece, a.T_world_workpiece)
+                    diff.append(float(np.sqrt(whitened_error(xi, a.covariance)[0])))
+            finally:
+                local.FAR_REL_ERROR = default
+            ratio = float(np.median(np.array(tb) / np.array(ta)))
+            rows.append(f"| {name} | {n} | {np.median(ta) * 1e3:.2f} | {np.median(tb) * 1e3:.2f} | {ratio:.2f} | "
+                        f"{max(diff):.3f} |")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sections", nargs="+", default=["near", "step"], choices=["near", "step"])
+    ap.add_argument("--sections", nargs="+", default=["near", "step", "far"], choices=["near", "step", "far"])
     args = ap.parse_args(argv)
     if "near" in args.sections:
         rows = ["| part | motion [mm] | near-face query [ms / 1000 points] | hinted tree query [ms] | "
@@ -101,6 +139,11 @@ def main(argv=None):
         rows = ["| part | N | numpy update [ms / call] | compiled update [ms / call] | paired ratio |",
                 "|---|---|---|---|---|"]
         compiled_vs_numpy(rows)
+        print("\n".join(rows) + "\n")
+    if "far" in args.sections:
+        rows = ["| part | N | exact look-ups [ms / call] | far ones within FAR_REL_ERROR [ms / call] | "
+                "paired ratio | largest difference [pose standard deviations] |", "|---|---|---|---|---|---|"]
+        far_vs_exact(rows)
         print("\n".join(rows))
 
 

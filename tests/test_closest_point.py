@@ -124,6 +124,30 @@ def test_backends_agree_and_hints_do_not_change_answers():
     assert np.array_equal(c.distance, b.distance)
 
 
+@pytest.mark.skipif(not HAVE_NUMBA, reason="the approximate search is the compiled one's")
+def test_approximate_queries_stay_within_their_relative_error():
+    mesh = heightfield(n=60)
+    rng = np.random.default_rng(8)
+    on, _ = sample_on_faces(mesh, 2000, rng)
+    pts = on + rng.normal(size=on.shape) * np.array([[2e-3], [1e-2], [3e-2], [1e-4]]).repeat(500, 0)
+    idx = MeshIndex(mesh, backend="numba")
+    exact = idx.query(pts)
+    assert exact.rel_error == 0.0
+    for rel in (0.05, 0.3):
+        approx = idx.query(pts, rel_error=rel)
+        assert approx.rel_error == rel
+        assert np.all(approx.distance >= exact.distance - 1e-15)
+        assert np.all(approx.distance <= (1.0 + rel) * exact.distance + 1e-15)
+        # the answer is a real foot on the face named, at the distance reported
+        assert np.allclose(np.linalg.norm(pts - approx.foot, axis=1), approx.distance, rtol=0, atol=1e-15)
+        d_face = np.sqrt(closest_points_on_triangles(pts, mesh.triangles[approx.face])[1])
+        assert np.allclose(d_face, approx.distance, rtol=0, atol=1e-12)
+    # far points are where it saves work: some answers differ from the exact ones there
+    assert np.any(idx.query(pts, rel_error=0.3).face[500:1500] != exact.face[500:1500])
+    with pytest.raises(AlgorithmError, match="rel_error"):
+        idx.query(pts, rel_error=-0.1)
+
+
 def test_smooth_normals_are_radial_on_a_tessellated_cylinder():
     mesh = trimesh.creation.cylinder(radius=0.02, height=0.05, sections=24)
     idx = MeshIndex(mesh)

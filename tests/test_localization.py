@@ -108,6 +108,29 @@ def test_result_is_frozen_rigid_and_deterministic():
     assert len(a.solutions) == 1 and a.solutions[0] is a.T_world_workpiece
 
 
+def test_far_starts_use_approximate_feet_but_never_report_them():
+    """From centimetres away the first closest points are looked up to within 10 % of their
+    distance (they only point the way); what a result reports is always exact."""
+    mesh, idx = part("s_surface")
+    rng = np.random.default_rng(11)
+    X, _ = sample_surface(mesh, 150, rng)
+    T_true = random_pose(rng, X.mean(axis=0), 0.15, max_deg=20)
+    Y = transform_points(T_true, X) + rng.normal(0.0, 5e-6, X.shape)
+    T0 = T_true.copy()
+    T0[:3, 3] += [0.02, -0.01, 0.015]
+    for max_it in (1, 2):  # stopped while still far: the distances reported are exact anyway
+        r = localize(Y, index=idx, init=T0, max_iterations=max_it, outlier=None)
+        exact = idx.query(transform_points(np.linalg.inv(r.T_world_workpiece), Y)).distance
+        assert not r.converged and r.rmse_m > 1e-4
+        assert abs(r.rmse_m - np.sqrt(np.mean(exact**2))) <= 1e-12
+    far = localize(Y, index=idx, init=T0, sigma=5e-6)
+    near = localize(Y, index=idx, init=T_true, sigma=5e-6)
+    assert far.status is Status.OK and near.status is Status.OK
+    # the same minimum, to a small fraction of the pose's standard deviation
+    xi = pose_error_twist(far.T_world_workpiece, near.T_world_workpiece)
+    assert float(np.sqrt(whitened_error(xi, near.covariance)[0])) < 0.2
+
+
 def test_fine_001_reports_its_step_rule_and_caps_iterations():
     mesh, idx = part("hemisphere_punch")
     rng = np.random.default_rng(8)

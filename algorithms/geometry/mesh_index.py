@@ -39,6 +39,7 @@ Units follow the mesh (metres in this project).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import ModuleType
 
@@ -75,12 +76,16 @@ class ClosestPoints:
         distance: (N,) [m] unsigned distance from the query to ``foot``.
         face: (N,) int index of the face ``foot`` lies on (one of them when it is on an edge).
         normal: (N, 3) unit outward normal of ``face`` (by the winding of the mesh).
+        rel_error: 0 for exact closest points; else each ``distance`` is within
+            ``(1 + rel_error)`` of the exact one (its foot on a face that near; see
+            :meth:`MeshIndex.query`).
     """
 
     foot: np.ndarray
     distance: np.ndarray
     face: np.ndarray
     normal: np.ndarray
+    rel_error: float = 0.0
 
     def plane_residual(self, points: np.ndarray) -> np.ndarray:
         """(N,) [m] ``<points - foot, normal>``: signed point-to-tangent-plane residual."""
@@ -379,16 +384,21 @@ class MeshIndex:
         self._pseudo: tuple | None = None
 
     # ------------------------------------------------------------------ queries
-    def query(self, points, hint=None) -> ClosestPoints:
-        """Exact closest points on the mesh.
+    def query(self, points, hint=None, rel_error: float = 0.0) -> ClosestPoints:
+        """Exact (or, with ``rel_error``, nearly exact) closest points on the mesh.
 
         Args:
             points: (N, 3) [m] query points, in the mesh's frame, finite.
             hint: optional (N,) face indices (e.g. the previous iteration's ``face``); a good
                 hint makes the compiled search faster, and never changes the answer.
+            rel_error: 0 (default): exact. > 0: each point's answer is a face within
+                ``(1 + rel_error)`` times the exact distance (the search skips every box not
+                nearer than ``best / (1 + rel_error)``); for points far from the mesh this
+                visits a fraction of the leaves. The numpy backend answers exactly.
 
         Returns:
-            ClosestPoints with foot (N, 3), distance (N,), face (N,), normal (N, 3).
+            ClosestPoints with foot (N, 3), distance (N,), face (N,), normal (N, 3) and the
+            ``rel_error`` the answer honours.
         """
         q = np.asarray(points, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != 3:
@@ -398,8 +408,10 @@ class MeshIndex:
             return ClosestPoints(np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
         if not np.all(np.isfinite(q)):
             raise AlgorithmError("query points contain NaN or infinite coordinates")
+        if not (math.isfinite(rel_error) and rel_error >= 0.0):
+            raise AlgorithmError(f"rel_error must be a finite number >= 0, got {rel_error}")
         if self.backend == "numba":
-            return self._query_numba(q, hint)
+            return self._query_numba(q, hint, rel_error)
         workers = -1 if n >= _PARALLEL_MIN else 1
         best_d2 = np.full(n, np.inf)
         best_face = np.zeros(n, dtype=np.int64)
@@ -432,7 +444,7 @@ class MeshIndex:
             self._ball_stage(q, pending, best_d2, best_face, workers)
         return self._finish(q, best_face)
 
-    def _query_numba(self, q, hint):
+    def _query_numba(self, q, hint, rel_error=0.0):
         n = len(q)
         if hint is None:
             hints = np.full(n, -1, dtype=np.int64)
@@ -452,10 +464,10 @@ class MeshIndex:
 
         def run(a, b):
             _nb_query_serial(q[a:b], hints[a:b], self._data, *bvh, normals, face[a:b], foot[a:b],
-                             dist[a:b], normal[a:b])
+                             dist[a:b], normal[a:b], 1.0 / (1.0 + rel_error) ** 2)
 
         _in_chunks(run, n)
-        return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal)
+        return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal, rel_error=rel_error)
 
     def query_near(self, points, near: NearFaces | None = None) -> tuple[ClosestPoints, NearFaces]:
         """Exact closest points, answered from each point's list of nearest faces where the
@@ -889,14 +901,14 @@ if _nb is not None:
 
     @_nb.njit(cache=True, nogil=True, inline="always")
     def _nb_descend(px, py, pz, root, best, bestf, data, leaf_data, box, left, start, count, perm,
-                    stack, stack_lb):  # pragma: no cover - compiled
+                    stack, stack_lb, shrink):  # pragma: no cover - compiled
         """Best-first search of the subtree at ``root``; returns the improved (best, face)."""
         stack[0] = root
         stack_lb[0] = _nb_box_d2(px, py, pz, box, root)
         sp = 1
         while sp > 0:
             sp -= 1
-            if stack_lb[sp] >= best:
+            if stack_lb[sp] >= best * shrink:
                 continue
             node = stack[sp]
             lft = left[node]
@@ -914,20 +926,20 @@ if _nb is not None:
                 dr = _nb_box_d2(px, py, pz, box, rgt)
                 # push the farther child first so the nearer is searched first
                 if dl <= dr:
-                    if dr < best:
+                    if dr < best * shrink:
                         stack[sp] = rgt
                         stack_lb[sp] = dr
                         sp += 1
-                    if dl < best:
+                    if dl < best * shrink:
                         stack[sp] = lft
                         stack_lb[sp] = dl
                         sp += 1
                 else:
-                    if dl < best:
+                    if dl < best * shrink:
                         stack[sp] = lft
                         stack_lb[sp] = dl
                         sp += 1
-                    if dr < best:
+                    if dr < best * shrink:
                         stack[sp] = rgt
                         stack_lb[sp] = dr
                         sp += 1
@@ -935,7 +947,7 @@ if _nb is not None:
 
     @_nb.njit(cache=True, nogil=True, inline="always")
     def _nb_one(i, q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
-                out_face, out_foot, out_dist, out_normal, stack, stack_lb):  # pragma: no cover
+                out_face, out_foot, out_dist, out_normal, stack, stack_lb, shrink):  # pragma: no cover
         px = q[i, 0]
         py = q[i, 1]
         pz = q[i, 2]
@@ -955,12 +967,12 @@ if _nb is not None:
         while True:
             if sub >= 0:
                 best, bestf = _nb_descend(px, py, pz, sub, best, bestf, data, leaf_data, box, left,
-                                          start, count, perm, stack, stack_lb)
+                                          start, count, perm, stack, stack_lb, shrink)
             if node == 0:
                 break
             par = up[node]
             sib = left[par] + 1 if left[par] == node else left[par]
-            sub = sib if _nb_box_d2(px, py, pz, box, sib) < best else -1
+            sub = sib if _nb_box_d2(px, py, pz, box, sib) < best * shrink else -1
             node = par
         d2, v, w = _nb_tri(px, py, pz, data, bestf)
         out_face[i] = bestf
@@ -971,12 +983,12 @@ if _nb is not None:
 
     @_nb.njit(cache=True, nogil=True)
     def _nb_query_serial(q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
-                         out_face, out_foot, out_dist, out_normal):  # pragma: no cover
+                         out_face, out_foot, out_dist, out_normal, shrink):  # pragma: no cover
         stack = np.empty(_STACK, np.int64)
         stack_lb = np.empty(_STACK)
         for i in range(q.shape[0]):
             _nb_one(i, q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
-                    out_face, out_foot, out_dist, out_normal, stack, stack_lb)
+                    out_face, out_foot, out_dist, out_normal, stack, stack_lb, shrink)
 
     @_nb.njit(cache=True, nogil=True, inline="always")
     def _nb_descend_k(px, py, pz, root, kd2, kf, m, data, leaf_data, box, left, start, count, perm,
