@@ -75,6 +75,7 @@ EXACT_AXIS_TOL = 1e-9           # ... from exact geometry (a model's symmetry ax
 DATUM_M = 1e-5                  # hybrid: the finished datum plane's height vs the truth (2 um noise)
 DATUM_COS_TOL = 1e-9            # ... and 1 - cos of its tilt
 LIMIT_MARGIN_M = 1e-6           # hybrid: the limiting points' margins equal the smallest one
+MAX_MIN_OPTIMA_M = 5e-6         # hybrid: best margins reached from starts 1e-9..1e-4 apart (nearby local optima)
 ORTHOGONAL_TOL = 1e-12          # g_0 and m_0 orthogonal; a unit twist's zero angular part
 CLOSED_FORM_M = 1e-15           # analytic closest points (rounding only)
 INVERSE_TOL = 1e-8              # C F = I for the Cramer-Rao bound and the information

@@ -76,6 +76,9 @@ STOCK_PERCENTILE = 10.0
 #: Trust region: initial and smallest half-width, relative to the rough points' size.
 TRUST0_REL = 0.05
 TRUST_MIN_REL = 1e-12
+#: Where the linearised max-min gains nothing, compass steps are tried from the trust region's
+#: size down to this fraction of the rough points' size before a maximum is declared.
+COMPASS_MIN_REL = 1e-4
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -420,8 +423,20 @@ def _max_min(T, d, A, delta, H, scale, size, state, lp_count, max_it):
             continue
         lam, pred = x[:r], x[-1]
         if pred - cur <= 1e-12 * size:
-            converged = True
-            break
+            # No first-order gain: the smallest margins are flat along G_0 here (rough points
+            # over finished faces parallel to its motions). They change only where a point's
+            # nearest finished face does, which the linearisation cannot see, so a maximum is
+            # only declared once no compass step (+-trust along each direction) gains either.
+            step = _compass_step(T, cur, delta, H, scale, trust, size, state)
+            if step is None:
+                if trust <= COMPASS_MIN_REL * size:
+                    converged = True
+                    break
+                trust *= 0.5
+                continue
+            T, d, A, cur = step
+            it += 1
+            continue
         T_new = T @ exp_se3(H.T @ lam)
         d_new, A_new = state(T_new)
         new = float((d_new - delta).min())
@@ -434,6 +449,20 @@ def _max_min(T, d, A, delta, H, scale, size, state, lp_count, max_it):
         else:
             trust = 0.5 * max(trust if ratio < 0 else np.max(np.abs(lam) * scale), trust_min)
     return it, converged, T, d, A
+
+
+def _compass_step(T, cur, delta, H, scale, trust, size, state):
+    """The best of the 2r moves of +-trust [m of point motion] along each direction of G_0, if
+    it raises the smallest margin above ``cur``: (T, d, A, min margin), else None."""
+    best = None
+    for j in range(len(H)):
+        for sign in (1.0, -1.0):
+            T_new = T @ exp_se3(H[j] * (sign * trust / scale[j]))
+            d_new, A_new = state(T_new)
+            new = float((d_new - delta).min())
+            if new > cur + 1e-12 * size and (best is None or new > best[3]):
+                best = (T_new, d_new, A_new, new)
+    return best
 
 
 def _envelope(T, d, A, delta, H, scale, size, state, lp_count, max_it, tol):
