@@ -4,9 +4,9 @@
   query (``MeshIndex.query`` with the previous faces as hints), for 1,000 points sampled on the
   benchmark parts (20 um noise) after a rigid motion of the given size; microseconds a point,
   and how many points had to search the tree again;
-* ``step``: a whole ``localize`` call with the compiled parts of the pose update (the normal
-  equations and the 6x6 minimum-norm solve) against the numpy path, 5 deg / 10 mm starts, CPU
-  time of the calling thread, median of the paired ratios;
+* ``step``: a whole ``localize`` call with the compiled parts of the iteration (the normal
+  equations, the 6x6 minimum-norm solve and the plain Hong-Tan iterations) against the numpy
+  path, 5 deg / 10 mm starts, CPU time of the calling thread, median of the paired ratios;
 * ``far``: a whole ``localize`` call with the far points' closest points looked up to within
   ``local.FAR_REL_ERROR`` of their distance (the default) against exact look-ups throughout
   (``FAR_REL_ERROR = 0``), the same starts, timing and ratio; and the largest difference of the
@@ -75,7 +75,7 @@ def _starts(index, mesh, name, n, trials, sigma):
 
 
 def compiled_vs_numpy(rows, trials=16):
-    kernels = (local._nb_plane_system, local._nb_solve)
+    kernels = (local._nb_plane_system, local._nb_solve, local._nb_run)
     for name in PARTS:
         mesh = make_workpiece(name)
         index = MeshIndex(mesh)
@@ -84,11 +84,11 @@ def compiled_vs_numpy(rows, trials=16):
             localize(cases[0][0], index=index, init=cases[0][1], sigma=5e-6)
             ta, tb = [], []
             for y, T0 in cases:
-                local._nb_plane_system, local._nb_solve = None, None
+                local._nb_plane_system, local._nb_solve, local._nb_run = None, None, None
                 t0 = time.thread_time()
                 localize(y, index=index, init=T0, sigma=5e-6)
                 t1 = time.thread_time()
-                local._nb_plane_system, local._nb_solve = kernels
+                local._nb_plane_system, local._nb_solve, local._nb_run = kernels
                 localize(y, index=index, init=T0, sigma=5e-6)
                 t2 = time.thread_time()
                 ta.append(t1 - t0)

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import make_pose, transform_points, translation_error_m
-from algorithms.registration import RegistrationResult, Status
+from algorithms.registration import RegistrationResult, Status, local
 from algorithms.registration.local import localize
 from algorithms.registration.uncertainty import crlb, pose_error_twist, whitened_error
 from tests.helpers import ROOT, assert_pose_close, pose_errors, random_pose, sample_surface
@@ -129,6 +129,62 @@ def test_far_starts_use_approximate_feet_but_never_report_them():
     # the same minimum, to a small fraction of the pose's standard deviation
     xi = pose_error_twist(far.T_world_workpiece, near.T_world_workpiece)
     assert float(np.sqrt(whitened_error(xi, near.covariance)[0])) < 0.2
+
+
+@pytest.mark.skipif(local._nb_run is None, reason="the compiled iterations need numba")
+@pytest.mark.parametrize(("name", "outlier"), [("bottle_punch", "mad"), ("bottle_punch", 5e-4),
+                                               ("hemisphere_punch", None), ("hemisphere_punch", "mad")])
+def test_compiled_iterations_match_the_python_loop(name, outlier, monkeypatch):
+    """Hong-Tan's plain iterations run compiled; the loop every other method runs is the
+    reference: the same verdict, inliers and minimum, with outliers the staged rule cuts on the
+    way. (Round-off differs between the two, so a point next to a facet edge may take the
+    other face on the way and the paths part: the minimum, not the path, is compared.)"""
+    mesh, idx = part(name)
+    rng = np.random.default_rng(5)
+    X, _ = sample_surface(mesh, 300, rng)
+    T_true = random_pose(rng, X.mean(axis=0), 0.1, max_deg=10)
+    Y = transform_points(T_true, X) + rng.normal(0.0, 5e-6, X.shape)
+    if outlier is not None:
+        Y[:30] += rng.normal(0.0, 3e-3, (30, 3))
+    T0 = random_pose(rng, X.mean(axis=0), 0.02, max_deg=3) @ T_true
+    fast = localize(Y, index=idx, init=T0, sigma=5e-6, outlier=outlier)
+    monkeypatch.setattr(local, "_nb_run", None)
+    ref = localize(Y, index=idx, init=T0, sigma=5e-6, outlier=outlier)
+    assert ref.status is Status.OK and fast.status is Status.OK, fast.message
+    assert np.array_equal(fast.inliers, ref.inliers)
+    if outlier is not None:
+        assert 0 < fast.n_outliers <= 30
+    xi = pose_error_twist(fast.T_world_workpiece, ref.T_world_workpiece)
+    assert float(np.sqrt(whitened_error(xi, ref.covariance)[0])) < 0.05
+    assert abs(fast.iterations - ref.iterations) <= 2
+
+
+def test_points_past_a_border_do_not_stall_the_iteration(monkeypatch):
+    """A scan that runs 5 mm past the border of an open sheet: the feet of those points lie on
+    the border's edges, where the distance grows along the offset, not the face's normal. The
+    plane rows alone stop descending there and the point-to-point fallback crawls (100
+    iterations, not converged); the step along the offsets converges in a few."""
+    from tests.test_closest_point import heightfield
+
+    size, amp = 0.2, 0.01  # heightfield()'s surface, continued past its border
+
+    def z(x, y):
+        return (amp * np.sin(2 * np.pi * x / size * 1.3 + 0.4) * np.cos(np.pi * y / size * 1.7)
+                + 0.3 * amp * np.exp(-((x - 0.03) ** 2 + (y + 0.02) ** 2) / 0.0008) + 0.05 * x)
+
+    idx = MeshIndex(heightfield(n=60))
+    rng = np.random.default_rng(7)
+    x, y = rng.uniform(-0.1, 0.105, 300), rng.uniform(-0.07, 0.07, 300)
+    P = np.c_[x, y, z(x, y)] + rng.normal(0, 20e-6, (300, 3))
+    T0 = make_pose(Rotation.from_rotvec(rng.normal(0, 0.003, 3)).as_matrix(), rng.normal(0, 0.001, 3))
+    res = localize(P, index=idx, init=T0, sigma=20e-6, outlier=None)
+    assert res.converged and res.iterations <= 10, res.message
+    assert res.status is Status.POOR_FIT  # the points past the border fit nothing: said so
+    plane_rows_only = local._update_hong_tan
+    monkeypatch.setattr(local, "_update_hong_tan",
+                        lambda T, Ym, cp, mask, edges=False: plane_rows_only(T, Ym, cp, mask))
+    crawl = localize(P, index=idx, init=T0, sigma=20e-6, outlier=None)
+    assert not crawl.converged and crawl.rmse_m > res.rmse_m
 
 
 def test_fine_001_reports_its_step_rule_and_caps_iterations():

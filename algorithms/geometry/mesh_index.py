@@ -55,7 +55,7 @@ except ImportError:  # pragma: no cover - depends on the environment
     _nb = None
 HAVE_NUMBA = _nb is not None
 
-__all__ = ["ClosestPoints", "MeshIndex", "NearFaces", "closest_points_on_triangles", "compile_kernels",
+__all__ = ["ClosestPoints", "MeshIndex", "NearFaces", "closest_points_on_triangles", "compile_kernels", "query_kernels",
            "kernels_cached"]
 
 # Neighbour counts tried before the ball query (points near the surface need few).
@@ -203,6 +203,18 @@ def _barycentric(d1, d2, abab, acac, abac):
 
 
 _compiled = False
+
+
+def query_kernels():
+    """The compiled query kernels, for other compiled functions (None without numba):
+    ``tree(q, hints, *arrays, out_face, out_foot, out_dist, out_normal, shrink)`` answers
+    :meth:`MeshIndex.query` (``hints`` -1 for none, ``shrink = 1 / (1 + rel_error)^2``) and
+    ``near(q, anchor, faces, reach, *arrays, out_face, out_foot, out_dist, out_normal, rebuilt)``
+    :meth:`MeshIndex.query_near` (the lists updated in place), ``arrays`` those of
+    :meth:`MeshIndex.kernel_arrays`."""
+    if _nb is None:
+        return None
+    return _nb_query_serial, _nb_near_serial
 
 
 def kernels_cached(kernels=None) -> bool | None:
@@ -468,6 +480,14 @@ class MeshIndex:
 
         _in_chunks(run, n)
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal, rel_error=rel_error)
+
+    def kernel_arrays(self) -> tuple:
+        """``(data, leaf_data, box, left, start, count, perm, up, leaf_of, normals)``: the
+        arrays the compiled kernels of :func:`query_kernels` search, for compiled callers that
+        run their own loop of queries (numba backend only)."""
+        if self.backend != "numba":
+            raise AlgorithmError("kernel_arrays needs the numba backend")
+        return (self._data, *self._bvh, self.face_normals)
 
     def query_near(self, points, near: NearFaces | None = None) -> tuple[ClosestPoints, NearFaces]:
         """Exact closest points, answered from each point's list of nearest faces where the

@@ -33,7 +33,12 @@ The updates, all computed in the workpiece frame from the model-frame points ``y
   first-order retraction, about the workpiece origin.
 * ``"hong_tan"`` (default): the same point-to-plane least squares, solved about the centroid
   of the points and applied through the exact exponential map (a Gauss-Newton step on SE(3)
-  for the point-to-surface distance; quadratic convergence on exact data). Document 000
+  for the point-to-surface distance; quadratic convergence on exact data). A point whose foot
+  lies on an edge or a vertex of the mesh (beyond a part's border, over a ridge between
+  facets) enters with the direction of its offset ``y_i - x_i`` instead of the face's normal:
+  the gradient of its distance, so that the fixed point is the minimum of the distances that
+  ``e_k`` measures (with the face's plane such a point pulls sideways, the step stops being a
+  descent direction, and the iteration crawled on point-to-point fallback steps). Document 000
   finds it the fastest and most accurate of the family; it is the efficient estimator whose
   covariance reaches the Cramer-Rao bound here (see :mod:`algorithms.registration.uncertainty`).
 * ``"menq"``: nonlinear least squares (Levenberg-Marquardt) on SE(3) of the true
@@ -55,7 +60,9 @@ features, Hong-Tan is the fastest and most accurate, Menq is nonlinear least squ
 the cited papers' usual descriptions; the original Hong-Tan patent and Li's VA paper were not
 at hand. All six share the same fixed point (the minimum of the sum of squared
 point-to-surface distances): at a stationary point of ICP, ``sum d_i n_i = 0`` and
-``sum d_i (y_i x n_i) = 0``, the normal equations of the point-to-plane methods.
+``sum d_i (y_i x n_i) = 0`` with ``n_i`` the unit offset ``(y_i - x_i) / d_i``, the normal
+equations of the point-to-plane methods (whose rows use that offset's direction where a foot
+is on an edge or a vertex; inside a face it is the face's normal).
 
 The point-to-point methods (icp, va, fine_001) converge linearly (slowly when the points can
 slide along the surface); they reach the same minimum, given enough iterations, and default
@@ -90,11 +97,12 @@ from __future__ import annotations
 import math
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from algorithms.errors import AlgorithmError
-from algorithms.geometry.mesh_index import MeshIndex, NearFaces, kernels_cached
+from algorithms.geometry.mesh_index import ClosestPoints, MeshIndex, NearFaces, kernels_cached, query_kernels
 from algorithms.geometry.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose
 from algorithms.registration.fit_check import poor_fit_reason, white_noise_sigma_m
 from algorithms.registration.inputs import (
@@ -108,9 +116,12 @@ from algorithms.registration.inputs import (
 )
 from algorithms.registration.result import RegistrationResult, fit_status
 from algorithms.registration.robust import (
+    ALL,
+    MAD_TO_SIGMA,
     OUTLIER_COARSE_FLOOR_REL,
     OUTLIER_FLOOR_REL,
     OUTLIER_K,
+    Mask,
     OutlierConfig,
     OutlierStages,
     count,
@@ -144,7 +155,7 @@ OBSERVABILITY_MAX_POINTS = 4096
 #: the way, and an exact search from millimetres away visits many leaves. Every query after that
 #: is exact, and the iteration never stops on an approximate one (see _iterate).
 FAR_RMS_REL = 2.0
-FAR_REL_ERROR = 0.1
+FAR_REL_ERROR = 0.3
 #: A fallback step (halved or point-to-point, taken when the linearised update overshoots)
 #: that moves the pose by less than this many of its standard deviations ends the
 #: iteration: converged (see _iterate).
@@ -152,6 +163,9 @@ FALLBACK_MIN_SIGMAS = 0.1
 #: From this many points on, the early updates use a regular subset of SUBSET_POINTS points.
 SUBSET_MIN_POINTS = 500
 SUBSET_POINTS = 160
+#: A foot whose offset ``y - x`` is off its face's normal by more than this (1 - cos^2) lies on
+#: an edge or a vertex: its row of the point-to-plane system uses the direction of the offset.
+EDGE_COS_TOL = 1e-9
 #: Initial (and smallest) Levenberg-Marquardt damping of "menq", relative to diag(J^T J).
 LM_LAMBDA0 = 1e-8
 
@@ -407,7 +421,7 @@ def _iterate_staged(method, Y, index, T0, max_it, tol, outlier_cfg):
     if n < SUBSET_MIN_POINTS:
         return _iterate(method, Y, index, T0, max_it, tol, outlier_cfg)
     stride = n // SUBSET_POINTS
-    sub = _iterate(method, Y[::stride], index, T0, max_it, tol, outlier_cfg, tighten=False)
+    sub = _iterate(method, np.ascontiguousarray(Y[::stride]), index, T0, max_it, tol, outlier_cfg, tighten=False)
     full = _iterate(method, Y, index, sub["T"], max_it - sub["iterations"], tol, outlier_cfg,
                     near_from_start=True)
     full["iterations"] += sub["iterations"]
@@ -483,6 +497,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
     status = f"not converged: reached max_iterations = {max_it}"
     n_updates = 0
     n_fallback = 0
+    n_edge = 0
     for _ in range(max_it + 1):
         done = False
         if e_prev <= floor2:
@@ -508,9 +523,23 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
                         T_new, cp_new, Ym_new, e_new = T_icp, cp_icp, Ym_icp, e_icp
                         n_fallback += 1
             else:
-                T_new, step = _UPDATES[method](T, Ym, cp, mask)
-                cp_new, Ym_new = feet(T_new, cp.face)
-                e_new = mse(cp_new, mask)
+                if method == "hong_tan" and _nb_run is not None and index.backend == "numba":
+                    # the plain iterations (accepted, nothing else to decide) in one compiled
+                    # call; it returns the first trial step that needs the rules below
+                    run = _plain_steps(Y, T, Ym, cp, mask, e_prev, max_it - n_updates, floor2, tol,
+                                       stages, feet)
+                    if run.steps:
+                        n_updates += run.steps
+                        T, cp, Ym, mask, e_prev = run.T, run.cp, run.Ym, run.mask, run.e_prev
+                        history.extend(run.history)
+                        poses.extend(run.poses)
+                    if run.trial is None:  # out of iterations: the loop's top stops
+                        continue
+                    T_new, cp_new, Ym_new, e_new = run.trial
+                else:
+                    T_new, step = _UPDATES[method](T, Ym, cp, mask)
+                    cp_new, Ym_new = feet(T_new, cp.face)
+                    e_new = mse(cp_new, mask)
                 overshoot = e_new > e_prev * (1.0 + 1e-6)
                 if overshoot and method != "fine_001":
                     # overshoot far from the minimum: halve the motion (a safeguard the
@@ -524,6 +553,17 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
                         if e_try < e_prev:
                             T_new, cp_new, Ym_new, e_new = T_try, cp_try, Ym_try, e_try
                             break
+            if not e_new <= e_prev * (1.0 + 1e-6) and method == "hong_tan":
+                # No descent along the step: feet on edges or vertices (beyond a part's border,
+                # over a ridge between facets) pull along their face's plane while their
+                # distance grows along their offset. The same step with those rows along the
+                # offsets (the gradient of the distances) descends.
+                T_edge, _ = _update_hong_tan(T, Ym, cp, mask, edges=True)
+                cp_edge, Ym_edge = feet(T_edge, cp.face)
+                e_edge = mse(cp_edge, mask)
+                if e_edge < e_prev:
+                    T_new, cp_new, Ym_new, e_new = T_edge, cp_edge, Ym_edge, e_edge
+                    n_edge += 1
             if not e_new <= e_prev * (1.0 + 1e-6) and method != "icp":
                 # The linearised model is wrong here (far from the minimum, feet on edges):
                 # take one closed-form point-to-point step, which never raises the residual.
@@ -613,8 +653,68 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
         "poses": poses,
         "iterations": n_updates,
         "converged": converged,
-        "status": status + (f" ({n_fallback} point-to-point fallback step(s))" if n_fallback else ""),
+        "status": status + (f" ({n_edge} step(s) along the offsets of feet on edges)" if n_edge else "")
+        + (f" ({n_fallback} point-to-point fallback step(s))" if n_fallback else ""),
     }
+
+
+@dataclass
+class _PlainRun:
+    """What :func:`_plain_steps` did: ``steps`` accepted updates ending at ``T`` (with its
+    closest points, model-frame points, inlier mask and mean squared distance), their RMS
+    ``history`` and ``poses``, and the next trial ``(T, cp, Ym, e)`` (None when out of
+    iterations)."""
+
+    steps: int
+    T: np.ndarray
+    cp: ClosestPoints
+    Ym: np.ndarray
+    mask: Mask
+    e_prev: float
+    history: list
+    poses: list
+    trial: tuple | None
+
+
+_OUTLIER_MODE = {None: 0, "mad": 1}
+
+
+def _plain_steps(Y, T, Ym, cp, mask, e_prev, max_steps, floor2, tol, stages, feet) -> _PlainRun:
+    """Hong-Tan updates of :func:`_iterate` in one compiled call, as long as each is plain:
+    it lowers the residual, leaves it above the floor, and the relative decrease stays at
+    least ``tol`` (or the inlier set changes, by the current stage's rule). The same update,
+    closest points (approximate while far, as :class:`_Feet` does), acceptance and inlier
+    rule as the loop's; the first trial that is not plain goes back to the loop's rules
+    (shortened and point-to-point steps, the stopping rules), un-accepted."""
+    _announce()
+    n = len(Y)
+    sel = np.ones(n, dtype=np.bool_) if isinstance(mask, slice) else mask.copy()
+    near = feet.near
+    use_near = near is not None
+    if not use_near:
+        near = NearFaces(anchor=np.zeros((0, 3)), faces=np.zeros((0, 1), np.int64), reach=np.zeros((0, 1)))
+    cfg = stages.cfg
+    mode = _OUTLIER_MODE.get(cfg, 2)  # type: ignore[call-overload]
+    fixed = float(cfg) if mode == 2 else 0.0  # type: ignore[arg-type]
+    out = _nb_run(Y, np.ascontiguousarray(T), Ym, cp.foot, cp.distance, cp.face, cp.normal, cp.rel_error > 0.0,
+                  sel, isinstance(mask, slice), e_prev, max_steps, floor2, tol, mode, stages.k, stages.floor,
+                  fixed, stages.min_points, feet.far, feet.far_m2, 1.0 / (1.0 + FAR_REL_ERROR) ** 2,
+                  use_near, near.anchor, near.faces, near.reach, *feet.index.kernel_arrays())
+    (steps, T_acc, Ym_acc, foot, dist, face, normal, approx, all_sel, e_acc, hist, pose_arr, far,
+     more, T_t, Ym_t, foot_t, dist_t, face_t, normal_t, approx_t, e_t) = out
+    feet.far = bool(far)
+    rel = FAR_REL_ERROR if approx else 0.0
+    run = _PlainRun(
+        steps=int(steps), T=T_acc, Ym=Ym_acc,
+        cp=ClosestPoints(foot=foot, distance=dist, face=face, normal=normal, rel_error=rel) if steps else cp,
+        mask=(ALL if all_sel else sel) if steps else mask,
+        e_prev=float(e_acc), history=[float(h) for h in hist[:steps]], poses=list(pose_arr[:steps]), trial=None,
+    )
+    if more:
+        cp_t = ClosestPoints(foot=foot_t, distance=dist_t, face=face_t, normal=normal_t,
+                             rel_error=FAR_REL_ERROR if approx_t else 0.0)
+        run.trial = (T_t, cp_t, Ym_t, float(e_t))
+    return run
 
 
 def _gram(J: np.ndarray) -> np.ndarray:
@@ -643,10 +743,21 @@ def _solve(A: np.ndarray, g: np.ndarray) -> np.ndarray:
     return x / d
 
 
-def _plane_rows(Ym, cp, mask, center):
+def _plane_rows(Ym, cp, mask, center, edges=False):
+    """Rows ``[(y_i - center) x n_i, n_i]`` and residuals ``s_i = <y_i - x_i, n_i>`` of the
+    point-to-plane system, ``n_i`` the face's normal; with ``edges``, a foot on an edge or a
+    vertex (``EDGE_COS_TOL``) uses the direction of its offset and its length instead: the
+    gradient of its distance."""
     y = Ym[mask]
     n = cp.normal[mask]
-    s = np.einsum("ij,ij->i", y - cp.foot[mask], n)
+    off = y - cp.foot[mask]
+    s = np.einsum("ij,ij->i", off, n)
+    edge = edges & (s * s < (1.0 - EDGE_COS_TOL) * np.einsum("ij,ij->i", off, off))
+    if edge.any():
+        d = np.linalg.norm(off[edge], axis=1)
+        n = n.copy()
+        n[edge] = off[edge] / d[:, None]
+        s[edge] = d
     J = np.empty((len(y), 6))
     _cross_into(y - center, n, J)
     J[:, 3:] = n
@@ -713,28 +824,34 @@ def _centered(T, c, xi):
     return T @ A @ exp_se3(xi) @ inv_pose(A)
 
 
-def _plane_system(Ym, cp, mask):
+def _plane_system(Ym, cp, mask, edges=False):
     """Normal equations ``(J^T J, J^T s)`` of the point-to-plane step about the centroid ``c``
-    of the points (rows ``[(y_i - c) x n_i, n_i]``, residuals ``s_i = <y_i - x_i, n_i>``),
-    and ``c``; one compiled pass over the points when numba is installed (the numpy version
-    is some forty small calls per iteration; ``python -m benchmarks.bench_speed_ideas
-    --sections step`` measures the compiled update against it)."""
+    of the points (rows ``[(y_i - c) x n_i, n_i]``, residuals ``s_i = <y_i - x_i, n_i>``; with
+    ``edges`` the rows of feet on edges as :func:`_plane_rows` makes them), and ``c``; one
+    compiled pass over the points when numba is installed (the numpy version is some forty
+    small calls per iteration; ``python -m benchmarks.bench_speed_ideas --sections step``
+    measures the compiled update against it)."""
     if _nb_plane_system is not None:
-        global _announced
-        if not _announced:
-            _announced = True
-            if kernels_cached([_nb_plane_system, _nb_solve]) is False:
-                print("compiling localization kernels, first run only ...", file=sys.stderr, flush=True)
+        _announce()
         sel = np.ones(len(Ym), dtype=np.bool_) if isinstance(mask, slice) else mask
-        return _nb_plane_system(Ym, cp.foot, cp.normal, sel)
+        return _nb_plane_system(Ym, cp.foot, cp.normal, sel, edges)
     c = Ym[mask].mean(axis=0)
-    J, s = _plane_rows(Ym, cp, mask, c)
+    J, s = _plane_rows(Ym, cp, mask, c, edges)
     A, g = _normal_equations(J, s)
     return A, g, c
 
 
-def _update_hong_tan(T, Ym, cp, mask):
-    A, g, c = _plane_system(Ym, cp, mask)
+def _announce():
+    """Say on stderr, once, when the localization kernels are about to be compiled."""
+    global _announced
+    if not _announced:
+        _announced = True
+        if kernels_cached([k for k in (_nb_plane_system, _nb_solve, _nb_run) if k is not None]) is False:
+            print("compiling localization kernels, first run only ...", file=sys.stderr, flush=True)
+
+
+def _update_hong_tan(T, Ym, cp, mask, edges=False):
+    A, g, c = _plane_system(Ym, cp, mask, edges)
     xi = _solve(A, g) if _nb_solve is None else _nb_solve(A, g)
     return _centered(T, c, xi), None
 
@@ -801,7 +918,7 @@ def _compile_plane_system():
         return None
 
     @numba.njit(cache=True, nogil=True)
-    def plane_system(Y, X, N, sel):  # pragma: no cover - compiled
+    def plane_system(Y, X, N, sel, edges):  # pragma: no cover - compiled
         n = Y.shape[0]
         c = np.zeros(3)
         m = 0
@@ -824,7 +941,19 @@ def _compile_plane_system():
             nx = N[i, 0]
             ny = N[i, 1]
             nz = N[i, 2]
-            s = (Y[i, 0] - X[i, 0]) * nx + (Y[i, 1] - X[i, 1]) * ny + (Y[i, 2] - X[i, 2]) * nz
+            dx = Y[i, 0] - X[i, 0]
+            dy = Y[i, 1] - X[i, 1]
+            dz = Y[i, 2] - X[i, 2]
+            s = dx * nx + dy * ny + dz * nz
+            d2 = dx * dx + dy * dy + dz * dz
+            if edges and s * s < (1.0 - EDGE_COS_TOL) * d2:
+                # the foot is on an edge or a vertex: the distance grows along y - x, not
+                # along the face's normal
+                d = np.sqrt(d2)
+                nx = dx / d
+                ny = dy / d
+                nz = dz / d
+                s = d
             row[0] = uy * nz - uz * ny
             row[1] = uz * nx - ux * nz
             row[2] = ux * ny - uy * nx
@@ -930,6 +1059,140 @@ def _compile_solve():
     return solve
 
 
+def _compile_run(plane_system, solve, kernels):
+    if plane_system is None or solve is None or kernels is None:
+        return None
+    import numba
+
+    tree, near = kernels
+
+    @numba.njit(cache=True, nogil=True)
+    def upper_median(d):  # pragma: no cover - compiled
+        k = len(d) // 2
+        return np.partition(d, k)[k]
+
+    @numba.njit(cache=True, nogil=True)
+    def inliers(d, mode, k, floor, fixed, min_points, sel):  # pragma: no cover - compiled
+        """robust.inlier_mask into sel; True when it is every point (ALL)."""
+        n = len(d)
+        if mode == 0:
+            sel[:] = True
+            return True
+        thr = max(k * MAD_TO_SIGMA * upper_median(d), floor) if mode == 1 else fixed
+        m = 0
+        for i in range(n):
+            sel[i] = d[i] <= thr
+            m += sel[i]
+        if m == n:
+            return True
+        if m < min_points:
+            med = upper_median(d)
+            for i in range(n):
+                sel[i] = d[i] <= med
+        return False
+
+    @numba.njit(cache=True, nogil=True)
+    def mse(d, sel):  # pragma: no cover - compiled
+        s = 0.0
+        m = 0
+        for i in range(len(d)):
+            if sel[i]:
+                s += d[i] * d[i]
+                m += 1
+        return s / m
+
+    @numba.njit(cache=True, nogil=True)
+    def centered(T, c, xi):  # pragma: no cover - compiled
+        """_centered: T A_c exp(xi) A_c^-1 = T [R, c + V v - R c]."""
+        wx, wy, wz = xi[0], xi[1], xi[2]
+        th2 = wx * wx + wy * wy + wz * wz
+        th = np.sqrt(th2)
+        if th < 1e-9:
+            a, b, cc = 1.0, 0.5, 1.0 / 6.0
+        else:
+            a = np.sin(th) / th
+            b = (1.0 - np.cos(th)) / th2
+            cc = (th - np.sin(th)) / (th2 * th)
+        W = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+        WW = W @ W
+        R = np.eye(3) + a * W + b * WW
+        V = np.eye(3) + b * W + cc * WW
+        D = np.eye(4)
+        D[:3, :3] = R
+        D[:3, 3] = c + V @ xi[3:] - R @ c
+        return T @ D
+
+    @numba.njit(cache=True, nogil=True)
+    def feet(Y, T, hint, shrink, use_near, anchor, nfaces, reach, data, leaf_data, box, left, start, count,
+             perm, up, leaf_of, normals):  # pragma: no cover - compiled
+        """_Feet at the pose T: the points in the model frame and their closest points."""
+        n = Y.shape[0]
+        Ym = np.empty((n, 3))
+        for i in range(n):
+            x = Y[i, 0] - T[0, 3]
+            y = Y[i, 1] - T[1, 3]
+            z = Y[i, 2] - T[2, 3]
+            for k in range(3):
+                Ym[i, k] = T[0, k] * x + T[1, k] * y + T[2, k] * z
+        face = np.empty(n, np.int64)
+        foot = np.empty((n, 3))
+        dist = np.empty(n)
+        normal = np.empty((n, 3))
+        if use_near:
+            near(Ym, anchor, nfaces, reach, data, leaf_data, box, left, start, count, perm, up, leaf_of,
+                 normals, face, foot, dist, normal, np.zeros(n, np.uint8))
+        else:
+            tree(Ym, hint, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals, face, foot,
+                 dist, normal, shrink)
+        return Ym, foot, dist, face, normal
+
+    @numba.njit(cache=True, nogil=True)
+    def run(Y, T, Ym, foot, dist, face, normal, approx, sel, all_sel, e_prev, max_steps, floor2, tol, mode,
+            k, floor, fixed, min_points, far, far_m2, shrink_far, use_near, anchor, nfaces, reach, data,
+            leaf_data, box, left, start, count, perm, up, leaf_of, normals):  # pragma: no cover - compiled
+        """The plain Hong-Tan iterations of _iterate (see _plain_steps); sel is updated in place."""
+        n = Y.shape[0]
+        hist = np.empty(max(max_steps, 0))
+        poses = np.empty((max(max_steps, 0), 4, 4))
+        new_sel = np.empty(n, np.bool_)
+        m = 0
+        while m < max_steps:
+            A, g, c = plane_system(Ym, foot, normal, sel, False)
+            T_t = centered(T, c, solve(A, g))
+            shrink = shrink_far if (far and not use_near) else 1.0
+            Ym_t, foot_t, dist_t, face_t, normal_t = feet(Y, T_t, face, shrink, use_near, anchor, nfaces,
+                                                          reach, data, leaf_data, box, left, start, count,
+                                                          perm, up, leaf_of, normals)
+            approx_t = shrink < 1.0
+            far_t = far
+            if approx_t:
+                far_t = mse(dist_t, np.ones(n, np.bool_)) > far_m2
+            e_t = mse(dist_t, sel)
+            plain = e_t <= e_prev
+            if plain:
+                all_new = inliers(dist_t, mode, k, floor, fixed, min_points, new_sel)
+                changed = all_new != all_sel or (not all_new and not np.array_equal(new_sel, sel))
+                e_next = mse(dist_t, new_sel)
+                rel = 1.0 - e_t / e_prev if e_prev > 0 else 0.0
+                plain = e_next > floor2 and (changed or not rel < tol)
+            far = far_t
+            if not plain:
+                return (m, T, Ym, foot, dist, face, normal, approx, all_sel, e_prev, hist, poses, far,
+                        True, T_t, Ym_t, foot_t, dist_t, face_t, normal_t, approx_t, e_t)
+            T, Ym, foot, dist, face, normal, approx = T_t, Ym_t, foot_t, dist_t, face_t, normal_t, approx_t
+            sel[:] = new_sel
+            all_sel = all_new
+            e_prev = e_next
+            hist[m] = np.sqrt(e_t)
+            poses[m] = T
+            m += 1
+        return (m, T, Ym, foot, dist, face, normal, approx, all_sel, e_prev, hist, poses, far,
+                False, T, Ym, foot, dist, face, normal, approx, e_prev)
+
+    return run
+
+
 _nb_plane_system = _compile_plane_system()
 _nb_solve = _compile_solve()
+_nb_run = _compile_run(_nb_plane_system, _nb_solve, query_kernels())
 _announced = False
