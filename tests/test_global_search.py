@@ -9,7 +9,7 @@ import algorithms.registration.global_search as gs
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
-from algorithms.registration import RegistrationResult, Status, localize
+from algorithms.registration import RegistrationResult, Status, local, localize
 from algorithms.registration.global_search import global_localize, orientation_table
 from tests.helpers import assert_pose_close
 from tests.tolerances import (
@@ -210,6 +210,17 @@ def test_multistart_with_noise(part):
     # wrong noise level: the residual check refuses the pose instead of claiming success
     bad = global_localize(y, m, "multistart", index=idx, noise_sigma_m=2e-6, rng=np.random.default_rng(5))
     assert not bad.trusted and bad.status is Status.POOR_FIT and bad.message.startswith("poor fit")
+
+
+def test_a_polish_that_did_not_converge_is_not_a_success(part, monkeypatch):
+    m, idx, pts = part
+    rng = np.random.default_rng(5)
+    T = _pose(TRUE_ROTVECS[1])
+    y = pts @ T[:3, :3].T + T[:3, 3] + rng.normal(0.0, 20e-6, pts.shape)
+    monkeypatch.setitem(local.MAX_ITERATIONS, "hong_tan", 1)  # the polish stops after one update
+    r = global_localize(y, m, "multistart", index=idx, noise_sigma_m=20e-6, rng=rng)
+    assert not r.converged and not r.trusted and r.status is Status.NOT_CONVERGED
+    assert r.message.startswith("polish not converged: reached max_iterations = 1")
 
 
 def test_same_seed_same_result(part):

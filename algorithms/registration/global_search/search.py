@@ -343,6 +343,9 @@ def global_localize(
     if res.poor_fit_reason is not None and status in (Status.OK, Status.AMBIGUOUS, Status.UNOBSERVABLE):
         # the polish's fit check sees what a residual test against an estimated sigma cannot
         status, message = Status.POOR_FIT, f"poor fit: {res.poor_fit_reason}; {verdict.message}"
+    elif polish is not None and not res.converged and status in (Status.OK, Status.AMBIGUOUS, Status.UNOBSERVABLE):
+        # the pose returned is the polish's: not at its minimum, whatever the verification saw
+        status, message = Status.NOT_CONVERGED, f"polish {res.message}; {verdict.message}"
     base = {f.name: getattr(res, f.name) for f in fields(RegistrationResult)}
     base.update(
         T_world_workpiece=T_final,
