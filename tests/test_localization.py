@@ -187,6 +187,29 @@ def test_points_past_a_border_do_not_stall_the_iteration(monkeypatch):
     assert not crawl.converged and crawl.rmse_m > res.rmse_m
 
 
+def test_every_stop_is_at_the_minimum_to_a_fraction_of_a_standard_deviation():
+    """Started again from its own answer, the iteration moves the pose by less than 0.2 of its
+    standard deviation, whichever rule stopped it (on the faceted S-surface the update
+    overshoots near the minimum; the iteration stops where even the step along the distances'
+    gradient would move the pose by less than 0.1 of one)."""
+    mesh, idx = part("s_surface")
+    rules = set()
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        X, _ = sample_surface(mesh, 400, rng, min_nz=0.05)
+        T_true = random_pose(rng, X.mean(axis=0), 0.1, max_deg=10)
+        Y = transform_points(T_true, X) + rng.normal(0, 50e-6, X.shape)
+        T0 = random_pose(rng, X.mean(axis=0), 0.02, max_deg=3) @ T_true
+        a = localize(Y, index=idx, init=T0, sigma=50e-6)
+        b = localize(Y, index=idx, init=a.T_world_workpiece, sigma=50e-6)
+        assert a.status is Status.OK, a.message
+        xi = pose_error_twist(b.T_world_workpiece, a.T_world_workpiece)
+        assert float(np.sqrt(whitened_error(xi, a.covariance)[0])) < 0.2, a.message
+        rules |= {r.message.split("(")[0].split(" by ")[0] for r in (a, b)}
+    assert "converged: the update overshoots where it would move the pose" in rules
+    assert "converged: the update overshoots and the fallback step moves the pose" in rules
+
+
 def test_fine_001_reports_its_step_rule_and_caps_iterations():
     mesh, idx = part("hemisphere_punch")
     rng = np.random.default_rng(8)

@@ -55,16 +55,16 @@ except ImportError:  # pragma: no cover - depends on the environment
     _nb = None
 HAVE_NUMBA = _nb is not None
 
-__all__ = ["ClosestPoints", "MeshIndex", "NearFaces", "closest_points_on_triangles", "compile_kernels", "query_kernels",
-           "kernels_cached"]
+__all__ = ["ClosestPoints", "MeshIndex", "NearFaces", "PARALLEL_MIN_POINTS", "closest_points_on_triangles",
+           "compile_kernels", "query_kernels", "kernels_cached"]
 
 # Neighbour counts tried before the ball query (points near the surface need few).
 _K_STAGES = (8, 48)
 #: Faces each point keeps in its :class:`NearFaces` list (the foot's face and its neighbours).
 NEAR_K = 4
-# Above this many queries the KD-tree uses every core (threads cost more than they save
+#: From this many points on, a query uses every core (threads cost more than they save
 # for a few hundred points).
-_PARALLEL_MIN = 4000
+PARALLEL_MIN_POINTS = 4000
 
 
 @dataclass(frozen=True)
@@ -265,10 +265,10 @@ def compile_kernels(announce=True) -> float:
 
 
 def _in_chunks(run, n: int) -> None:
-    """run(a, b) over [0, n): in one call below _PARALLEL_MIN, else in one chunk per core on
+    """run(a, b) over [0, n): in one call below PARALLEL_MIN_POINTS, else in one chunk per core on
     threads (the compiled kernels release the GIL). Threads over a serial kernel instead of
     numba's parallel=True: the same speed here, and half the first-run compilation time."""
-    workers = min(_pool_size(), -(-n // _PARALLEL_MIN))
+    workers = min(_pool_size(), -(-n // PARALLEL_MIN_POINTS))
     if workers <= 1:
         run(0, n)
         return
@@ -424,7 +424,7 @@ class MeshIndex:
             raise AlgorithmError(f"rel_error must be a finite number >= 0, got {rel_error}")
         if self.backend == "numba":
             return self._query_numba(q, hint, rel_error)
-        workers = -1 if n >= _PARALLEL_MIN else 1
+        workers = -1 if n >= PARALLEL_MIN_POINTS else 1
         best_d2 = np.full(n, np.inf)
         best_face = np.zeros(n, dtype=np.int64)
         pending = np.arange(n)
