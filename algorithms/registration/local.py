@@ -33,12 +33,7 @@ The updates, all computed in the workpiece frame from the model-frame points ``y
   first-order retraction, about the workpiece origin.
 * ``"hong_tan"`` (default): the same point-to-plane least squares, solved about the centroid
   of the points and applied through the exact exponential map (a Gauss-Newton step on SE(3)
-  for the point-to-surface distance; quadratic convergence on exact data). A point whose foot
-  lies on an edge or a vertex of the mesh (beyond a part's border, over a ridge between
-  facets) enters with the direction of its offset ``y_i - x_i`` instead of the face's normal:
-  the gradient of its distance, so that the fixed point is the minimum of the distances that
-  ``e_k`` measures (with the face's plane such a point pulls sideways, the step stops being a
-  descent direction, and the iteration crawled on point-to-point fallback steps). Document 000
+  for the point-to-surface distance; quadratic convergence on exact data). Document 000
   finds it the fastest and most accurate of the family; it is the efficient estimator whose
   covariance reaches the Cramer-Rao bound here (see :mod:`algorithms.registration.uncertainty`).
 * ``"menq"``: nonlinear least squares (Levenberg-Marquardt) on SE(3) of the true
@@ -61,8 +56,8 @@ the cited papers' usual descriptions; the original Hong-Tan patent and Li's VA p
 at hand. All six share the same fixed point (the minimum of the sum of squared
 point-to-surface distances): at a stationary point of ICP, ``sum d_i n_i = 0`` and
 ``sum d_i (y_i x n_i) = 0`` with ``n_i`` the unit offset ``(y_i - x_i) / d_i``, the normal
-equations of the point-to-plane methods (whose rows use that offset's direction where a foot
-is on an edge or a vertex; inside a face it is the face's normal).
+equations of the point-to-plane methods where every foot lies inside its face (there the
+offset is along the face's normal).
 
 The point-to-point methods (icp, va, fine_001) converge linearly (slowly when the points can
 slide along the surface); they reach the same minimum, given enough iterations, and default
@@ -70,7 +65,13 @@ to more iterations and a smaller ``delta``. Safeguards shared by the linearised 
 step that raises the residual is halved (up to 8 times); if that fails, one closed-form
 point-to-point (ICP) step is taken instead (it never raises the residual); menq takes the
 ICP step when its damping has grown large. The number of such fallback steps is appended to
-``message``.
+``message``. Hong-Tan first retries such a step with the rows of feet on an edge or a vertex
+(past a part's border, over a ridge between facets) along their offsets ``y_i - x_i``, the
+gradient of their distances (with the face's plane such a point pulls sideways and the step
+need not descend: the fallback steps crept for up to 100 iterations), and halves that one; it
+stops instead when even that step would move the pose by less than ``FALLBACK_MIN_SIGMAS``
+of its standard deviation. Its plain iterations (accepted, nothing else to decide) run
+compiled (:mod:`algorithms.registration.kernels`) below ``PARALLEL_MIN_POINTS`` points.
 
 Local minima: like every local method these converge to the nearest minimum; how often each
 method recovers the pose from random starts is measured by
