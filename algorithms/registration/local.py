@@ -450,7 +450,7 @@ class _Feet:
     converged), from each point's list of nearest faces (:meth:`MeshIndex.query_near`, exact),
     a few point-triangle tests a point. The lists are not started in mid-iteration: building
     them (the K nearest faces of every point) costs about what the hinted tree queries they
-    would replace cost over the last few iterations (measured 3-7 % slower at 150 and 1,000
+    would replace cost over the last few iterations (measured 2-7 % slower at 150 and 1,000
     points with them)."""
 
     def __init__(self, index: MeshIndex, Y: np.ndarray, near_from_start: bool = False):
