@@ -65,9 +65,7 @@ def check_units(Y: np.ndarray, index: MeshIndex) -> None:
     size = index.extent
     if not size > 0:
         raise AlgorithmError("the model has zero size (all vertices coincide)")
-    center = np.median(Y, axis=0)
-    r = np.linalg.norm(Y - center, axis=1)
-    spread = 2.0 * float(np.percentile(r, 90))
+    spread = 2.0 * _radius_90(Y)
     if spread > UNITS_MAX_RATIO * size:
         raise AlgorithmError(
             f"the points span {spread:.4g} but the model is only {size:.4g} across "
@@ -80,3 +78,23 @@ def check_units(Y: np.ndarray, index: MeshIndex) -> None:
             f"(1/{size / max(spread, 1e-300):.0f}): units look wrong (points in m and model in mm?) "
             "or the points cover too little of the part"
         )
+
+
+def _radius_90(Y: np.ndarray) -> float:
+    """The 90th percentile (linear interpolation) of the points' distances from their
+    coordinate-wise median, by partition (np.median and np.percentile cost 5x as much at a few
+    hundred points, with the same result)."""
+    n = len(Y)
+    k = n // 2
+    if n % 2:
+        center = np.partition(Y, k, axis=0)[k]
+    else:
+        P = np.partition(Y, [k - 1, k], axis=0)
+        center = 0.5 * (P[k - 1] + P[k])
+    d = Y - center
+    r = np.sqrt(np.einsum("ij,ij->i", d, d))
+    h = 0.9 * (n - 1)
+    lo = int(h)
+    hi = min(lo + 1, n - 1)
+    q = np.partition(r, [lo, hi])
+    return float(q[lo] + (h - lo) * (q[hi] - q[lo]))

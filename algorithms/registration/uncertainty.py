@@ -46,6 +46,7 @@ __all__ = [
     "information_rows",
     "fisher_information",
     "crlb",
+    "cross_into",
     "observability",
     "estimate_sigma",
     "pose_error_twist",
@@ -136,7 +137,10 @@ def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observabil
     L = float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d))))
     if not L > 0:
         L = 1.0
-    H = np.hstack([np.cross(d, n) / L, n])
+    H = np.empty((len(p), 6))
+    cross_into(d, n, H[:, :3])
+    H[:, :3] /= L
+    H[:, 3:] = n
     M = np.einsum("ij,ik->jk", H, H) / len(p)  # no BLAS threads (see localization)
     w, V = np.linalg.eigh(M)
     w = np.clip(w, 0.0, None)
@@ -146,9 +150,12 @@ def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observabil
 
     def twists(S):
         """(k, 6) scaled twists about the centroid [L omega, v_c] -> about the origin."""
-        omega = S[:, :3] / L
-        v = S[:, 3:] - np.cross(omega, c)  # velocity of the workpiece origin: v_c = v + omega x c
-        return np.hstack([omega, v])
+        out = np.empty_like(S)
+        out[:, :3] = S[:, :3] / L
+        # velocity of the workpiece origin: v_c = v + omega x c
+        cross_into(out[:, :3], np.broadcast_to(c, (len(S), 3)), out[:, 3:])
+        out[:, 3:] = S[:, 3:] - out[:, 3:]
+        return out
 
     return Observability(
         observable=not bool(weak.any()),
@@ -160,6 +167,16 @@ def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observabil
         centroid=c,
         tol=float(tol),
     )
+
+
+def cross_into(a, b, out):
+    """``out[:, :3] = a x b`` row-wise for (N, 3) rows: np.cross's arithmetic, without its
+    overhead (a third of the time at a few hundred rows)."""
+    ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
+    bx, by, bz = b[:, 0], b[:, 1], b[:, 2]
+    out[:, 0] = ay * bz - az * by
+    out[:, 1] = az * bx - ax * bz
+    out[:, 2] = ax * by - ay * bx
 
 
 def crlb(points, normals, sigma: float, tol: float = OBSERVABILITY_TOL) -> np.ndarray:
