@@ -10,7 +10,10 @@
 * ``far``: a whole ``localize`` call with the far points' closest points looked up to within
   ``local.FAR_REL_ERROR`` of their distance (the default) against exact look-ups throughout
   (``FAR_REL_ERROR = 0``), the same starts, timing and ratio; and the largest difference of the
-  two results in units of the pose's standard deviation.
+  two results in units of the pose's standard deviation;
+* ``order``: a whole ``localize`` call at 150 points (no subset stage, where the Morton order is
+  not used) against the same call with the points put in Morton order first (what the code
+  did below 500 points before), the same starts, timing and ratio.
 
 Run from the repository root: ``python -m benchmarks.bench_speed_ideas`` (prints markdown).
 """
@@ -126,9 +129,29 @@ def far_vs_exact(rows, trials=20, sigma=50e-6):
                         f"{max(diff):.3f} |")
 
 
+def morton_vs_none(rows, trials=20, sigma=50e-6):
+    for name in PARTS:
+        mesh = make_workpiece(name)
+        index = MeshIndex(mesh)
+        cases = _starts(index, mesh, name, 150, trials, sigma)
+        localize(cases[0][0], index=index, init=cases[0][1], sigma=sigma)
+        ta, tb = [], []
+        for y, T0 in cases:
+            t0 = time.thread_time()
+            localize(y[local._morton_order(y)], index=index, init=T0, sigma=sigma)
+            t1 = time.thread_time()
+            localize(y, index=index, init=T0, sigma=sigma)
+            t2 = time.thread_time()
+            ta.append(t1 - t0)
+            tb.append(t2 - t1)
+        ratio = float(np.median(np.array(tb) / np.array(ta)))
+        rows.append(f"| {name} | 150 | {np.median(ta) * 1e3:.2f} | {np.median(tb) * 1e3:.2f} | {ratio:.2f} |")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sections", nargs="+", default=["near", "step", "far"], choices=["near", "step", "far"])
+    ap.add_argument("--sections", nargs="+", default=["near", "step", "far", "order"],
+                    choices=["near", "step", "far", "order"])
     args = ap.parse_args(argv)
     if "near" in args.sections:
         rows = ["| part | motion [mm] | near-face query [ms / 1000 points] | hinted tree query [ms] | "
@@ -144,6 +167,11 @@ def main(argv=None):
         rows = ["| part | N | exact look-ups [ms / call] | far ones within FAR_REL_ERROR [ms / call] | "
                 "paired ratio | largest difference [pose standard deviations] |", "|---|---|---|---|---|---|"]
         far_vs_exact(rows)
+        print("\n".join(rows) + "\n")
+    if "order" in args.sections:
+        rows = ["| part | N | Morton order first [ms / call] | as given [ms / call] | paired ratio |",
+                "|---|---|---|---|---|"]
+        morton_vs_none(rows)
         print("\n".join(rows))
 
 
