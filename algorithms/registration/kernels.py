@@ -269,7 +269,10 @@ if _numba is not None:
             approx_t = shrink < 1.0
             far_t = far
             if approx_t:
-                far_t = mse(dist_t, np.ones(n, np.bool_)) > far_m2
+                ss = 0.0
+                for i in range(n):
+                    ss += dist_t[i] * dist_t[i]
+                far_t = ss > far_m2 * n
             e_t = mse(dist_t, sel)
             plain = e_t <= e_prev
             if plain:

@@ -573,7 +573,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
                     T_edge, decrease = _update_hong_tan(T, Ym, cp, mask, edges=True)
                     n_used = count(mask, len(Y))
                     settled = decrease < FALLBACK_MIN_SIGMAS**2 * e_prev * n_used / max(n_used - 6, 1)
-                    if not settled and _on_edges(Ym, cp, mask):
+                    if not settled and _edge_feet(Ym, cp, mask)[2].any():
                         cp_edge, Ym_edge = feet(T_edge, cp.face)
                         e_edge = mse(cp_edge, mask)
                         if e_edge < e_new:
@@ -781,10 +781,8 @@ def _plane_rows(Ym, cp, mask, center, edges=False):
     gradient of its distance."""
     y = Ym[mask]
     n = cp.normal[mask]
-    off = y - cp.foot[mask]
-    s = np.einsum("ij,ij->i", off, n)
-    edge = edges & (s * s < (1.0 - EDGE_COS_TOL) * np.einsum("ij,ij->i", off, off))
-    if edge.any():
+    off, s, edge = _edge_feet(Ym, cp, mask)
+    if edges and edge.any():
         d = np.linalg.norm(off[edge], axis=1)
         n = n.copy()
         n[edge] = off[edge] / d[:, None]
@@ -872,11 +870,13 @@ def _announce():
             print("compiling localization kernels, first run only ...", file=sys.stderr, flush=True)
 
 
-def _on_edges(Ym, cp, mask) -> bool:
-    """Whether any foot lies on an edge or a vertex (see _plane_rows)."""
+def _edge_feet(Ym, cp, mask):
+    """The selected points' offsets ``y_i - x_i``, plane residuals ``<y_i - x_i, n_i>`` and
+    which feet lie on an edge or a vertex (the offset off the face's normal by more than
+    ``EDGE_COS_TOL``)."""
     off = Ym[mask] - cp.foot[mask]
     s = np.einsum("ij,ij->i", off, cp.normal[mask])
-    return bool(np.any(s * s < (1.0 - EDGE_COS_TOL) * np.einsum("ij,ij->i", off, off)))
+    return off, s, s * s < (1.0 - EDGE_COS_TOL) * np.einsum("ij,ij->i", off, off)
 
 
 def _update_hong_tan(T, Ym, cp, mask, edges=False):
