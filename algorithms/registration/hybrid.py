@@ -28,7 +28,10 @@ What the document leaves open, and the choices made here:
   distances or not lower ``e_e`` are shrunk.
 * Before that, and always, the **best achievable minimum margin** ``max_lambda min_i (d_i -
   delta_i)`` is found by the same kind of LP steps (maximise ``t`` subject to
-  ``d_i - A_i lambda - delta_i >= t``). When it is negative no pose along ``G_0`` gives every
+  ``d_i - A_i lambda - delta_i >= t``); where the LP sees no gain (the smallest margins flat
+  to first order: rough points over finished faces parallel to ``G_0``'s motions) compass
+  steps along each direction, from the trust region's size down to ``COMPASS_MIN_REL`` of the
+  rough points' size, are tried before a maximum is declared. When it is negative no pose along ``G_0`` gives every
   rough point its allowance: the result says so (``feasible = False``), its pose is the
   max-min placement (the best achievable), and ``limiting_points`` names the points that
   hold the margin down (within ``LIMIT_TOL_REL`` of the size of the rough-point set of the
