@@ -210,6 +210,37 @@ def test_every_stop_is_at_the_minimum_to_a_fraction_of_a_standard_deviation():
     assert "converged: the update overshoots and the fallback step moves the pose" in rules
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_stop_before_a_tiny_update_ends_where_the_relative_decrease_rule_would(compiled, monkeypatch):
+    """Hong-Tan stops before an update that would move the pose by less than STOP_SIGMAS (0.01)
+    of its standard deviation: within that of where the relative-decrease rule alone stops,
+    in fewer iterations; in the compiled iterations and in the loop (many points' path)."""
+    if not compiled:
+        monkeypatch.setattr(local, "PARALLEL_MIN_POINTS", 0)
+    mesh, idx = part("s_surface")
+    rules = set()
+    saved = 0
+    for seed in range(6):
+        rng = np.random.default_rng(100 + seed)
+        X, _ = sample_surface(mesh, 150, rng, min_nz=0.05)
+        T_true = random_pose(rng, X.mean(axis=0), 0.1, max_deg=10)
+        Y = transform_points(T_true, X) + rng.normal(0, 50e-6, X.shape)
+        T0 = random_pose(rng, X.mean(axis=0), 0.005, max_deg=5) @ T_true
+        with monkeypatch.context() as m:
+            m.setattr(local, "STOP_SIGMAS", 0.0)
+            ref = localize(Y, index=idx, init=T0, sigma=50e-6)
+        res = localize(Y, index=idx, init=T0, sigma=50e-6)
+        assert res.status is Status.OK and ref.status is Status.OK, (res.message, ref.message)
+        assert "next update" not in ref.message
+        xi = pose_error_twist(res.T_world_workpiece, ref.T_world_workpiece)
+        assert float(np.sqrt(whitened_error(xi, ref.covariance)[0])) < 0.02, res.message
+        assert res.iterations <= ref.iterations
+        saved += ref.iterations - res.iterations
+        rules.add(res.message.split(" by ")[0])
+    assert "converged: the next update would move the pose" in rules
+    assert saved >= 6  # one iteration a fit or more
+
+
 def test_fine_001_reports_its_step_rule_and_caps_iterations():
     mesh, idx = part("hemisphere_punch")
     rng = np.random.default_rng(8)

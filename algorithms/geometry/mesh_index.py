@@ -382,11 +382,11 @@ class MeshIndex:
                 tri.min(axis=1), tri.max(axis=1), centroid, _BVH_LEAF)
             inner = left >= 0
             assert np.array_equal(right[inner], left[inner] + 1)  # siblings are adjacent
-            # Memory layout for the search (fewer cache misses): each node's box in one row,
-            # and the face constants in leaf order, so that a leaf's triangles are one
-            # contiguous block (``perm`` maps a leaf slot back to its face).
-            self._bvh = (np.ascontiguousarray(self._data[perm]), np.ascontiguousarray(np.c_[lo, hi]),
-                         left, start, count, perm, up, leaf_of)
+            # The face constants in leaf order, so that a leaf's triangles are one contiguous
+            # block (``perm`` maps a leaf slot back to its face), and the nodes packed
+            # (see _pack_nodes).
+            self._bvh = (np.ascontiguousarray(self._data[perm]),
+                         *_pack_nodes(lo, hi, left, start, count, up, leaf_of, perm))
         scale = np.ptp(vertices, axis=0)
         self.extent = float(np.linalg.norm(scale))  # bounding-box diagonal [m]
         # median edge length [m]: the scale below which a point's nearest faces stay its
@@ -394,6 +394,16 @@ class MeshIndex:
         self.face_size = float(np.median(np.linalg.norm(ab, axis=1))) if len(ab) else 0.0
         self._smooth: np.ndarray | None = None
         self._pseudo: tuple | None = None
+
+    def __setstate__(self, state):
+        """Unpickled (a worker process): the node records back in one aligned block (pickle
+        copies the two views of it apart)."""
+        self.__dict__.update(state)
+        if getattr(self, "_bvh", None) is not None:
+            leaf_data, _nodes_f, nodes_i, hint_map, perm = self._bvh
+            nodes_f, packed = _node_records(len(nodes_i))
+            packed[:] = nodes_i  # the whole records, boxes' bits included
+            self._bvh = (leaf_data, nodes_f, packed, hint_map, perm)
 
     # ------------------------------------------------------------------ queries
     def query(self, points, hint=None, rel_error: float = 0.0) -> ClosestPoints:
@@ -482,7 +492,7 @@ class MeshIndex:
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal, rel_error=rel_error)
 
     def kernel_arrays(self) -> tuple:
-        """``(data, leaf_data, box, left, start, count, perm, up, leaf_of, normals)``: the
+        """``(data, leaf_data, nodes_f, nodes_i, hint_map, perm, normals)``: the
         arrays the compiled kernels of :func:`query_kernels` search, for compiled callers that
         run their own loop of queries (numba backend only)."""
         if self.backend != "numba":
@@ -782,6 +792,51 @@ def _corner_normals(vertices, faces, face_normals, crease_deg: float = 30.0):
 _BVH_LEAF = 4
 _STACK = 128
 
+
+def _node_records(n: int):
+    """(float32, int32) views of n new 32-byte records, 64-byte aligned: records 2k and
+    2k + 1 share a cache line."""
+    raw = np.zeros(n * 32 + 64, np.uint8)
+    off = (-raw.ctypes.data) % 64
+    buf = raw[off : off + n * 32]
+    return buf.view(np.float32).reshape(n, 8), buf.view(np.int32).reshape(n, 8)
+
+
+def _pack_nodes(lo, hi, left, start, count, up, leaf_of, perm):
+    """The tree's nodes in 32-byte records, two to a 64-byte cache line: a node and its
+    sibling share a line, so the hinted queries' walk from a leaf to the root (one sibling box
+    a level) reads one line a level instead of four rows of four arrays.
+
+    Record ``r`` (node ``r - 1`` of :func:`_nb_build`; record 0 unused, so that siblings are
+    the pairs ``(2k, 2k + 1)`` and a node's sibling is ``r ^ 1``; the root is record 1):
+    ``nodes_f[r, 0:6]`` the box (lower, upper corner) in float32, rounded outwards so that
+    the distance to it stays a lower bound; ``nodes_i[r, 6]`` the first child's record, or
+    for a leaf ``-(8 start + count) - 1`` (its slots in the leaf order); ``nodes_i[r, 7]`` the
+    parent's record (0 at the root). ``nodes_f`` and ``nodes_i`` are two views of the same
+    memory. ``hint_map[f]``: face f's slot in the leaf order and its leaf's record.
+
+    Returns (nodes_f, nodes_i, hint_map, perm)."""
+    n = len(lo)
+    if 8 * len(perm) + 8 >= 2**31:
+        raise AlgorithmError(f"meshes of up to {2**28 - 1} faces are supported, got {len(perm)}")
+    nodes_f, nodes_i = _node_records(n + 1)
+    lo32 = lo.astype(np.float32)
+    hi32 = hi.astype(np.float32)
+    lo32 = np.where(lo32.astype(np.float64) > lo, np.nextafter(lo32, np.float32(-np.inf)), lo32)
+    hi32 = np.where(hi32.astype(np.float64) < hi, np.nextafter(hi32, np.float32(np.inf)), hi32)
+    nodes_f[0, 0:3] = np.inf
+    nodes_f[0, 3:6] = -np.inf
+    nodes_f[1:, 0:3] = lo32
+    nodes_f[1:, 3:6] = hi32
+    nodes_i[1:, 6] = np.where(left >= 0, left + 1, -(8 * start + count) - 1)
+    nodes_i[1:, 7] = up + 1  # the root's -1 becomes 0
+    slot = np.empty(len(perm), np.int64)
+    slot[perm] = np.arange(len(perm))
+    hint_map = np.empty((len(perm), 2), np.int32)
+    hint_map[:, 0] = slot
+    hint_map[:, 1] = leaf_of + 1
+    return nodes_f, nodes_i, hint_map, perm
+
 if _nb is not None:
 
     @_nb.njit(cache=True, nogil=True, inline="always")
@@ -841,10 +896,10 @@ if _nb is not None:
         return ex * ex + ey * ey + ez * ez, v, w
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_box_d2(px, py, pz, box, n):  # pragma: no cover - compiled
-        dx = max(box[n, 0] - px, 0.0, px - box[n, 3])
-        dy = max(box[n, 1] - py, 0.0, py - box[n, 4])
-        dz = max(box[n, 2] - pz, 0.0, pz - box[n, 5])
+    def _nb_box_d2(px, py, pz, nodes_f, r):  # pragma: no cover - compiled
+        dx = max(np.float64(nodes_f[r, 0]) - px, 0.0, px - np.float64(nodes_f[r, 3]))
+        dy = max(np.float64(nodes_f[r, 1]) - py, 0.0, py - np.float64(nodes_f[r, 4]))
+        dz = max(np.float64(nodes_f[r, 2]) - pz, 0.0, pz - np.float64(nodes_f[r, 5]))
         return dx * dx + dy * dy + dz * dz
 
     @_nb.njit(cache=True, nogil=True)
@@ -920,54 +975,66 @@ if _nb is not None:
                 start[:n_nodes].copy(), count[:n_nodes].copy(), perm, up, leaf_of)
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_descend(px, py, pz, root, best, bestf, data, leaf_data, box, left, start, count, perm,
-                    stack, stack_lb, shrink):  # pragma: no cover - compiled
-        """Best-first search of the subtree at ``root``; returns the improved (best, face)."""
+    def _nb_descend(px, py, pz, root, best, bestj, leaf_data, nodes_f, nodes_i, stack, stack_lb,
+                    shrink):  # pragma: no cover - compiled
+        """Best-first search of the subtree at record ``root``; returns the improved (best,
+        slot)."""
         stack[0] = root
-        stack_lb[0] = _nb_box_d2(px, py, pz, box, root)
+        stack_lb[0] = _nb_box_d2(px, py, pz, nodes_f, root)
         sp = 1
         while sp > 0:
             sp -= 1
             if stack_lb[sp] >= best * shrink:
                 continue
-            node = stack[sp]
-            lft = left[node]
-            if lft < 0:
-                s = start[node]
-                for j in range(s, s + count[node]):
-                    f = perm[j]
+            r = stack[sp]
+            c = nodes_i[r, 6]
+            if c < 0:
+                code = -c - 1
+                s = code >> 3
+                for j in range(s, s + (code & 7)):
                     d2, _v, _w = _nb_tri(px, py, pz, leaf_data, j)
                     if d2 < best:
                         best = d2
-                        bestf = f
+                        bestj = j
             else:
-                rgt = lft + 1  # siblings are adjacent
-                dl = _nb_box_d2(px, py, pz, box, lft)
-                dr = _nb_box_d2(px, py, pz, box, rgt)
+                dl = _nb_box_d2(px, py, pz, nodes_f, c)
+                dr = _nb_box_d2(px, py, pz, nodes_f, c + 1)
                 # push the farther child first so the nearer is searched first
                 if dl <= dr:
                     if dr < best * shrink:
-                        stack[sp] = rgt
+                        stack[sp] = c + 1
                         stack_lb[sp] = dr
                         sp += 1
                     if dl < best * shrink:
-                        stack[sp] = lft
+                        stack[sp] = c
                         stack_lb[sp] = dl
                         sp += 1
                 else:
                     if dl < best * shrink:
-                        stack[sp] = lft
+                        stack[sp] = c
                         stack_lb[sp] = dl
                         sp += 1
                     if dr < best * shrink:
-                        stack[sp] = rgt
+                        stack[sp] = c + 1
                         stack_lb[sp] = dr
                         sp += 1
-        return best, bestf
+        return best, bestj
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_one(i, q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
-                out_face, out_foot, out_dist, out_normal, stack, stack_lb, shrink):  # pragma: no cover
+    def _nb_out(i, px, py, pz, tri, j, f, normals, out_face, out_foot, out_dist,
+                out_normal):  # pragma: no cover - compiled
+        """Write point i's answer: face f, whose constants are row j of tri (the face-order
+        or the leaf-order table)."""
+        d2, v, w = _nb_tri(px, py, pz, tri, j)
+        out_face[i] = f
+        out_dist[i] = np.sqrt(d2)
+        for k in range(3):
+            out_foot[i, k] = tri[j, k] + v * tri[j, 3 + k] + w * tri[j, 6 + k]
+            out_normal[i, k] = normals[f, k]
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _nb_one(i, q, hints, leaf_data, nodes_f, nodes_i, hint_map, perm, normals, out_face, out_foot,
+                out_dist, out_normal, stack, stack_lb, shrink):  # pragma: no cover - compiled
         px = q[i, 0]
         py = q[i, 1]
         pz = q[i, 2]
@@ -977,98 +1044,93 @@ if _nb is not None:
         # with the hint's distance as the bound most siblings cost one box test. Without a
         # hint: the whole tree from the root. (One call site of _nb_descend: it is inlined.)
         best = np.inf
-        bestf = -1
-        node = 0
+        bestj = -1
+        r = 1
         if h >= 0:
-            best, _v, _w = _nb_tri(px, py, pz, data, h)
-            bestf = h
-            node = leaf_of[h]
-        sub = node
+            bestj = hint_map[h, 0]
+            best, _v, _w = _nb_tri(px, py, pz, leaf_data, bestj)
+            r = hint_map[h, 1]
+        sub = r
         while True:
-            if sub >= 0:
-                best, bestf = _nb_descend(px, py, pz, sub, best, bestf, data, leaf_data, box, left,
-                                          start, count, perm, stack, stack_lb, shrink)
-            if node == 0:
+            if sub > 0:
+                best, bestj = _nb_descend(px, py, pz, sub, best, bestj, leaf_data, nodes_f, nodes_i,
+                                          stack, stack_lb, shrink)
+            if r == 1:
                 break
-            par = up[node]
-            sib = left[par] + 1 if left[par] == node else left[par]
-            sub = sib if _nb_box_d2(px, py, pz, box, sib) < best * shrink else -1
-            node = par
-        d2, v, w = _nb_tri(px, py, pz, data, bestf)
-        out_face[i] = bestf
-        out_dist[i] = np.sqrt(d2)
-        for k in range(3):
-            out_foot[i, k] = data[bestf, k] + v * data[bestf, 3 + k] + w * data[bestf, 6 + k]
-            out_normal[i, k] = normals[bestf, k]
+            sib = r ^ 1
+            sub = sib if _nb_box_d2(px, py, pz, nodes_f, sib) < best * shrink else 0
+            r = nodes_i[r, 7]
+        _nb_out(i, px, py, pz, leaf_data, bestj, perm[bestj], normals, out_face, out_foot, out_dist,
+                out_normal)
 
     @_nb.njit(cache=True, nogil=True)
-    def _nb_query_serial(q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
+    def _nb_query_serial(q, hints, data, leaf_data, nodes_f, nodes_i, hint_map, perm, normals,
                          out_face, out_foot, out_dist, out_normal, shrink):  # pragma: no cover
         stack = np.empty(_STACK, np.int64)
         stack_lb = np.empty(_STACK)
         for i in range(q.shape[0]):
-            _nb_one(i, q, hints, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals,
-                    out_face, out_foot, out_dist, out_normal, stack, stack_lb, shrink)
+            _nb_one(i, q, hints, leaf_data, nodes_f, nodes_i, hint_map, perm, normals, out_face, out_foot,
+                    out_dist, out_normal, stack, stack_lb, shrink)
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_descend_k(px, py, pz, root, kd2, kf, m, data, leaf_data, box, left, start, count, perm,
-                      stack, stack_lb):  # pragma: no cover - compiled
-        """Best-first search of the subtree at ``root`` for the K nearest faces: ``kd2``/``kf``
-        (K,) hold the ``m`` nearest found so far, ascending; returns the new ``m``."""
+    def _nb_descend_k(px, py, pz, root, kd2, kj, m, leaf_data, nodes_f, nodes_i, stack,
+                      stack_lb):  # pragma: no cover - compiled
+        """Best-first search of the subtree at record ``root`` for the K nearest faces:
+        ``kd2``/``kj`` (K,) hold the ``m`` nearest found so far (leaf slots), ascending; returns
+        the new ``m``."""
         kk = kd2.shape[0]
         stack[0] = root
-        stack_lb[0] = _nb_box_d2(px, py, pz, box, root)
+        stack_lb[0] = _nb_box_d2(px, py, pz, nodes_f, root)
         sp = 1
         while sp > 0:
             sp -= 1
             bnd = kd2[kk - 1] if m == kk else np.inf
             if stack_lb[sp] >= bnd:
                 continue
-            node = stack[sp]
-            lft = left[node]
-            if lft < 0:
-                s = start[node]
-                for j in range(s, s + count[node]):
-                    f = perm[j]
+            r = stack[sp]
+            c = nodes_i[r, 6]
+            if c < 0:
+                code = -c - 1
+                s = code >> 3
+                for j in range(s, s + (code & 7)):
                     d2, _v, _w = _nb_tri(px, py, pz, leaf_data, j)
                     if m == kk and d2 >= kd2[kk - 1]:
                         continue
                     pos = m if m < kk else kk - 1
                     while pos > 0 and kd2[pos - 1] > d2:
                         kd2[pos] = kd2[pos - 1]
-                        kf[pos] = kf[pos - 1]
+                        kj[pos] = kj[pos - 1]
                         pos -= 1
                     kd2[pos] = d2
-                    kf[pos] = f
+                    kj[pos] = j
                     if m < kk:
                         m += 1
             else:
-                rgt = lft + 1  # siblings are adjacent
-                dl = _nb_box_d2(px, py, pz, box, lft)
-                dr = _nb_box_d2(px, py, pz, box, rgt)
+                dl = _nb_box_d2(px, py, pz, nodes_f, c)
+                dr = _nb_box_d2(px, py, pz, nodes_f, c + 1)
                 if dl <= dr:
                     if dr < bnd:
-                        stack[sp] = rgt
+                        stack[sp] = c + 1
                         stack_lb[sp] = dr
                         sp += 1
                     if dl < bnd:
-                        stack[sp] = lft
+                        stack[sp] = c
                         stack_lb[sp] = dl
                         sp += 1
                 else:
                     if dl < bnd:
-                        stack[sp] = lft
+                        stack[sp] = c
                         stack_lb[sp] = dl
                         sp += 1
                     if dr < bnd:
-                        stack[sp] = rgt
+                        stack[sp] = c + 1
                         stack_lb[sp] = dr
                         sp += 1
         return m
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left, start, count, perm, up,
-                     leaf_of, normals, out_face, out_foot, out_dist, out_normal, rebuilt, kd2,
+    def _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, nodes_f, nodes_i, hint_map, perm,
+                     normals, out_face, out_foot, out_dist, out_normal, rebuilt, kd2, kj,
                      stack, stack_lb):  # pragma: no cover - compiled
         px = q[i, 0]
         py = q[i, 1]
@@ -1094,53 +1156,52 @@ if _nb is not None:
             if slack >= 0.0 and best <= slack * slack:
                 certified = True
                 break
-        if not certified:
+        if certified:
+            _nb_out(i, px, py, pz, data, bestf, bestf, normals, out_face, out_foot, out_dist, out_normal)
+        else:
             # the certificate fails: the K nearest faces here, from the tree (walking up from
             # the list's best face when there is one, as in _nb_one; from the root otherwise)
             m = 0
-            node = leaf_of[bestf] if bestf >= 0 else 0
-            sub = node
+            r = hint_map[bestf, 1] if bestf >= 0 else 1
+            sub = r
             while True:  # as in _nb_one, with one call site
-                if sub >= 0:
-                    m = _nb_descend_k(px, py, pz, sub, kd2, faces[i], m, data, leaf_data, box, left,
-                                      start, count, perm, stack, stack_lb)
-                if node == 0:
+                if sub > 0:
+                    m = _nb_descend_k(px, py, pz, sub, kd2, kj, m, leaf_data, nodes_f, nodes_i, stack,
+                                      stack_lb)
+                if r == 1:
                     break
-                par = up[node]
-                sib = left[par] + 1 if left[par] == node else left[par]
+                sib = r ^ 1
                 bnd = kd2[kk - 1] if m == kk else np.inf
-                sub = sib if _nb_box_d2(px, py, pz, box, sib) < bnd else -1
-                node = par
+                sub = sib if _nb_box_d2(px, py, pz, nodes_f, sib) < bnd else 0
+                r = nodes_i[r, 7]
             for j in range(kk):
                 if j >= m:
                     faces[i, j] = -1
                     reach[i, j] = np.inf
-                elif j + 1 < m:
-                    reach[i, j] = np.sqrt(kd2[j + 1])
-                else:  # the last face of the list: the others are at least as far as it
-                    reach[i, j] = np.sqrt(kd2[j]) if m == kk else np.inf
+                else:
+                    faces[i, j] = perm[kj[j]]
+                    if j + 1 < m:
+                        reach[i, j] = np.sqrt(kd2[j + 1])
+                    else:  # the last face of the list: the others are at least as far as it
+                        reach[i, j] = np.sqrt(kd2[j]) if m == kk else np.inf
             anchor[i, 0] = px
             anchor[i, 1] = py
             anchor[i, 2] = pz
-            bestf = faces[i, 0]
             rebuilt[i] = 1
-        d2, v, w = _nb_tri(px, py, pz, data, bestf)
-        out_face[i] = bestf
-        out_dist[i] = np.sqrt(d2)
-        for k in range(3):
-            out_foot[i, k] = data[bestf, k] + v * data[bestf, 3 + k] + w * data[bestf, 6 + k]
-            out_normal[i, k] = normals[bestf, k]
+            _nb_out(i, px, py, pz, leaf_data, kj[0], faces[i, 0], normals, out_face, out_foot, out_dist,
+                    out_normal)
 
     @_nb.njit(cache=True, nogil=True)
-    def _nb_near_serial(q, anchor, faces, reach, data, leaf_data, box, left, start, count, perm, up,
-                        leaf_of, normals, out_face, out_foot, out_dist, out_normal,
+    def _nb_near_serial(q, anchor, faces, reach, data, leaf_data, nodes_f, nodes_i, hint_map, perm,
+                        normals, out_face, out_foot, out_dist, out_normal,
                         rebuilt):  # pragma: no cover - compiled
         stack = np.empty(_STACK, np.int64)
         stack_lb = np.empty(_STACK)
         kd2 = np.empty(faces.shape[1])
+        kj = np.empty(faces.shape[1], np.int64)
         for i in range(q.shape[0]):
-            _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, box, left, start, count, perm,
-                         up, leaf_of, normals, out_face, out_foot, out_dist, out_normal, rebuilt,
-                         kd2, stack, stack_lb)
+            _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, nodes_f, nodes_i, hint_map, perm,
+                         normals, out_face, out_foot, out_dist, out_normal, rebuilt, kd2, kj, stack,
+                         stack_lb)
 
     _KERNELS = (_nb_build, _nb_query_serial, _nb_near_serial)

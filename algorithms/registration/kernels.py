@@ -23,7 +23,7 @@ try:
 except ImportError:  # pragma: no cover - depends on the environment
     _numba = None
 
-__all__ = ["EDGE_COS_TOL", "plane_system", "solve", "run"]
+__all__ = ["EDGE_COS_TOL", "plane_system", "solve", "settled", "run"]
 
 #: A foot whose offset ``y - x`` is off its face's normal by more than this (1 - cos^2) lies on
 #: an edge or a vertex: with ``edges`` its row of the point-to-plane system uses the direction
@@ -32,6 +32,7 @@ EDGE_COS_TOL = 1e-9
 
 plane_system: Any = None
 solve: Any = None
+settled: Any = None
 run: Any = None
 
 if _numba is not None:
@@ -226,8 +227,8 @@ if _numba is not None:
         return T @ D
 
     @_numba.njit(cache=True, nogil=True)
-    def feet(Y, T, hint, shrink, use_near, anchor, nfaces, reach, data, leaf_data, box, left, start, count,
-             perm, up, leaf_of, normals):  # pragma: no cover - compiled
+    def feet(Y, T, hint, shrink, use_near, anchor, nfaces, reach, data, leaf_data, nodes_f, nodes_i,
+             hint_map, perm, normals):  # pragma: no cover - compiled
         """_Feet at the pose T: the points in the model frame and their closest points."""
         n = Y.shape[0]
         Ym = np.empty((n, 3))
@@ -242,18 +243,35 @@ if _numba is not None:
         dist = np.empty(n)
         normal = np.empty((n, 3))
         if use_near:
-            _near(Ym, anchor, nfaces, reach, data, leaf_data, box, left, start, count, perm, up, leaf_of,
-                  normals, face, foot, dist, normal, np.zeros(n, np.uint8))
+            _near(Ym, anchor, nfaces, reach, data, leaf_data, nodes_f, nodes_i, hint_map, perm, normals, face,
+                  foot, dist, normal, np.zeros(n, np.uint8))
         else:
-            _tree(Ym, hint, data, leaf_data, box, left, start, count, perm, up, leaf_of, normals, face, foot,
-                  dist, normal, shrink)
+            _tree(Ym, hint, data, leaf_data, nodes_f, nodes_i, hint_map, perm, normals, face, foot, dist,
+                  normal, shrink)
         return Ym, foot, dist, face, normal
 
     @_numba.njit(cache=True, nogil=True)
-    def run(Y, T, Ym, foot, dist, face, normal, approx, sel, all_sel, e_prev, max_steps, floor2, tol, mode,
-            k, floor, fixed, min_points, far, far_m2, shrink_far, use_near, anchor, nfaces, reach, data,
-            leaf_data, box, left, start, count, perm, up, leaf_of, normals):  # pragma: no cover - compiled
-        """The plain Hong-Tan iterations of _iterate (see _plain_steps); sel is updated in place."""
+    def settled(Ym, foot, normal, sel, g, xi, e, stop_m2):  # pragma: no cover - compiled
+        """Whether the update ``xi`` (of the system ``A xi = g`` from these feet) and the one
+        with the rows of feet on edges along their offsets would both lower the sum of squares
+        by less than ``stop_m2`` sigma^2: move the pose by less than sqrt(stop_m2) of its
+        standard deviation (sigma^2 estimated from the mean square ``e`` of the selected
+        points; the decrease a step predicts is ``g^T xi``)."""
+        m = 0
+        for i in range(sel.shape[0]):
+            m += sel[i]
+        bound = stop_m2 * e * m / max(m - 6, 1)
+        if np.dot(g, xi) >= bound:
+            return False
+        A_e, g_e, _c = plane_system(Ym, foot, normal, sel, True)
+        return np.dot(g_e, solve(A_e, g_e)) < bound
+
+    @_numba.njit(cache=True, nogil=True)
+    def run(Y, T, Ym, foot, dist, face, normal, approx, sel, all_sel, e_prev, max_steps, floor2, tol, stop_m2,
+            mode, k, floor, fixed, min_points, far, far_m2, shrink_far, use_near, anchor, nfaces, reach, data,
+            leaf_data, nodes_f, nodes_i, hint_map, perm, normals):  # pragma: no cover - compiled
+        """The plain Hong-Tan iterations of _iterate (see _plain_steps); sel is updated in place.
+        Stops before a step when :func:`settled` (exact feet only; the last output True)."""
         n = Y.shape[0]
         hist = np.empty(max(max_steps, 0))
         poses = np.empty((max(max_steps, 0), 4, 4))
@@ -261,11 +279,15 @@ if _numba is not None:
         m = 0
         while m < max_steps:
             A, g, c = plane_system(Ym, foot, normal, sel, False)
-            T_t = centered(T, c, solve(A, g))
+            xi = solve(A, g)
+            if not approx and settled(Ym, foot, normal, sel, g, xi, e_prev, stop_m2):
+                return (m, T, Ym, foot, dist, face, normal, approx, all_sel, e_prev, hist, poses, far,
+                        False, T, Ym, foot, dist, face, normal, approx, e_prev, True)
+            T_t = centered(T, c, xi)
             shrink = shrink_far if (far and not use_near) else 1.0
             Ym_t, foot_t, dist_t, face_t, normal_t = feet(Y, T_t, face, shrink, use_near, anchor, nfaces,
-                                                          reach, data, leaf_data, box, left, start, count,
-                                                          perm, up, leaf_of, normals)
+                                                          reach, data, leaf_data, nodes_f, nodes_i,
+                                                          hint_map, perm, normals)
             approx_t = shrink < 1.0
             far_t = far
             if approx_t:
@@ -284,7 +306,7 @@ if _numba is not None:
             far = far_t
             if not plain:
                 return (m, T, Ym, foot, dist, face, normal, approx, all_sel, e_prev, hist, poses, far,
-                        True, T_t, Ym_t, foot_t, dist_t, face_t, normal_t, approx_t, e_t)
+                        True, T_t, Ym_t, foot_t, dist_t, face_t, normal_t, approx_t, e_t, False)
             T, Ym, foot, dist, face, normal, approx = T_t, Ym_t, foot_t, dist_t, face_t, normal_t, approx_t
             sel[:] = new_sel
             all_sel = all_new
@@ -293,4 +315,4 @@ if _numba is not None:
             poses[m] = T
             m += 1
         return (m, T, Ym, foot, dist, face, normal, approx, all_sel, e_prev, hist, poses, far,
-                False, T, Ym, foot, dist, face, normal, approx, e_prev)
+                False, T, Ym, foot, dist, face, normal, approx, e_prev, False)

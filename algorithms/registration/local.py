@@ -176,6 +176,11 @@ FAR_REL_ERROR = 0.3
 #: that moves the pose by less than this many of its standard deviations ends the
 #: iteration: converged (see _iterate).
 FALLBACK_MIN_SIGMAS = 0.1
+#: Hong-Tan stops, converged, before an update that would move the pose by less than this many
+#: of its standard deviations (by its own linear model, and by the one with the rows of feet on
+#: edges along their offsets): the relative-decrease rule (``delta``) would go on to about
+#: 1e-4 of a standard deviation at 150 points, for one to three more closest-point queries.
+STOP_SIGMAS = 0.01
 #: From this many points on, the early updates use a regular subset of SUBSET_POINTS points.
 SUBSET_MIN_POINTS = 500
 SUBSET_POINTS = 160
@@ -526,7 +531,7 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
             break
         else:
             step = None
-            at_minimum = overshoot = settled = False
+            at_minimum = overshoot = settled = stop_before = False
             if method == "menq":
                 T_new, cp_new, Ym_new, e_new, lm_lambda, ok = _menq_step(T, Ym, cp, mask, feet, e_prev, lm_lambda)
                 if not ok:
@@ -554,13 +559,21 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
                         T, cp, Ym, mask, e_prev = run.T, run.cp, run.Ym, run.mask, run.e_prev
                         history.extend(run.history)
                         poses.extend(run.poses)
-                    if run.trial is None:  # out of iterations: the loop's top stops
+                    if run.settled:
+                        settled = stop_before = True
+                        e_new = e_prev
+                    elif run.trial is None:  # out of iterations: the loop's top stops
                         continue
-                    T_new, cp_new, Ym_new, e_new = run.trial
+                    else:
+                        T_new, cp_new, Ym_new, e_new = run.trial
                 else:
                     T_new, step = _UPDATES[method](T, Ym, cp, mask)
-                    cp_new, Ym_new = feet(T_new, cp.face)
-                    e_new = mse(cp_new, mask)
+                    if method == "hong_tan" and _update_settles(T, Ym, cp, mask, step, e_prev):
+                        settled = stop_before = True
+                        e_new = e_prev
+                    else:
+                        cp_new, Ym_new = feet(T_new, cp.face)
+                        e_new = mse(cp_new, mask)
                 overshoot = e_new > e_prev * (1.0 + 1e-6)
                 if overshoot and method == "hong_tan":
                     # Feet on edges or vertices (beyond a part's border, over a ridge between
@@ -608,7 +621,11 @@ def _iterate(method, Y, index, T0, max_it, tol, outlier_cfg, tighten=True, near_
                 # squares moves it by sqrt(g) / sigma, sigma^2 ~ e_prev N / (N - 6)).
                 gain = (1.0 - e_new / e_prev) * max(count(mask, len(Y)) - 6, 1)
                 at_minimum = gain < FALLBACK_MIN_SIGMAS**2
-            if settled:
+            if stop_before:
+                done, converged = True, True
+                status = (f"converged: the next update would move the pose by less than {STOP_SIGMAS:g} "
+                          "of its standard deviation")
+            elif settled:
                 done, converged = True, True
                 status = (f"converged: the update overshoots where it would move the pose by less than "
                           f"{FALLBACK_MIN_SIGMAS:g} of its standard deviation")
@@ -694,7 +711,8 @@ class _PlainRun:
     """What :func:`_plain_steps` did: ``steps`` accepted updates ending at ``T`` (with its
     closest points, model-frame points, inlier mask and mean squared distance), their RMS
     ``history`` and ``poses``, and the next trial ``(T, cp, Ym, e)`` (None when out of
-    iterations)."""
+    iterations or ``settled``: stopped before an update that would move the pose by less than
+    ``STOP_SIGMAS`` of its standard deviation)."""
 
     steps: int
     T: np.ndarray
@@ -705,6 +723,7 @@ class _PlainRun:
     history: list
     poses: list
     trial: tuple | None
+    settled: bool = False
 
 
 _OUTLIER_MODE = {None: 0, "mad": 1}
@@ -716,7 +735,8 @@ def _plain_steps(Y, T, Ym, cp, mask, e_prev, max_steps, floor2, tol, stages, fee
     least ``tol`` (or the inlier set changes, by the current stage's rule). The same update,
     closest points (approximate while far, as :class:`_Feet` does), acceptance and inlier
     rule as the loop's; the first trial that is not plain goes back to the loop's rules
-    (shortened and point-to-point steps, the stopping rules), un-accepted."""
+    (shortened and point-to-point steps, the stopping rules), un-accepted. Stops without a
+    trial where the loop's ``STOP_SIGMAS`` rule would (``settled``)."""
     _announce()
     n = len(Y)
     sel = np.ones(n, dtype=np.bool_) if isinstance(mask, slice) else mask.copy()
@@ -728,11 +748,12 @@ def _plain_steps(Y, T, Ym, cp, mask, e_prev, max_steps, floor2, tol, stages, fee
     mode = _OUTLIER_MODE.get(cfg, 2)  # type: ignore[call-overload]
     fixed = float(cfg) if mode == 2 else 0.0  # type: ignore[arg-type]
     out = _nb_run(Y, np.ascontiguousarray(T), Ym, cp.foot, cp.distance, cp.face, cp.normal, cp.rel_error > 0.0,
-                  sel, isinstance(mask, slice), e_prev, max_steps, floor2, tol, mode, stages.k, stages.floor,
+                  sel, isinstance(mask, slice), e_prev, max_steps, floor2, tol, STOP_SIGMAS**2, mode, stages.k,
+                  stages.floor,
                   fixed, stages.min_points, feet.far, feet.far_m2, 1.0 / (1.0 + FAR_REL_ERROR) ** 2,
                   use_near, near.anchor, near.faces, near.reach, *feet.index.kernel_arrays())
     (steps, T_acc, Ym_acc, foot, dist, face, normal, approx, all_sel, e_acc, hist, pose_arr, far,
-     more, T_t, Ym_t, foot_t, dist_t, face_t, normal_t, approx_t, e_t) = out
+     more, T_t, Ym_t, foot_t, dist_t, face_t, normal_t, approx_t, e_t, settled) = out
     feet.far = bool(far)
     rel = FAR_REL_ERROR if approx else 0.0
     run = _PlainRun(
@@ -740,6 +761,7 @@ def _plain_steps(Y, T, Ym, cp, mask, e_prev, max_steps, floor2, tol, stages, fee
         cp=ClosestPoints(foot=foot, distance=dist, face=face, normal=normal, rel_error=rel) if steps else cp,
         mask=(ALL if all_sel else sel) if steps else mask,
         e_prev=float(e_acc), history=[float(h) for h in hist[:steps]], poses=list(pose_arr[:steps]), trial=None,
+        settled=bool(settled),
     )
     if more:
         cp_t = ClosestPoints(foot=foot_t, distance=dist_t, face=face_t, normal=normal_t,
@@ -877,6 +899,19 @@ def _edge_feet(Ym, cp, mask):
     off = Ym[mask] - cp.foot[mask]
     s = np.einsum("ij,ij->i", off, cp.normal[mask])
     return off, s, s * s < (1.0 - EDGE_COS_TOL) * np.einsum("ij,ij->i", off, off)
+
+
+def _update_settles(T, Ym, cp, mask, decrease, e_prev) -> bool:
+    """Whether Hong-Tan's update from exact feet (predicting ``decrease`` of the sum of
+    squares), and the one with the rows of feet on edges along their offsets, would both move
+    the pose by less than ``STOP_SIGMAS`` of its standard deviation: a decrease of less than
+    ``STOP_SIGMAS^2 sigma^2``, sigma^2 estimated from the mean square ``e_prev``. (As
+    ``kernels.settled`` does in the compiled iterations.)"""
+    if cp.rel_error > 0.0:
+        return False
+    n_used = count(mask, len(Ym))
+    bound = STOP_SIGMAS**2 * e_prev * n_used / max(n_used - 6, 1)
+    return decrease < bound and _update_hong_tan(T, Ym, cp, mask, edges=True)[1] < bound
 
 
 def _update_hong_tan(T, Ym, cp, mask, edges=False):
