@@ -11,6 +11,10 @@
   ``local.FAR_REL_ERROR`` of their distance (the default) against exact look-ups throughout
   (``FAR_REL_ERROR = 0``), the same starts, timing and ratio; and the largest difference of the
   two results in units of the pose's standard deviation;
+* ``stop``: a whole ``localize`` call with Hong-Tan's ``local.STOP_SIGMAS`` rule (stop before
+  an update that would move the pose by less than 0.01 of its standard deviation, the default)
+  against the relative-decrease rule alone (``STOP_SIGMAS = 0``), the same starts, timing,
+  ratio and difference; both tables also give the mean iterations (A / B);
 * ``order``: a whole ``localize`` call at 150 points (no subset stage, where the Morton order is
   not used) against the same call with the points put in Morton order first (what the code
   did below 500 points before), the same starts, timing and ratio.
@@ -100,33 +104,38 @@ def compiled_vs_numpy(rows, trials=16):
             rows.append(f"| {name} | {n} | {np.median(ta) * 1e3:.2f} | {np.median(tb) * 1e3:.2f} | {ratio:.2f} |")
 
 
-def far_vs_exact(rows, trials=20, sigma=50e-6):
-    default = local.FAR_REL_ERROR
+def _setting_ab(rows, attr, off, trials=20, sigma=50e-6):
+    """A whole ``localize`` call with ``local.<attr>`` set to ``off`` (A) against its default
+    (B), paired: times, their ratio, the largest difference of the two results in pose standard
+    deviations, and the mean iterations of each."""
+    default = getattr(local, attr)
     for name in PARTS:
         mesh = make_workpiece(name)
         index = MeshIndex(mesh)
         for n in (150, 1000):
             cases = _starts(index, mesh, name, n, trials, sigma)
             localize(cases[0][0], index=index, init=cases[0][1], sigma=sigma)
-            ta, tb, diff = [], [], []
+            ta, tb, diff, it_a, it_b = [], [], [], [], []
             try:
                 for y, T0 in cases:
-                    local.FAR_REL_ERROR = 0.0
+                    setattr(local, attr, off)
                     t0 = time.thread_time()
                     a = localize(y, index=index, init=T0, sigma=sigma)
                     t1 = time.thread_time()
-                    local.FAR_REL_ERROR = default
+                    setattr(local, attr, default)
                     b = localize(y, index=index, init=T0, sigma=sigma)
                     t2 = time.thread_time()
                     ta.append(t1 - t0)
                     tb.append(t2 - t1)
+                    it_a.append(a.iterations)
+                    it_b.append(b.iterations)
                     xi = pose_error_twist(b.T_world_workpiece, a.T_world_workpiece)
                     diff.append(float(np.sqrt(whitened_error(xi, a.covariance)[0])))
             finally:
-                local.FAR_REL_ERROR = default
+                setattr(local, attr, default)
             ratio = float(np.median(np.array(tb) / np.array(ta)))
             rows.append(f"| {name} | {n} | {np.median(ta) * 1e3:.2f} | {np.median(tb) * 1e3:.2f} | {ratio:.2f} | "
-                        f"{max(diff):.3f} |")
+                        f"{max(diff):.3f} | {np.mean(it_a):.2f} / {np.mean(it_b):.2f} |")
 
 
 def morton_vs_none(rows, trials=20, sigma=50e-6):
@@ -150,8 +159,8 @@ def morton_vs_none(rows, trials=20, sigma=50e-6):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sections", nargs="+", default=["near", "step", "far", "order"],
-                    choices=["near", "step", "far", "order"])
+    ap.add_argument("--sections", nargs="+", default=["near", "step", "far", "stop", "order"],
+                    choices=["near", "step", "far", "stop", "order"])
     args = ap.parse_args(argv)
     if "near" in args.sections:
         rows = ["| part | motion [mm] | near-face query [ms / 1000 points] | hinted tree query [ms] | "
@@ -165,8 +174,15 @@ def main(argv=None):
         print("\n".join(rows) + "\n")
     if "far" in args.sections:
         rows = ["| part | N | exact look-ups [ms / call] | far ones within FAR_REL_ERROR [ms / call] | "
-                "paired ratio | largest difference [pose standard deviations] |", "|---|---|---|---|---|---|"]
-        far_vs_exact(rows)
+                "paired ratio | largest difference [pose standard deviations] | iterations |",
+                "|---|---|---|---|---|---|---|"]
+        _setting_ab(rows, "FAR_REL_ERROR", 0.0)
+        print("\n".join(rows) + "\n")
+    if "stop" in args.sections:
+        rows = ["| part | N | relative decrease rule only [ms / call] | and STOP_SIGMAS [ms / call] | "
+                "paired ratio | largest difference [pose standard deviations] | iterations |",
+                "|---|---|---|---|---|---|---|"]
+        _setting_ab(rows, "STOP_SIGMAS", 0.0)
         print("\n".join(rows) + "\n")
     if "order" in args.sections:
         rows = ["| part | N | Morton order first [ms / call] | as given [ms / call] | paired ratio |",

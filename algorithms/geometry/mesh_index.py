@@ -1156,9 +1156,9 @@ if _nb is not None:
             if slack >= 0.0 and best <= slack * slack:
                 certified = True
                 break
-        if certified:
-            _nb_out(i, px, py, pz, data, bestf, bestf, normals, out_face, out_foot, out_dist, out_normal)
-        else:
+        tri = data  # certified: the list's face, from the face-order table
+        row = bestf
+        if not certified:
             # the certificate fails: the K nearest faces here, from the tree (walking up from
             # the list's best face when there is one, as in _nb_one; from the root otherwise)
             m = 0
@@ -1188,8 +1188,10 @@ if _nb is not None:
             anchor[i, 1] = py
             anchor[i, 2] = pz
             rebuilt[i] = 1
-            _nb_out(i, px, py, pz, leaf_data, kj[0], faces[i, 0], normals, out_face, out_foot, out_dist,
-                    out_normal)
+            tri = leaf_data
+            row = kj[0]
+            bestf = faces[i, 0]
+        _nb_out(i, px, py, pz, tri, row, bestf, normals, out_face, out_foot, out_dist, out_normal)
 
     @_nb.njit(cache=True, nogil=True)
     def _nb_near_serial(q, anchor, faces, reach, data, leaf_data, nodes_f, nodes_i, hint_map, perm,
