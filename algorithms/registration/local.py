@@ -70,8 +70,11 @@ ICP step when its damping has grown large. The number of such fallback steps is 
 gradient of their distances (with the face's plane such a point pulls sideways and the step
 need not descend: the fallback steps crept for up to 100 iterations), and halves that one; it
 stops instead when even that step would move the pose by less than ``FALLBACK_MIN_SIGMAS``
-of its standard deviation. Its plain iterations (accepted, nothing else to decide) run
-compiled (:mod:`algorithms.registration.kernels`) below ``PARALLEL_MIN_POINTS`` points.
+of its standard deviation. Besides the relative-decrease rule, Hong-Tan stops (converged)
+before an update that would move the pose by less than ``STOP_SIGMAS`` (0.01) of its standard
+deviation by both of those linear models. Its plain iterations (accepted, nothing else to
+decide) run compiled (:mod:`algorithms.registration.kernels`) below ``PARALLEL_MIN_POINTS``
+points.
 
 Local minima: like every local method these converge to the nearest minimum; how often each
 method recovers the pose from random starts is measured by
