@@ -215,7 +215,9 @@ def localize(
         sigma: noise sigma along the normals [m] for the covariance and the poor-fit
             verdict; estimated from the residuals when None (then no poor-fit verdict).
         max_iterations: cap on pose updates (default per method, ``MAX_ITERATIONS``).
-        tolerance: ``delta`` of the stopping rule (``d`` for fine_001), default ``TOLERANCE``.
+        tolerance: ``delta`` of the stopping rule (``d`` for fine_001), default ``TOLERANCE``
+            (hong_tan also stops before an update of less than ``STOP_SIGMAS`` standard
+            deviations, whatever ``delta``).
         outlier: ``"mad"`` (default), a maximum distance [m], or None (keep all); see
             :mod:`algorithms.registration.robust`.
         index: a prebuilt :class:`MeshIndex` of ``mesh`` to reuse across calls.

@@ -31,7 +31,7 @@ import numpy as np
 
 from algorithms.geometry.se3 import as_pose
 from algorithms.registration import GlobalLocalizationResult, HybridResult, SymmetricResult, global_localize
-from algorithms.registration.local import DEFAULT_METHOD, METHODS, localize
+from algorithms.registration.local import DEFAULT_METHOD, METHODS, STOP_SIGMAS, localize
 from algorithms.registration.result import Status
 from algorithms.registration.symmetric import FEATURE_TYPES
 from twin.cli.common import EXIT_UNTRUSTED, non_negative_int, positive_float, positive_int
@@ -76,7 +76,9 @@ def add_parser(sub) -> None:
     p.add_argument("--max-iterations", type=positive_int, default=None,
                    help="cap on pose updates (default per method)")
     p.add_argument("--tolerance", type=positive_float, default=None,
-                   help="delta of 1 - e_k/e_(k-1) < delta (d of the step rule for fine_001)")
+                   help="delta of 1 - e_k/e_(k-1) < delta (d of the step rule for fine_001); "
+                        f"hong_tan also stops before an update of less than {STOP_SIGMAS:g} standard "
+                        "deviations")
     p.add_argument("--outlier", default="mad",
                    help="'mad' (robust 5-sigma cut, default), 'none', or a maximum distance in --units")
     p.add_argument("--seed", type=non_negative_int, default=0,
