@@ -79,10 +79,12 @@ points.
 Local minima: like every local method these converge to the nearest minimum; how often each
 method recovers the pose from random starts is measured by
 ``python -m benchmarks.bench_closest_point --section basin`` (figures in
-``benchmarks/results_closest_point.md``). A converged fit the noise cannot explain is reported
-as ``Status.POOR_FIT`` (:mod:`algorithms.registration.fit_check`: the RMS against the given
-sigma, or without one against the point-to-point noise, and the fraction of points off the
-model); an unknown pose goes through
+``benchmarks/results_closest_point.md``). With a given sigma, a converged fit whose RMS
+exceeds ``ESCAPE_RMS_SIGMAS`` (1.3) sigma is started again a few standard deviations along its
+weakest directions, which leaves a wrong minimum next to the right one (:func:`_escape`). A
+converged fit the noise cannot explain is reported as ``Status.POOR_FIT``
+(:mod:`algorithms.registration.fit_check`: the RMS against the given sigma, or without one
+against the point-to-point noise, and the fraction of points off the model); an unknown pose goes through
 :func:`algorithms.registration.global_search.global_localize` (Algorithm 5's multistart) instead.
 
 The verdict (``status``): ``Status.NOT_CONVERGED`` if the iteration did not meet its
