@@ -172,18 +172,14 @@ def main(argv=None):
                 "|---|---|---|---|---|"]
         compiled_vs_numpy(rows)
         print("\n".join(rows) + "\n")
-    if "far" in args.sections:
-        rows = ["| part | N | exact look-ups [ms / call] | far ones within FAR_REL_ERROR [ms / call] | "
-                "paired ratio | largest difference [pose standard deviations] | iterations |",
-                "|---|---|---|---|---|---|---|"]
-        _setting_ab(rows, "FAR_REL_ERROR", 0.0)
-        print("\n".join(rows) + "\n")
-    if "stop" in args.sections:
-        rows = ["| part | N | relative decrease rule only [ms / call] | and STOP_SIGMAS [ms / call] | "
-                "paired ratio | largest difference [pose standard deviations] | iterations |",
-                "|---|---|---|---|---|---|---|"]
-        _setting_ab(rows, "STOP_SIGMAS", 0.0)
-        print("\n".join(rows) + "\n")
+    settings = {"far": ("FAR_REL_ERROR", "exact look-ups", "far ones within FAR_REL_ERROR"),
+                "stop": ("STOP_SIGMAS", "relative decrease rule only", "and STOP_SIGMAS")}
+    for section, (attr, off_label, default_label) in settings.items():
+        if section in args.sections:
+            rows = [f"| part | N | {off_label} [ms / call] | {default_label} [ms / call] | paired ratio | "
+                    "largest difference [pose standard deviations] | iterations |", "|---|---|---|---|---|---|---|"]
+            _setting_ab(rows, attr, 0.0)
+            print("\n".join(rows) + "\n")
     if "order" in args.sections:
         rows = ["| part | N | Morton order first [ms / call] | as given [ms / call] | paired ratio |",
                 "|---|---|---|---|---|"]
