@@ -35,15 +35,16 @@ EXPERIMENTS = (("inner_sphere", "inner_sphere"), ("through_hole", "through_hole"
 
 
 def _setup(part: str):
-    from twin.cmm import cmm_setup
+    from twin.cmm_machine import cmm_setup
     from twin.scenario import load_scenario
 
     return cmm_setup(load_scenario(ROOT / "scenarios" / "cmm" / f"{part}.toml", machine="cmm"))
 
 
 def _rows(teach, setup, seed: int) -> list[dict]:
-    from twin.cmm import execute, plan_programs
+    from twin.cmm_machine import execute
     from twin.io.cmm_files import plan_report, run_report
+    from twin.workflows.cmm import plan_programs
 
     rows = []
     for m, p in plan_programs(teach, setup).items():

@@ -4,7 +4,7 @@ final error against its reported covariance, contacts; and the fine-point planne
 Each trial of a locate scenario draws, from its seed, where the part really is: the
 scenario's nominal pose moved by 20-40 mm in a random direction on the table and turned by
 10-30 degrees (either way) about the vertical, as document 001's "tens of millimetres and
-degrees"; the sensor's and the probe's noise come from the same seed. Then ``twin.locate``
+degrees"; the sensor's and the probe's noise come from the same seed. Then ``twin.workflows.locate``
 runs the whole hierarchy in the twin.
 
 Sections:
@@ -67,8 +67,8 @@ def run_trial(args) -> dict:
     name, seed, coarse, planner, coarse_only = args
     from twin import evaluate
     from twin.io.report import locate_report
-    from twin.locate import coarse_pose, coarse_scan
     from twin.realize import realize
+    from twin.workflows.locate import coarse_pose, coarse_scan
 
     realized = realize(trial_scenario(name, seed))
     t0 = time.perf_counter()
@@ -81,7 +81,7 @@ def run_trial(args) -> dict:
         return {"scenario": name, "seed": seed, "coarse": coarse,
                 "coarse_rot_deg": float(np.degrees(e["rotation_rad"])),
                 "coarse_trans_mm": float(e["translation_m"] * 1e3), "wall_s": time.perf_counter() - t0}
-    from twin.locate import locate
+    from twin.workflows.locate import locate
 
     res = locate(realized, coarse=coarse, planner=planner)
     rep = locate_report(res)

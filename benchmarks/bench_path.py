@@ -37,7 +37,7 @@ from algorithms.paths.toolpath import build_path, cad_raster, flange_poses, tran
 from tests.helpers import scenario
 from twin.cell import build_cell
 from twin.parts import s_surface_normal
-from twin.pipeline import tool_settings
+from twin.process_paths import tool_settings
 from twin.realize import Realized, realize
 from twin.replay import build_replay_cell, replay
 from twin.robot import ACCELERATION_LIMIT_RAD_S2, VELOCITY_LIMIT_RAD_S

@@ -47,9 +47,9 @@ def test_bracket_scenario_loads_the_file_its_script_makes():
 def test_bracket_scan_localizes_in_all_six_directions():
     from algorithms.registration.local import localize
     from twin.cell import build_cell
-    from twin.pipeline import sensor_sigma_m
     from twin.realize import realize
     from twin.scan import run_scan
+    from twin.sensors.laser import sensor_sigma_m
 
     sc = scenario("bracket")
     realized = realize(sc)

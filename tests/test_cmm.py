@@ -14,11 +14,12 @@ from algorithms.probing.cmm_planning import program_moves
 from algorithms.probing.dmis import parse_dmis, read_dmis, write_dmis
 from algorithms.probing.program import Goto, MeasurePoint, ProbeSettings, Program, SelectStylus
 from tests.helpers import run_cli
-from twin.cmm import check_teach, cmm_setup, execute, plan_programs
+from twin.cmm_machine import cmm_setup, execute
 from twin.errors import TwinError
 from twin.formats.teach import load_teach, parse_teach
 from twin.scenario import load_scenario
 from twin.teaching import PARTS, random_teach
+from twin.workflows.cmm import check_teach, plan_programs
 
 ROOT = Path(__file__).resolve().parents[1]
 CMM = ROOT / "scenarios" / "cmm"

@@ -194,7 +194,7 @@ def test_a_region_that_selects_no_face_is_bad_input(tmp_path):
 
 def test_a_region_on_named_features(tmp_path):
     """``region_features`` keeps the CAD raster on those faces of the part, and only there."""
-    from twin.pipeline import cad_path_lines
+    from twin.process_paths import cad_path_lines
     from twin.realize import realize
 
     base = (ROOT / "scenarios" / "hemisphere_punch.toml").read_text()
@@ -231,7 +231,7 @@ def test_the_tilt_freedom_spares_the_arm_its_discontinuities():
     # half of them are followed instead (the rest: lines too short to re-tilt, or no clear
     # tilt that helps), and every axis stays in its cone.
     from twin.cell import build_cell
-    from twin.pipeline import cad_path_lines, tool_settings
+    from twin.process_paths import cad_path_lines, tool_settings
     from twin.realize import realize
     from twin.segments import solve_with_drops
 

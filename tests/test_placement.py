@@ -12,7 +12,9 @@ from algorithms.errors import AlgorithmError
 from algorithms.geometry.kinematics import DHTable, dh_forward, ur_inverse
 from tests.helpers import SCENARIOS, scenario
 from twin.errors import TwinError
-from twin.placement import (
+from twin.robot import HOME_Q, UR5E_DH
+from twin.scenario import load_scenario
+from twin.workflows.placement import (
     HOME_BRANCH,
     MIN_MARGIN,
     describe_unreachable_fix,
@@ -21,8 +23,6 @@ from twin.placement import (
     reach_targets,
     suggest_base,
 )
-from twin.robot import HOME_Q, UR5E_DH
-from twin.scenario import load_scenario
 
 FK_IK_AGREEMENT = 1e-9
 

@@ -19,9 +19,9 @@ from algorithms.paths.pointcloud import (
 from algorithms.paths.spline import SplineError, centripetal_parameters, fit_line, fit_lines
 from tests.helpers import scenario
 from tests.tolerances import ANALYTIC_CURVE_M, EVEN_SPACING_REL, ON_TRUE_SURFACE_M
-from twin.pipeline import sensor_sigma_m
 from twin.realize import load_workpiece_mesh
 from twin.scan import scan_scenario
+from twin.sensors.laser import sensor_sigma_m
 
 
 def raster(n_lines=4, n=400, spacing=0.004, length=0.1, z=lambda x, y: 0.01 * np.sin(40 * x) + 0.1 * y):

@@ -20,11 +20,12 @@ from tests.helpers import run_cli
 from twin import evaluate
 from twin.cell import build_cell
 from twin.errors import TwinError
-from twin.locate import locate, qualification_targets, qualify
 from twin.probing import ProbeTarget, ProbingProgram, build_probe_cell, safe_height_world
+from twin.qualification import qualification_targets, qualify
 from twin.realize import realize
 from twin.scenario import load_scenario
 from twin.sensors.touch_probe import find_trigger
+from twin.workflows.locate import locate
 
 ROOT = Path(__file__).resolve().parents[1]
 LOCATE_SCENARIOS = sorted((ROOT / "scenarios").glob("locate_*.toml"))
@@ -170,7 +171,7 @@ def test_points_below_six_is_bad_input(tmp_path):
 
 
 def test_a_coarse_pose_far_off_fails_the_fine_stage_with_its_misses(monkeypatch):
-    import twin.locate as loc
+    import twin.workflows.locate as loc
 
     real = loc.coarse_pose
 
@@ -212,7 +213,7 @@ def test_every_coarse_method_returns_a_pose():
     """The coarse methods on points of the part at its true pose: the multistart within 1 mm and
     1 deg; the document's single genetic run returns its own pose, whatever its quality."""
     from algorithms.geometry.se3 import rotation_error_rad, translation_error_m
-    from twin.locate import coarse_pose
+    from twin.workflows.locate import coarse_pose
 
     realized = realize(load_scenario(LOCATE_SCENARIOS[-1]))
     pts_wp, _ = realized.workpiece.mesh.sample(3000, return_index=True, seed=3)

@@ -17,11 +17,11 @@ import pytest
 from rerun.chunk import RrdReader
 
 from tests.helpers import scenario
-from twin import pipeline
 from twin.realize import realize
 from twin.sensors.base import VALID
 from twin.viz import LiveRecording, save_run_recording
 from twin.viz.scan import STATUS_COLOURS
+from twin.workflows import loop
 
 
 def _chunks(path) -> dict:
@@ -71,7 +71,7 @@ def run_recording(tmp_path_factory):
             live(event, value)
 
         sc = scenario("s_surface", scan={"max_lines": 4}, path={"line_spacing_m": 0.03})
-        result = pipeline.run(realize(sc), watch=watch)
+        result = loop.run(realize(sc), watch=watch)
         live.finish(result)
         time.sleep(1.0)
     finally:

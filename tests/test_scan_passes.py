@@ -140,8 +140,9 @@ def test_auto_planner_fixes_all_six_directions_on_through_hole(auto_plan):
 
 
 def test_auto_scan_of_through_hole_localizes_in_six_directions(auto_plan):
-    from twin.pipeline import pose_covariance, sensor_sigma_m
     from twin.scan import run_scan
+    from twin.scan_uncertainty import pose_covariance
+    from twin.sensors.laser import sensor_sigma_m
 
     sc, realized, nominal, _ = auto_plan
     scan = run_scan(realized, nominal, build_cell(realized, "true"))

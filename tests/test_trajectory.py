@@ -12,7 +12,7 @@ from tests.helpers import scenario
 from tests.tolerances import FEED_REL, LIMIT_RATIO
 from twin.cell import build_cell
 from twin.errors import TwinError
-from twin.pipeline import tool_settings
+from twin.process_paths import tool_settings
 from twin.realize import realize
 from twin.robot import ACCELERATION_LIMIT_RAD_S2, HOME_Q, UR5E_DH, VELOCITY_LIMIT_RAD_S
 from twin.trajectory import POSITION_TOL_M, PathError, plan_joint_trajectory, solve_path

@@ -162,7 +162,7 @@ def contact_std_m(path_workpiece, localization, covariance) -> float:
 def true_effective_radius_m(probe) -> float:
     """What qualification should find: the nominal ball radius minus the mean sideways
     pre-travel of the probe's model (the equator touches; the pole's axial excess goes into
-    the ball-centre offset, :func:`twin.locate.qualification_targets`)."""
+    the ball-centre offset, :func:`twin.qualification.qualification_targets`)."""
     return float(probe.ball_radius_m - probe.stylus_length_m / probe.reference_stylus_m * probe.lateral_pretravel_m)
 
 

@@ -34,12 +34,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from algorithms.geometry.kinematics import dh_forward
+from algorithms.geometry.kinematics import dh_forward, ur_inverse
 from algorithms.geometry.mesh_index import MeshIndex
-from algorithms.geometry.se3 import inv_pose, transform_points
+from algorithms.geometry.se3 import inv_pose, make_pose, transform_points
 from twin.cell import Cell, build_spec, compile_cell
 from twin.errors import TwinError
 from twin.ik import IKSolver, reachable
@@ -49,6 +50,7 @@ from twin.robot import HOME_Q, UR5E_DH
 from twin.sensors.base import sensor_slice
 from twin.sensors.touch_probe import BALL_SITE, MODULE_SITE, Trigger, find_trigger
 from twin.sim import simulate
+from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
 
 IK_KNOT_STEPS = 10
 IK_POSITION_TOL_M = 1e-7
@@ -532,3 +534,62 @@ def joint_state_of(state: np.ndarray, cell: Cell) -> np.ndarray:
 
 __all__ = ["ProbeHit", "ProbeTarget", "ProbingLog", "ProbingProgram", "build_probe_cell", "line_profile",
            "safe_height_world"]
+
+
+class ReachCheck:
+    """Whether the arm reaches a probe point's approach and search-end positions with the
+    stylus straight down, and at which spin about the stylus: a closed-form solution of the
+    UR geometry (:func:`algorithms.geometry.kinematics.ur_inverse`) away from the wrist
+    singularity, the links clear of the table, and the laser's housing beside the probe at
+    least ``HEAD_CLEARANCE_M`` from the part at the coarse pose (its box sampled on a grid,
+    exact distances). Spins are tried nearest the arm's start spin first."""
+
+    SPINS_RAD = np.radians(np.arange(0.0, 360.0, 45.0))
+    MIN_WRIST_SIN = 0.05
+    HEAD_CLEARANCE_M = 0.010
+    HOUSING_GRID = 5
+
+    def __init__(self, nominal: Cell, realized: Realized):
+        p = realized.scenario.probe
+        self.realized = realized
+        self.nominal = nominal
+        self.T_base_world = inv_pose(realized.scenario.T_world_base)
+        T_flange_ball = p.T_flange_probe @ make_pose(None, [0.0, 0.0, p.tip_length_m])
+        self.T_ball_flange = inv_pose(T_flange_ball)
+        self.table = TableCheck(nominal, TABLE_CLEARANCE_M)
+        self.data = mujoco.MjData(nominal.model)
+        self.housing = nominal.model.geom("laser_housing").id
+        g = np.linspace(-1.0, 1.0, self.HOUSING_GRID)
+        self.grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3) \
+            * nominal.model.geom_size[self.housing]
+        T_home = realized.scenario.T_world_base @ dh_forward(HOME_Q, UR5E_DH) @ T_flange_ball
+        home = float(np.arctan2(T_home[1, 0], T_home[0, 0]))
+        self.spins = self.SPINS_RAD[np.argsort(np.abs(np.angle(np.exp(1j * (self.SPINS_RAD - home)))))]
+
+    def spin(self, T_coarse: np.ndarray, point_wp: np.ndarray, normal_wp: np.ndarray) -> float | None:
+        """A spin [rad] at which the probe reaches the point and the housing clears, or None."""
+        p = self.realized.scenario.probe
+        T = self.realized.scenario.T_world_base @ T_coarse
+        ends = [transform_points(T, (point_wp + off * normal_wp)[None])[0]
+                for off in (p.ball_radius_m + p.approach_m, p.ball_radius_m - p.search_m)]
+        for spin in self.spins:
+            if all(self._clear(c, spin, T) for c in ends):
+                return float(spin)
+        return None
+
+    def _clear(self, c_world: np.ndarray, spin: float, T_world_workpiece: np.ndarray) -> bool:
+        sol = ur_inverse(self.T_base_world @ ball_pose(c_world, spin) @ self.T_ball_flange, UR5E_DH)
+        good = sol.valid[0] & (sol.wrist_sin[0] > self.MIN_WRIST_SIN)
+        for q in sol.q[0][good]:
+            if self.table.nearest(q) is None and self._housing_clear(q, T_world_workpiece):
+                return True
+        return False
+
+    def _housing_clear(self, q: np.ndarray, T_world_workpiece: np.ndarray) -> bool:
+        self.data.qpos[self.nominal.qpos_adr] = q
+        mujoco.mj_kinematics(self.nominal.model, self.data)
+        R = self.data.geom_xmat[self.housing].reshape(3, 3)
+        pts_w = self.grid @ R.T + self.data.geom_xpos[self.housing]
+        pts_wp = transform_points(inv_pose(T_world_workpiece), pts_w)
+        return bool(np.all(self.realized.workpiece.index.signed_distance(pts_wp) > self.HEAD_CLEARANCE_M))
+

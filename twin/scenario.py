@@ -450,7 +450,7 @@ class ProbeSpec:
 
 @dataclass(frozen=True)
 class LocateSpec:
-    """Document 001's hierarchy (``[locate]``, :mod:`twin.locate`).
+    """Document 001's hierarchy (``[locate]``, :mod:`twin.workflows.locate`).
 
     Attributes:
         coarse: "multistart" (document 000's Algorithm 5), "ga" (document 001's genetic

@@ -25,9 +25,9 @@ from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.tilt import ToolProfile, clear_axes, foot_gap_m, profile_gaps_m, steer_axes, tool_profile
 from algorithms.paths.toolpath import ProcessPath, ToolSettings, build_path, transform_path
 from twin.cell import TOOL_BALL_SITE, Cell
-from twin.errors import TwinError
 from twin.robot import UR5E_DH
 from twin.scenario import Scenario
+from twin.stages import StageFailed
 from twin.trajectory import TABLE_CLEARANCE_M, PathIK, PathProblem, TableCheck, site_in_flange, solve_tool_path
 
 DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose (first round)
@@ -68,16 +68,6 @@ class Dropped:
     def to_dict(self) -> dict:
         return {"line": self.line, "points": self.points, "position_m": [round(float(v), 6) for v in self.position_m],
                 "reason": self.reason}
-
-
-class StageFailed(TwinError):
-    """A stage of the loop could not finish; the run keeps what the earlier stages made."""
-
-    def __init__(self, stage: str, reason: str):
-        super().__init__(f"{stage}: {reason}")
-        self.stage = stage
-        self.reason = reason
-
 
 
 def _profile(scenario: Scenario) -> ToolProfile:

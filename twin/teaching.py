@@ -10,7 +10,7 @@ stylus, moves across and comes down over the feature. Between two points of a ca
 the operator either goes up over the obstacle in the middle or, at random, goes around it
 below the top face (the detour document 002's planner cannot see).
 
-Every sequence is checked as :func:`twin.cmm.check_teach` checks a user's teach file (touches on
+Every sequence is checked as :func:`twin.workflows.cmm.check_teach` checks a user's teach file (touches on
 the part, every move clear of it); a draw that fails is drawn again.
 """
 
@@ -21,8 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from algorithms.probing.safety_plane import Teach, TeachMove, TeachStep, TeachStylus, TeachTouch
-from twin.cmm import CmmSetup, check_teach
+from twin.cmm_machine import CmmSetup
 from twin.errors import TwinError
+from twin.workflows.cmm import check_teach
 
 #: Parts with the features the generator knows, and the styli it uses (scenarios/cmm/*.toml).
 PARTS = ("inner_sphere", "through_hole", "bore_and_face")

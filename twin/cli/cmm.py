@@ -1,4 +1,4 @@
-"""``twin cmm plan|run|compare``: document 002's measurement programs on the CMM (:mod:`twin.cmm`).
+"""``twin cmm plan|run|compare``: document 002's measurement programs on the CMM (:mod:`twin.workflows.cmm`).
 
 * ``twin cmm plan TEACH SCENARIO --out DIR``: plan a teach file with the safe-plane baseline,
   document 002's algorithm and the full-check variant; write each program as DMIS and
@@ -84,7 +84,7 @@ def add_parser(sub) -> None:
 
 
 def _setup(path: str):
-    from twin.cmm import cmm_setup
+    from twin.cmm_machine import cmm_setup
 
     return cmm_setup(load_scenario(path, machine="cmm"))
 
@@ -97,9 +97,9 @@ def _methods(choice: str) -> tuple[str, ...]:
 
 def run_plan(args: argparse.Namespace) -> int:
     from algorithms.probing.dmis import write_dmis_file
-    from twin.cmm import plan_programs
     from twin.formats.teach import load_teach
     from twin.io.cmm_files import plan_report
+    from twin.workflows.cmm import plan_programs
 
     teach = load_teach(args.teach)
     setup = _setup(args.scenario)
@@ -132,7 +132,7 @@ def _rng(setup, seed: int | None) -> np.random.Generator:
 def run_program(args: argparse.Namespace) -> int:
     from algorithms.errors import AlgorithmError
     from algorithms.probing.dmis import read_dmis
-    from twin.cmm import execute
+    from twin.cmm_machine import execute
     from twin.errors import TwinError
     from twin.io.cmm_files import run_report, write_hits_csv
 
@@ -172,9 +172,10 @@ def _run_rows(r: dict) -> list[tuple[str, str]]:
 
 def run_compare(args: argparse.Namespace) -> int:
     from algorithms.probing.dmis import write_dmis_file
-    from twin.cmm import execute, plan_programs
+    from twin.cmm_machine import execute
     from twin.formats.teach import load_teach
     from twin.io.cmm_files import comparison_table, plan_report, run_report
+    from twin.workflows.cmm import plan_programs
 
     teach = load_teach(args.teach)
     setup = _setup(args.scenario)

@@ -149,7 +149,7 @@ _REFRESH_S = 0.25
 
 
 class Progress:
-    """A ``say`` callback (``pipeline.run(realized, say=...)``) that reports stages on stderr.
+    """A ``say`` callback (``loop.run(realized, say=...)``) that reports stages on stderr.
 
     Each call is one stage line, ``[command] msg``. On a terminal, a line with a count ``i/n``
     drives a tqdm bar of n steps (rate and time left; a new series starts a new bar), and a

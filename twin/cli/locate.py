@@ -1,5 +1,5 @@
 """``twin locate SCENARIO --out DIR [--coarse ...] [--points M] [--planner ...]``: document
-001's locate-then-machine hierarchy in the twin (:mod:`twin.locate`)."""
+001's locate-then-machine hierarchy in the twin (:mod:`twin.workflows.locate`)."""
 
 from __future__ import annotations
 
@@ -103,7 +103,7 @@ def summary_rows(h: dict) -> list[tuple[str, str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from twin.locate import locate
+    from twin.workflows.locate import locate
 
     scenario = load_scenario(args.scenario, machine="arm")
     if scenario.probe is None:
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
             say("wrote the recording")
             report["recording"] = str(rrd)
         from twin.io.figures import locate_checks, locate_figures, report_page
-        from twin.pipeline import sensor_sigma_m
+        from twin.sensors.laser import sensor_sigma_m
 
         figures = locate_figures(result, sensor_sigma_m(scenario), stage.folder)
         report["figures"] = [f.name for f in figures]

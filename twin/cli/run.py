@@ -8,7 +8,6 @@ from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
-from twin import pipeline
 from twin.cli.common import (
     EXIT_OK,
     EXIT_STAGE_FAILED,
@@ -28,6 +27,8 @@ from twin.io.output import Staged
 from twin.io.report import headline, run_report, write_json
 from twin.realize import realize
 from twin.scenario import Scenario, load_scenario
+from twin.sensors.laser import sensor_sigma_m
+from twin.workflows import loop
 
 REPORT_FILE = "report.json"
 PAGE_FILE = "report.html"
@@ -69,19 +70,19 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
     t_all = time.perf_counter()
     realized = realize(scenario)
     if live is None:
-        result = pipeline.run(realized, say=say, strict=strict)
+        result = loop.run(realized, say=say, strict=strict)
     else:
         from twin.viz import LiveRecording
 
         viewer = LiveRecording(live, say=say)
-        result = pipeline.run(realized, say=say, strict=strict, watch=viewer)
+        result = loop.run(realized, say=say, strict=strict, watch=viewer)
         viewer.finish(result)
         say("streamed the run to the viewer")
-    report = run_report(result, pipeline.sensor_sigma_m(realized.scenario))
+    report = run_report(result, sensor_sigma_m(realized.scenario))
     if placement is not None:
         report["placement"] = placement
     if result.failure is not None and "unreachable" in result.failure[1]:
-        from twin.placement import describe_unreachable_fix, reach_targets
+        from twin.workflows.placement import describe_unreachable_fix, reach_targets
 
         try:
             fix = describe_unreachable_fix(scenario, reach_targets(scenario, realized))
@@ -99,7 +100,7 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
         report["recording"] = str(rrd)
     from twin.io.figures import report_page, run_checks, run_figures
 
-    figures = run_figures(result, pipeline.sensor_sigma_m(realized.scenario), stage.folder)
+    figures = run_figures(result, sensor_sigma_m(realized.scenario), stage.folder)
     report["figures"] = [f.name for f in figures]
     report["wall_s"] = round(time.perf_counter() - t_all, 2)
     report["report"] = str(stage.out / REPORT_FILE)
@@ -155,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     placement = None
     with reporting(args, "run") as say:
         if args.place_base:
-            from twin.placement import place_base
+            from twin.workflows.placement import place_base
 
             scenario, placement = place_base(scenario)
             say(f"base placed at {placement['new_base']} (was {placement['old_base']}; "

@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         say(f"scanned {len(scan.t)} samples ({scan.t[-1]:.1f} s simulated), {int(scan.valid.sum())} valid")
         write_scan(scan, stage.folder, extra={"recording": str(rrd)} if rrd else None)
         from twin.io.figures import scan_figures
-        from twin.pipeline import sensor_sigma_m
+        from twin.sensors.laser import sensor_sigma_m
 
         scan_figures(scan, realized, sensor_sigma_m(scenario), stage.folder)
         say("wrote samples.parquet, points.ply, scan.json, scan_residuals.png, scan_deviation_map.png")

@@ -12,7 +12,7 @@ latched at the trigger, nominal kinematics), corrected by the qualification's ba
 offset, is the new point; the part is re-localized on every ball centre so far
 (:func:`algorithms.registration.bayes.localize_map` with ``offset_m`` the qualified effective
 ball radius: the centres lie that far outside the surface; no beams, no per-reading biases;
-the point noise is :func:`twin.locate.probe_sigma_m`).
+the point noise is :func:`twin.qualification.probe_sigma_m`).
 
 The action is four numbers in [-1, 1], mapped linearly as :mod:`twin.env.views` maps a laser
 view (the stand-off and line direction mean nothing to a probe):
@@ -32,11 +32,11 @@ when a straight-down stylus cannot touch ``p`` along its normal
 lies near an edge, the ball or the stylus would meet the part first), when the ball's path
 comes within ``clearance_m`` of the table, or when the arm cannot reach the approach and
 search ends at any spin of the probe about its stylus with its links off the table and the
-laser's housing clear of the part (:class:`twin.locate.ReachCheck`, which also picks the spin).
+laser's housing clear of the part (:class:`twin.probing.ReachCheck`, which also picks the spin).
 
 Qualification: the probe's effective ball radius (which absorbs the mean sideways
 pre-travel) and ball-centre offset come from probing the cell's reference sphere
-(:func:`twin.locate.qualification_targets`, :func:`twin.locate.qualify`). They belong to the
+(:func:`twin.qualification.qualification_targets`, :func:`twin.qualification.qualify`). They belong to the
 probe, not to the episode: each scenario is qualified ONCE, at construction, in its own true
 cell with the scenario's own seed, and the result is kept for every episode (construction
 takes a few seconds per scenario). With robot-side errors switched on in a scenario (kinematic
@@ -88,16 +88,17 @@ from twin.env.base import (
 )
 from twin.env.views import ELEVATION_MIN_DEG, decode_action, segment_centre
 from twin.errors import TwinError
-from twin.locate import Qualification, ReachCheck, probe_sigma_m, qualification_targets, qualify
 from twin.probing import (
     STYLUS_AXIS_WORLD,
     ProbeHit,
     ProbeTarget,
     ProbingProgram,
+    ReachCheck,
     build_probe_cell,
     joint_state_of,
     safe_height_world,
 )
+from twin.qualification import Qualification, probe_sigma_m, qualification_targets, qualify
 from twin.realize import Realized
 from twin.replay import contact_records
 from twin.scenario import Scenario

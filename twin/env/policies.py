@@ -270,7 +270,7 @@ class GreedyProbePolicy:
     """For ``twin/ActiveProbe-v0``: the candidate target with the best predicted information
     gain, ``log(1 + g^T (P + F)^-1 g / sigma^2)`` with ``g = [p x n, n]`` at the point the line
     of sight meets the CAD model at the current estimate (smooth normal), ``sigma`` the probe's
-    (:func:`twin.locate.probe_sigma_m`). The best ``PROBE_MAX_CHECKS`` are checked in that
+    (:func:`twin.qualification.probe_sigma_m`). The best ``PROBE_MAX_CHECKS`` are checked in that
     order as the environment checks a target (:func:`twin.env.active_probe.probe_target`:
     feasibility, the table, the arm's reach); the first that passes is taken. The motion time
     is left out (every probing move takes a few seconds)."""
@@ -301,7 +301,7 @@ class GreedyProbePolicy:
         """(C,) predicted information gain of each candidate [nats] (-inf where the line of
         sight misses the part)."""
         from twin.env.active_probe import view_action
-        from twin.locate import probe_sigma_m
+        from twin.qualification import probe_sigma_m
 
         env = self.env
         ep = env.episode

@@ -21,7 +21,7 @@
 
 The first step is a move (where the probe was when teaching began). Coordinates are the
 part's, in metres. Whether a touch lies on the part and the moves clear it is checked
-against the part's CAD model where the teach is planned (:mod:`twin.cmm`).
+against the part's CAD model where the teach is planned (:mod:`twin.workflows.cmm`).
 """
 
 from __future__ import annotations

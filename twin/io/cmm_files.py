@@ -11,7 +11,7 @@ import numpy as np
 
 from algorithms.probing.cmm_planning import Plan
 from algorithms.probing.program import Goto
-from twin.cmm import CmmRun
+from twin.cmm_machine import CmmRun
 
 #: Columns of hits.csv (part frame, metres, seconds).
 HIT_COLUMNS = ("label", "x_m", "y_m", "z_m", "i", "j", "k", "measured_x_m", "measured_y_m", "measured_z_m",

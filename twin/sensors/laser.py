@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from twin.robot import GROUP_ARM, JOINT_NAMES, STATIC_GROUPS
-from twin.scenario import NoiseSpec, SensorSpec
+from twin.scenario import NoiseSpec, Scenario, SensorSpec
 from twin.sensors.base import INCIDENCE, NO_HIT, OCCLUDED, OUT_OF_WINDOW, VALID, Measurement, RawRays, RaySensor
 from twin.sensors.raycast import BLOCK_RAYS, CellRays
 
@@ -40,6 +40,15 @@ def linearity_error_m(d: np.ndarray, sensor: SensorSpec) -> np.ndarray:
     near, far = sensor.window_m
     u = 2.0 * (d - sensor.reference_m) / (far - near)
     return sensor.linearity_m * np.sin(np.pi * u)
+
+
+def sensor_sigma_m(scenario: Scenario) -> float:
+    """Combined standard uncertainty of one distance (GUM) [m]: repeatability, linearity band
+    (uniform, amplitude / sqrt 3) and quantisation (step / sqrt 12), for the switched-on sources."""
+    s, n = scenario.sensor, scenario.noise
+    var = (s.sigma_m**2 if n.gaussian else 0.0) + ((s.linearity_m / np.sqrt(3)) ** 2 if n.linearity else 0.0) \
+        + ((s.resolution_m / np.sqrt(12)) ** 2 if n.quantization else 0.0)
+    return float(np.sqrt(var))
 
 
 def occluded(rays: RawRays, check: np.ndarray, static_groups: np.ndarray, cast: CellRays) -> np.ndarray:

@@ -18,9 +18,9 @@ Kinds:
   content; each trial redraws the sensor's errors from the ideal rays (the sensor's
   ``measure``), the encoder noise and time skew, rebuilds the points with the nominal
   kinematics and hand-eye, and localizes from the trial's initial pose
-  (:func:`algorithms.registration.localize`, sigma :func:`twin.pipeline.sensor_sigma_m`).
+  (:func:`algorithms.registration.localize`, sigma :func:`twin.sensors.laser.sensor_sigma_m`).
   Robot-side errors drawn once per scenario (kinematics, hand-eye) stay those of the cached scan.
-* ``full``: :func:`twin.pipeline.run` on the scenario with its seed replaced by one drawn from
+* ``full``: :func:`twin.workflows.loop.run` on the scenario with its seed replaced by one drawn from
   the trial's stream; the localization is the loop's own (from the nominal pose).
 * ``points``: document 000's simulation (:mod:`twin.studies.point_sets`): model points on the
   scenario's part, the known transform (the scenario's true placement), the noise; localized
@@ -50,18 +50,18 @@ from algorithms.registration.global_search.multistart import model_centroid
 from algorithms.registration.uncertainty import crlb, observability, pose_error_twist
 from twin.cell import build_cell
 from twin.errors import TwinError
-from twin.pipeline import run as run_loop
-from twin.pipeline import sensor_sigma_m
 from twin.plan import ScanPlan, plan_scan
 from twin.realize import Realized, realize
 from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
 from twin.scenario import Scenario, load_scenario, merge_tables
 from twin.sensors.base import RawRays
+from twin.sensors.laser import sensor_sigma_m
 from twin.sim import simulate
 from twin.studies.methods import Outcome, run_method
 from twin.studies.point_sets import Design, make_design, measured_points, model_points
 from twin.studies.spec import Study
+from twin.workflows.loop import run as run_loop
 
 #: The metric columns of a trial, in order (units in :mod:`twin.studies.runner`'s docstring).
 TWIST_COLUMNS = ("omega_x_urad", "omega_y_urad", "omega_z_urad", "v_x_um", "v_y_um", "v_z_um")

@@ -12,7 +12,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from algorithms.geometry.se3 import transform_points
-from twin.cmm import CmmRun, CmmSetup
+from twin.cmm_machine import CmmRun, CmmSetup
 from twin.viz.blueprint import TIMELINE, cumulative, eye_on
 
 PROGRAM_COLOURS = {"baseline": [255, 150, 30], "document": [40, 120, 255], "full_check": [40, 200, 90]}

@@ -19,7 +19,7 @@ FINAL_COLOUR = [40, 200, 255]
 
 def save_locate_recording(path: str | Path, result, cell, report: dict | None = None,
                           app_id: str = "scan_twin_locate") -> Path:
-    """Write the ``.rrd`` of a locate run (:class:`twin.locate.LocateResult`); ``cell`` is the
+    """Write the ``.rrd`` of a locate run (:class:`twin.workflows.locate.LocateResult`); ``cell`` is the
     probe cell (the true cell with the probe, the laser and the reference sphere)."""
     path = Path(path)
     rec = rr.RecordingStream(app_id)

@@ -30,7 +30,7 @@ def save_scan_recording(path: str | Path, cell: Cell, scan, app_id: str = "scan_
 
 def save_run_recording(path: str | Path, result, app_id: str = "scan_twin_run") -> Path:
     """Write a ``.rrd`` of ``twin run``: the scan, the estimate, then each process path planned
-    and replayed (:class:`twin.pipeline.RunResult`; the cell shown is the replay cell, the true
+    and replayed (:class:`twin.workflows.loop.RunResult`; the cell shown is the replay cell, the true
     cell with the tool)."""
     return _save(path, result.replay_cell, result.scan, result, app_id)
 
@@ -58,7 +58,7 @@ def _save(path: str | Path, cell: Cell, scan, result, app_id: str) -> Path:
 
 class LiveRecording:
     """A run streamed to a Rerun viewer while it goes: each stage is logged as it finishes
-    (:func:`twin.pipeline.run`'s ``watch`` events), with the same entities and layout as the
+    (:func:`twin.workflows.loop.run`'s ``watch`` events), with the same entities and layout as the
     file :func:`save_run_recording` writes.
 
     Args:
@@ -80,7 +80,7 @@ class LiveRecording:
 
     def __call__(self, event: str, value) -> None:
         """One stage's result: ``cells`` (replay cell, realized scenario), ``scan``,
-        ``localization`` or ``run`` (a :class:`twin.pipeline.PathRun`)."""
+        ``localization`` or ``run`` (a :class:`twin.workflows.loop.PathRun`)."""
         if self.lost:
             return
         with self.rec:

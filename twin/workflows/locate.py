@@ -34,17 +34,14 @@ switches them on is reported with that said.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import mujoco
 import numpy as np
 
-from algorithms.errors import AlgorithmError
-from algorithms.geometry.kinematics import dh_forward, ur_inverse
-from algorithms.geometry.se3 import inv_pose, make_pose, transform_points
+from algorithms.geometry.kinematics import dh_forward
+from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.probing.point_planning import (
     d_optimal,
     feasible_candidates,
@@ -53,33 +50,31 @@ from algorithms.probing.point_planning import (
     sample_candidates,
     spread_points,
 )
-from algorithms.probing.qualification import compensate, qualify_ball
+from algorithms.probing.qualification import compensate
 from algorithms.registration import global_localize
 from algorithms.registration.local import localize
 from algorithms.registration.uncertainty import information_rows, sym_inverse, systematic_covariance
 from twin.cell import Cell, build_cell
 from twin.errors import TwinError
-from twin.pipeline import sensor_sigma_m
 from twin.plan import plan_level_raster
 from twin.probing import (
     ProbeHit,
     ProbeTarget,
     ProbingLog,
     ProbingProgram,
-    ball_pose,
+    ReachCheck,
     build_probe_cell,
     safe_height_world,
 )
+from twin.qualification import Qualification, probe_sigma_m, qualification_targets, qualify
 from twin.realize import Realized
-from twin.robot import HOME_Q, UR5E_DH
+from twin.robot import UR5E_DH
 from twin.scan import Scan, run_scan
-from twin.segments import StageFailed
-from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
+from twin.sensors.laser import sensor_sigma_m
+from twin.stages import StageFailed, StageRunner
 
 TABLE_BAND_M = 0.002
 COARSE_POINTS = 400
-# Equator points of the qualification pattern start at this azimuth (world), then evenly spaced.
-QUALIFICATION_ELEVATION_DEG = 0.0
 COMPENSATION_ROUNDS = 5
 COMPENSATION_TOL_M = 1e-10
 MIN_FINE_POINTS = 6
@@ -87,28 +82,6 @@ MIN_FINE_POINTS = 6
 MAX_PLANNING_ROUNDS = 20
 RECORDING_GAP_S = 1.0
 COARSE_SEED_SPACING_M = 0.002
-
-
-@dataclass(frozen=True)
-class Qualification:
-    """The probe's qualification on the reference sphere (robot base frame).
-
-    Attributes:
-        effective_radius_m: the ball radius the points are compensated with [m].
-        offset_probe_m: (3,) correction added to every recorded ball centre, probe frame [m].
-        sphere_centre: (3,) the fitted sphere centre (from the recorded centres) [m].
-        rms_m: RMS residual of the sphere fit [m].
-        radius_std_m, offset_std_m: standard uncertainties of the radius and each offset component [m].
-        hits: the probing moves on the sphere.
-    """
-
-    effective_radius_m: float
-    offset_probe_m: np.ndarray
-    sphere_centre: np.ndarray
-    rms_m: float
-    radius_std_m: float
-    offset_std_m: float
-    hits: tuple
 
 
 @dataclass(frozen=True)
@@ -183,11 +156,64 @@ class LocateResult:
         return self.failure is None
 
 
+@dataclass(frozen=True)
+class CoarseScan:
+    """Stage 1's record: the sparse laser pass and its points off the table (base frame)."""
+
+    scan: Scan
+    points: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
+class CoarsePose:
+    """Stage 2's record: the coarse search's result and its pose ``T_coarse`` (T_base_workpiece)."""
+
+    result: object
+    T_coarse: np.ndarray
+
+
+@dataclass(frozen=True)
+class Probed:
+    """Stage 5's record: the whole probing program as it ran, and the part's probing moves."""
+
+    log: ProbingLog
+    hits: tuple
+
+
+@dataclass(frozen=True)
+class FineFit:
+    """Stage 6's record: document 001's fine stage, the final fit and its covariance."""
+
+    fine_001: object
+    fine: object
+    compensation_rounds: int
+    T_final: np.ndarray
+    T_fine: np.ndarray
+    covariance: np.ndarray = field(repr=False)
+    sigma_point_m: float
+
+
+@dataclass
+class _Locate:
+    """The hierarchy's cells and its stages' records as they are made (one slot per record)."""
+
+    realized: Realized
+    say: Callable[[str], None]
+    runner: StageRunner = field(default_factory=StageRunner)
+    stage_t_s: dict[str, float] = field(default_factory=dict)
+    coarse_scan: CoarseScan | None = None
+    coarse: CoarsePose | None = None
+    qualification: Qualification | None = None
+    plan: FinePlan | None = None
+    probed: Probed | None = None
+    fit: FineFit | None = None
+
+
 def locate(realized: Realized, say: Callable[[str], None] = lambda m: None, coarse: str | None = None,
            points: int | None = None, planner: str | None = None) -> LocateResult:
     """Document 001's hierarchy in the twin (module docstring). ``coarse``, ``points`` and
     ``planner`` override the scenario's ``locate.coarse``, ``probe.points`` and
-    ``locate.planner``. A failing stage ends the run with ``failure`` set."""
+    ``locate.planner``. A failing stage ends the run with ``failure`` naming it."""
     sc = realized.scenario
     if sc.probe is None:
         raise TwinError(f"scenario {sc.name!r} has no [probe] table: locate needs the touch probe on the flange")
@@ -196,20 +222,22 @@ def locate(realized: Realized, say: Callable[[str], None] = lambda m: None, coar
     m = sc.probe.points if points is None else int(points)
     if m < MIN_FINE_POINTS:
         raise TwinError(f"--points {m} is too few: at least {MIN_FINE_POINTS} points fix six pose directions")
-    state: dict = {"coarse_method": coarse}
-    timings: dict = {}
-    stage_t: dict = {}
-    failure = None
-    try:
-        _locate(realized, say, coarse, planner, m, state, timings, stage_t)
-    except StageFailed as exc:
-        failure = (exc.stage, exc.reason)
-    except (TwinError, AlgorithmError) as exc:
-        failure = (state.get("stage", "coarse_scan"), str(exc))
-    fields = {f.name for f in dataclasses.fields(LocateResult)}
-    kept = {k: v for k, v in state.items() if k in fields}
-    return LocateResult(realized=realized, scan=state.get("scan"), timings_s=timings, stage_t_s=stage_t,
-                        failure=failure, **{k: v for k, v in kept.items() if k != "scan"})
+    st = _Locate(realized, say)
+    st.runner.run(lambda: _stages(st, coarse, planner, m))
+    return _result(st, coarse)
+
+
+def _result(st: _Locate, coarse_method: str) -> LocateResult:
+    """The result from the records of the stages that finished."""
+    cs, cp, pr, fit = st.coarse_scan, st.coarse, st.probed, st.fit
+    return LocateResult(
+        realized=st.realized, scan=cs.scan if cs else None, coarse_points=cs.points if cs else None,
+        coarse_method=coarse_method, coarse=cp.result if cp else None, T_coarse=cp.T_coarse if cp else None,
+        qualification=st.qualification, plan=st.plan, probing=pr.log if pr else None, hits=pr.hits if pr else (),
+        fine=fit.fine if fit else None, fine_001=fit.fine_001 if fit else None, T_final=fit.T_final if fit else None,
+        T_fine=fit.T_fine if fit else None, covariance=fit.covariance if fit else None,
+        sigma_point_m=fit.sigma_point_m if fit else float("nan"), timings_s=st.runner.timings_s,
+        stage_t_s=st.stage_t_s, failure=st.runner.failure, compensation_rounds=fit.compensation_rounds if fit else 0)
 
 
 def coarse_scan(realized: Realized, nominal: Cell, true_cell: Cell) -> tuple[Scan, np.ndarray]:
@@ -222,94 +250,94 @@ def coarse_scan(realized: Realized, nominal: Cell, true_cell: Cell) -> tuple[Sca
     return scan, pts[transform_points(realized.scenario.T_world_base, pts)[:, 2] > TABLE_BAND_M]
 
 
-def _locate(realized: Realized, say, coarse: str, planner: str, m: int, state: dict, timings: dict,
-            stage_t: dict) -> None:
-    sc = realized.scenario
-    t0 = time.perf_counter()
-    nominal = build_cell(realized, "nominal")
-    true_cell = build_cell(realized, "true")
-    probe_cell = build_probe_cell(realized)
-    timings["build_cells_s"] = time.perf_counter() - t0
+def _stages(st: _Locate, coarse: str, planner: str, m: int) -> None:
+    realized = st.realized
+    with st.runner.within("coarse_scan"):
+        t0 = time.perf_counter()
+        nominal = build_cell(realized, "nominal")
+        true_cell = build_cell(realized, "true")
+        probe_cell = build_probe_cell(realized)
+        st.runner.timings_s["build_cells_s"] = time.perf_counter() - t0
+    cs = _coarse_scan(st, nominal, true_cell)
+    T_coarse = _coarse_pose(st, cs, coarse).T_coarse
+    with st.runner.within("qualification"):
+        t_prog = float(cs.scan.t[-1]) + RECORDING_GAP_S
+        prog = ProbingProgram(realized, nominal, probe_cell, realized.streams.generator("probe"), t_offset_s=t_prog)
+        safe_z = safe_height_world(realized, realized.scenario.T_world_base @ T_coarse)
+    qual_hits, qual = _qualification(st, prog, safe_z)
+    with st.runner.stage("plan"):
+        plan = st.plan = plan_fine_points(realized, nominal, T_coarse, m, planner, realized.streams.generator("plan"))
+    st.say(f"planned {len(plan.targets)} probe points ({planner}) of {plan.feasible} feasible candidates")
+    got = _probe(st, prog, plan, qual_hits, safe_z)
+    _fine(st, got, qual, T_coarse)
 
-    # 1. the sparse laser pass
-    state["stage"] = "coarse_scan"
-    t0 = time.perf_counter()
-    try:
-        scan, pts = coarse_scan(realized, nominal, true_cell)
-    except TwinError as exc:
-        raise StageFailed("coarse_scan", str(exc)) from None
-    timings["coarse_scan_s"] = time.perf_counter() - t0
-    stage_t["coarse_scan_s"] = float(scan.t[-1] - scan.t[0])
-    state["scan"] = scan
-    state["coarse_points"] = pts
-    say(f"coarse pass: {len(scan.t)} samples, {len(pts)} points on the part")
+
+def _coarse_scan(st: _Locate, nominal: Cell, true_cell: Cell) -> CoarseScan:
+    """1. The sparse laser pass."""
+    with st.runner.stage("coarse_scan"):
+        scan, pts = coarse_scan(st.realized, nominal, true_cell)
+    st.stage_t_s["coarse_scan_s"] = float(scan.t[-1] - scan.t[0])
+    cs = st.coarse_scan = CoarseScan(scan, pts)
+    st.say(f"coarse pass: {len(scan.t)} samples, {len(pts)} points on the part")
     if len(pts) < MIN_FINE_POINTS:
         raise StageFailed("coarse_scan", f"the coarse laser pass found {len(pts)} points off the table: the part "
                                          "is not under the scanned region")
+    return cs
 
-    # 2. the coarse pose
-    state["stage"] = "coarse"
-    t0 = time.perf_counter()
-    T_coarse, result = coarse_pose(pts, realized, coarse)
-    timings["coarse_s"] = time.perf_counter() - t0
-    state["coarse"], state["T_coarse"] = result, T_coarse
-    say(f"coarse pose ({coarse}): {getattr(result, 'status', None) and result.status.value}, "
-        f"{timings['coarse_s']:.1f} s")
 
-    # 3. qualification on the reference sphere
-    state["stage"] = "qualification"
-    t_prog = float(scan.t[-1]) + RECORDING_GAP_S
-    prog = ProbingProgram(realized, nominal, probe_cell, realized.streams.generator("probe"), t_offset_s=t_prog)
-    t0 = time.perf_counter()
-    safe_z = safe_height_world(realized, sc.T_world_base @ T_coarse)
-    qual_hits = prog.run(qualification_targets(realized), safe_z, say)
-    misses = [h for h in qual_hits if not h.hit]
-    if misses:
-        raise StageFailed("qualification", f"{len(misses)} of {len(qual_hits)} probing moves on the reference sphere "
-                                           "found no surface: is the sphere where probe.sphere_xyz_m says?")
-    qual = qualify(qual_hits, realized)
-    state["qualification"] = qual
-    timings["qualification_s"] = time.perf_counter() - t0
-    stage_t["qualification_s"] = float(prog.log(qual_hits).duration_s)
-    say(f"qualified: effective ball radius {qual.effective_radius_m * 1e3:.6f} mm, fit rms "
-        f"{qual.rms_m * 1e9:.1f} nm")
+def _coarse_pose(st: _Locate, cs: CoarseScan, coarse: str) -> CoarsePose:
+    """2. The coarse pose, from no prior knowledge of the orientation."""
+    with st.runner.stage("coarse"):
+        T_coarse, result = coarse_pose(cs.points, st.realized, coarse)
+    cp = st.coarse = CoarsePose(result, T_coarse)
+    st.say(f"coarse pose ({coarse}): {getattr(result, 'status', None) and result.status.value}, "
+           f"{st.runner.timings_s['coarse_s']:.1f} s")
+    return cp
 
-    # 4. plan the fine points on the CAD model at T_coarse
-    state["stage"] = "plan"
-    t0 = time.perf_counter()
-    plan = plan_fine_points(realized, nominal, T_coarse, m, planner, realized.streams.generator("plan"))
-    state["plan"] = plan
-    timings["plan_s"] = time.perf_counter() - t0
-    say(f"planned {len(plan.targets)} probe points ({planner}) of {plan.feasible} feasible candidates")
 
-    # 5. probe them
-    state["stage"] = "probe"
-    t0 = time.perf_counter()
-    t_before = float(prog.log(qual_hits).t[-1])
-    hits = prog.run(list(plan.targets), safe_z, say)
-    prog.lift(safe_z)
-    log = prog.log(qual_hits + hits)
-    state["probing"], state["hits"] = log, hits
-    timings["probe_s"] = time.perf_counter() - t0
-    stage_t["probe_s"] = float(log.t[-1] - t_before)
+def _qualification(st: _Locate, prog: ProbingProgram, safe_z: float) -> tuple[tuple[ProbeHit, ...], Qualification]:
+    """3. Qualification on the reference sphere. Returns its probing moves and the qualification."""
+    with st.runner.stage("qualification"):
+        qual_hits = prog.run(qualification_targets(st.realized), safe_z, st.say)
+        misses = [h for h in qual_hits if not h.hit]
+        if misses:
+            raise StageFailed("qualification", f"{len(misses)} of {len(qual_hits)} probing moves on the reference "
+                                               "sphere found no surface: is the sphere where probe.sphere_xyz_m says?")
+        qual = st.qualification = qualify(qual_hits, st.realized)
+    st.stage_t_s["qualification_s"] = float(prog.log(qual_hits).duration_s)
+    st.say(f"qualified: effective ball radius {qual.effective_radius_m * 1e3:.6f} mm, fit rms "
+           f"{qual.rms_m * 1e9:.1f} nm")
+    return qual_hits, qual
+
+
+def _probe(st: _Locate, prog: ProbingProgram, plan: FinePlan, qual_hits: tuple[ProbeHit, ...],
+           safe_z: float) -> list[ProbeHit]:
+    """5. Probe the planned points. Returns the hits (misses left out)."""
+    with st.runner.stage("probe"):
+        t_before = float(prog.log(qual_hits).t[-1])
+        hits = prog.run(list(plan.targets), safe_z, st.say)
+        prog.lift(safe_z)
+        log = prog.log(qual_hits + hits)
+        st.probed = Probed(log, hits)
+    st.stage_t_s["probe_s"] = float(log.t[-1] - t_before)
     got = [h for h in hits if h.hit]
     if len(got) < MIN_FINE_POINTS:
         raise StageFailed("fine", f"only {len(got)} of {len(hits)} planned points were hit (the others found no "
-                                  f"surface within the search distance of {sc.probe.search_m * 1e3:g} mm): the coarse "
-                                  "pose is too far off for its planned points")
+                                  f"surface within the search distance of {st.realized.scenario.probe.search_m * 1e3:g}"
+                                  " mm): the coarse pose is too far off for its planned points")
+    return got
 
-    # 6. document 001's fine stage on the compensated points
-    state["stage"] = "fine"
-    t0 = time.perf_counter()
-    doc, fine, rounds, points_wp, normals_wp = fine_stage(got, qual, realized, T_coarse)
-    timings["fine_s"] = time.perf_counter() - t0
-    state["fine_001"], state["fine"], state["compensation_rounds"] = doc, fine, rounds
-    state["T_final"] = fine.T_world_workpiece
-    state["T_fine"] = fine.T_world_workpiece @ inv_pose(T_coarse)
-    cov, sigma_point = fine_covariance(got, points_wp, normals_wp, qual, realized)
-    state["covariance"], state["sigma_point_m"] = cov, sigma_point
-    say(f"fine stage: fine_001 {doc.status.value} after {doc.iterations} iterations, then {rounds} compensation "
-        f"round(s): {fine.status.value}, rms {fine.rmse_m * 1e6:.2f} um over {len(got)} points")
+
+def _fine(st: _Locate, got: list[ProbeHit], qual: Qualification, T_coarse: np.ndarray) -> None:
+    """6. Document 001's fine stage on the compensated points, and the final covariance."""
+    with st.runner.stage("fine"):
+        doc, fine, rounds, points_wp, normals_wp = fine_stage(got, qual, st.realized, T_coarse)
+    with st.runner.within("fine"):
+        cov, sigma_point = fine_covariance(got, points_wp, normals_wp, qual, st.realized)
+    st.fit = FineFit(doc, fine, rounds, fine.T_world_workpiece, fine.T_world_workpiece @ inv_pose(T_coarse), cov,
+                     sigma_point)
+    st.say(f"fine stage: fine_001 {doc.status.value} after {doc.iterations} iterations, then {rounds} compensation "
+           f"round(s): {fine.status.value}, rms {fine.rmse_m * 1e6:.2f} um over {len(got)} points")
 
 
 def coarse_pose(points: np.ndarray, realized: Realized, method: str) -> tuple[np.ndarray, object]:
@@ -339,45 +367,6 @@ def coarse_pose(points: np.ndarray, realized: Realized, method: str) -> tuple[np
     if r.status.value not in ("ok", "unobservable"):
         raise StageFailed("coarse", f"the coarse search ({method}) found no pose the points confirm: {r.message}")
     return r.T_world_workpiece, r
-
-
-def qualification_targets(realized: Realized) -> list[ProbeTarget]:
-    """The reference sphere's qualification pattern (base frame): ``qualification_points``
-    on its equator, evenly spaced, and its pole. With two elevations only, the sphere fit's
-    radius is that of the equator (sideways) touches, and the pole's axial excess goes to
-    the centre (the ball-centre offset), so the effective radius is the nominal radius minus
-    the mean sideways pre-travel."""
-    p = realized.scenario.probe
-    T_bw = inv_pose(realized.scenario.T_world_base)
-    az = 2 * np.pi * np.arange(p.qualification_points) / p.qualification_points
-    el = np.radians(QUALIFICATION_ELEVATION_DEG)
-    n_world = np.vstack([np.column_stack([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el),
-                                          np.full(len(az), np.sin(el))]), [[0.0, 0.0, 1.0]]])
-    pts_world = p.sphere_xyz_m + p.sphere_radius_m * n_world
-    pts = transform_points(T_bw, pts_world)
-    normals = n_world @ T_bw[:3, :3].T
-    return [ProbeTarget(pts[i], normals[i], f"sphere {i + 1}") for i in range(len(pts))]
-
-
-def qualify(hits: tuple[ProbeHit, ...], realized: Realized) -> Qualification:
-    """The effective ball radius and ball-centre offset from the sphere's hits."""
-    p = realized.scenario.probe
-    centres = np.array([h.centre for h in hits])
-    q = qualify_ball(centres, p.sphere_radius_m)
-    known = transform_points(inv_pose(realized.scenario.T_world_base), p.sphere_xyz_m[None])[0]
-    # The probe frame's orientation is the same (stylus down) for every hit up to its spin,
-    # which leaves an offset along the stylus unchanged: take the mean rotation's frame.
-    R = hits[-1].R_base_probe
-    offset_probe = R.T @ (known - q.sphere_centre)
-    n = len(centres)
-    # Standard uncertainties of the 4-parameter fit (radius, centre) from its residual.
-    u = centres - q.sphere_centre
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    A = np.column_stack([np.ones(n), u])
-    sigma = max(q.rms_m * np.sqrt(n / max(n - 4, 1)), 1e-12)
-    C = sigma**2 * np.linalg.inv(A.T @ A)
-    return Qualification(q.effective_radius_m, offset_probe, q.sphere_centre, q.rms_m, float(np.sqrt(C[0, 0])),
-                         float(np.sqrt(np.max(np.diag(C)[1:]))), hits)
 
 
 def plan_fine_points(realized: Realized, nominal: Cell, T_coarse: np.ndarray, m: int, planner: str,
@@ -453,75 +442,6 @@ def _tour(points: np.ndarray) -> np.ndarray:
         d = np.linalg.norm(points[left] - points[order[-1]], axis=1)
         order.append(left.pop(int(np.argmin(d))))
     return np.asarray(order)
-
-
-class ReachCheck:
-    """Whether the arm reaches a probe point's approach and search-end positions with the
-    stylus straight down, and at which spin about the stylus: a closed-form solution of the
-    UR geometry (:func:`algorithms.geometry.kinematics.ur_inverse`) away from the wrist
-    singularity, the links clear of the table, and the laser's housing beside the probe at
-    least ``HEAD_CLEARANCE_M`` from the part at the coarse pose (its box sampled on a grid,
-    exact distances). Spins are tried nearest the arm's start spin first."""
-
-    SPINS_RAD = np.radians(np.arange(0.0, 360.0, 45.0))
-    MIN_WRIST_SIN = 0.05
-    HEAD_CLEARANCE_M = 0.010
-    HOUSING_GRID = 5
-
-    def __init__(self, nominal: Cell, realized: Realized):
-        p = realized.scenario.probe
-        self.realized = realized
-        self.nominal = nominal
-        self.T_base_world = inv_pose(realized.scenario.T_world_base)
-        T_flange_ball = p.T_flange_probe @ make_pose(None, [0.0, 0.0, p.tip_length_m])
-        self.T_ball_flange = inv_pose(T_flange_ball)
-        self.table = TableCheck(nominal, TABLE_CLEARANCE_M)
-        self.data = mujoco.MjData(nominal.model)
-        self.housing = nominal.model.geom("laser_housing").id
-        g = np.linspace(-1.0, 1.0, self.HOUSING_GRID)
-        self.grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3) \
-            * nominal.model.geom_size[self.housing]
-        T_home = realized.scenario.T_world_base @ dh_forward(HOME_Q, UR5E_DH) @ T_flange_ball
-        home = float(np.arctan2(T_home[1, 0], T_home[0, 0]))
-        self.spins = self.SPINS_RAD[np.argsort(np.abs(np.angle(np.exp(1j * (self.SPINS_RAD - home)))))]
-
-    def spin(self, T_coarse: np.ndarray, point_wp: np.ndarray, normal_wp: np.ndarray) -> float | None:
-        """A spin [rad] at which the probe reaches the point and the housing clears, or None."""
-        p = self.realized.scenario.probe
-        T = self.realized.scenario.T_world_base @ T_coarse
-        ends = [transform_points(T, (point_wp + off * normal_wp)[None])[0]
-                for off in (p.ball_radius_m + p.approach_m, p.ball_radius_m - p.search_m)]
-        for spin in self.spins:
-            if all(self._clear(c, spin, T) for c in ends):
-                return float(spin)
-        return None
-
-    def _clear(self, c_world: np.ndarray, spin: float, T_world_workpiece: np.ndarray) -> bool:
-        sol = ur_inverse(self.T_base_world @ ball_pose(c_world, spin) @ self.T_ball_flange, UR5E_DH)
-        good = sol.valid[0] & (sol.wrist_sin[0] > self.MIN_WRIST_SIN)
-        for q in sol.q[0][good]:
-            if self.table.nearest(q) is None and self._housing_clear(q, T_world_workpiece):
-                return True
-        return False
-
-    def _housing_clear(self, q: np.ndarray, T_world_workpiece: np.ndarray) -> bool:
-        self.data.qpos[self.nominal.qpos_adr] = q
-        mujoco.mj_kinematics(self.nominal.model, self.data)
-        R = self.data.geom_xmat[self.housing].reshape(3, 3)
-        pts_w = self.grid @ R.T + self.data.geom_xpos[self.housing]
-        pts_wp = transform_points(inv_pose(T_world_workpiece), pts_w)
-        return bool(np.all(self.realized.workpiece.index.signed_distance(pts_wp) > self.HEAD_CLEARANCE_M))
-
-
-def probe_sigma_m(realized: Realized) -> float:
-    """Combined random standard uncertainty of one compensated probe point along its normal
-    [m]: the unidirectional repeatability and the pre-travel variation left after
-    qualification (Type B, uniform within the model's 3D pre-travel variation)."""
-    p = realized.scenario.probe
-    s = p.stylus_length_m / p.reference_stylus_m
-    ptv_half = 0.5 * s * (max(p.axial_pretravel_m, p.lateral_pretravel_m + p.lobe_m)
-                          - min(p.axial_pretravel_m, p.lateral_pretravel_m - p.lobe_m))
-    return float(np.sqrt((p.repeatability_2sigma_m / 2) ** 2 + ptv_half**2 / 3))
 
 
 def fine_stage(hits: list[ProbeHit], qual: Qualification, realized: Realized, T_coarse: np.ndarray):

@@ -19,7 +19,7 @@ so that the arm starts from its home posture towards the part).
 
 Targets: the scan plan's sensor poses (``twin.plan.plan_scan`` on the nominal cell; the plan is
 in the world frame and does not depend on the base) and the CAD raster path's flange poses
-(``twin.pipeline.cad_path`` moved by the nominal pose), as flange poses in the world.
+(``twin.process_paths.cad_path`` moved by the nominal pose), as flange poses in the world.
 """
 
 from __future__ import annotations
@@ -213,7 +213,7 @@ def reach_targets(scenario: Scenario, realized=None) -> ReachTargets:
     of the part (on the side of the scenario's base, facing the part), and the plan with more
     passes is kept.
     """
-    from twin.pipeline import cad_path
+    from twin.process_paths import cad_path
     from twin.realize import realize
 
     if realized is None:

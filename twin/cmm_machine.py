@@ -1,4 +1,4 @@
-"""A measurement program on the coordinate measuring machine, in the twin (document 002).
+"""The coordinate measuring machine of the twin (document 002): its setup and a program run at 1 ms.
 
 The cell: the bridge CMM of ``models/cmm`` (three servo axes and an indexable head, 1 ms),
 the scenario's touch probe on its head, the part at its true pose on the table. A program's
@@ -7,9 +7,6 @@ measurement program starts from); the part lies at the true pose.
 
 * :func:`cmm_setup`: the static things of a scenario: the part, its index, the styli as the
   planners see them (part frame), the swept clearance check, the machine's limits.
-* :func:`check_teach` and :func:`plan_programs`: a teach file checked against the CAD model
-  (touches on the part, the operator's moves clear of it), then planned by the three planners
-  of :mod:`algorithms.probing.cmm_planning`.
 * :func:`execute`: a program run at 1 ms: every move a straight line of the head with a
   trapezoidal speed law (the transit speed and acceleration of ``[cmm]``), stylus changes as
   head indexing moves, probing moves at the probing speed until the probe triggers (the
@@ -33,17 +30,12 @@ from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.probing.cmm_planning import (
-    PLANNERS,
     Move,
-    Plan,
     StylusReach,
-    plan,
     program_moves,
-    taught_path_collisions,
 )
 from algorithms.probing.pretravel import PretravelModel
 from algorithms.probing.program import MeasurePoint, Program, SelectStylus
-from algorithms.probing.safety_plane import SafetyPlane, Station, Teach, penetrations, taught_path
 from algorithms.probing.sweep import ProbeGeometry, ProbeSweep, frame_with_z
 from twin.cell import quat_wxyz
 from twin.errors import TwinError
@@ -55,10 +47,6 @@ from twin.sensors.touch_probe import BALL_SITE, TouchProbe, find_trigger
 CMM_SCENE_XML = MODELS_DIR / "cmm" / "scene.xml"
 AXES = ("axis_x", "axis_y", "axis_z")
 HEAD_JOINTS = ("head_a", "head_b")
-#: A taught touch must lie this close to the CAD surface [m].
-TOUCH_ON_PART_M = 1e-4
-#: ... and its normal within this angle of the surface's [deg].
-TOUCH_NORMAL_DEG = 30.0
 #: Contacts are checked on every sample where the probe may have come this close [m].
 CONTACT_MARGIN_M = 0.0
 
@@ -146,60 +134,7 @@ def cmm_setup(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> CmmSet
                     sweep, sweep.index)
 
 
-# ----------------------------------------------------------------------------- teaching and planning
-def check_teach(teach: Teach, setup: CmmSetup) -> list[Station]:
-    """The teach's path, after checking it against the CAD model.
 
-    Raises:
-        TwinError: a stylus the machine lacks, a touch off the part or with a wrong normal, or
-            a taught move that passes through the part (an operator cannot have made it).
-    """
-    try:
-        stations = taught_path(teach, {k: (v.direction, v.reach_m) for k, v in setup.styli.items()},
-                               {k: v.ball_radius_m for k, v in setup.styli.items()})
-    except AlgorithmError as exc:
-        raise TwinError(f"teach {teach.name!r}: {exc}") from None
-    touches = teach.touches
-    pts = np.array([t.point_m for t in touches])
-    cp = setup.index.query(pts)
-    sd = setup.index.signed_distance(pts)
-    normals = setup.index.smooth_normals(cp.face, cp.foot)
-    for t, d, n in zip(touches, sd, normals, strict=True):
-        if abs(d) > TOUCH_ON_PART_M:
-            raise TwinError(f"teach {teach.name!r}: touch {t.label} at {_mm(t.point_m)} does not lie on the part "
-                            f"({1e3 * d:+.3f} mm from its surface; allowed {1e3 * TOUCH_ON_PART_M:.1f} mm)")
-        tn = np.asarray(t.measure().normal)
-        if float(tn @ n) < np.cos(np.radians(TOUCH_NORMAL_DEG)):
-            ang = np.degrees(np.arccos(np.clip(tn @ n, -1, 1)))
-            raise TwinError(f"teach {teach.name!r}: touch {t.label}'s normal is {ang:.0f} deg from the surface "
-                            f"normal there (allowed {TOUCH_NORMAL_DEG:.0f} deg): the probe would not approach "
-                            "the surface from outside")
-    try:
-        plane = teach.plane if teach.plane is not None else SafetyPlane.through_highest_point(setup.mesh.vertices)
-        penetrations(stations, plane)
-    except AlgorithmError as exc:
-        raise TwinError(f"teach {teach.name!r}: {exc}") from None
-    bad = taught_path_collisions(stations, setup.check)
-    if bad:
-        raise TwinError(f"teach {teach.name!r}: {bad[0]}" + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "")
-                        + f"; the operator's moves must keep {1e3 * setup.sweep.clearance_m:.1f} mm from the part")
-    return stations
-
-
-def plan_programs(teach: Teach, setup: CmmSetup, methods: tuple[str, ...] = PLANNERS) -> dict[str, Plan]:
-    """The teach planned by each method."""
-    stations = check_teach(teach, setup)
-    try:
-        return {m: plan(m, teach, stations, setup.mesh.vertices, setup.styli, setup.check) for m in methods}
-    except AlgorithmError as exc:
-        raise TwinError(f"teach {teach.name!r}: {exc}") from None
-
-
-def _mm(p) -> str:
-    return "(" + ", ".join(f"{1e3 * float(x):.2f}" for x in p) + ") mm"
-
-
-# ----------------------------------------------------------------------------- execution
 @dataclass(frozen=True)
 class CmmHit:
     """One measured point of a program (part frame, metres).
@@ -595,5 +530,4 @@ def _contact(solid: str, k0: int, k_last: int, run: CmmRun, ball_true: np.ndarra
                       float(run.t_s[k_last]), ball.copy(), foot)
 
 
-__all__ = ["CmmContact", "CmmHit", "CmmRun", "CmmSetup", "check_teach", "cmm_setup", "execute",
-           "find_contacts", "plan_programs", "trapezoid"]
+__all__ = ["CmmContact", "CmmHit", "CmmRun", "CmmSetup", "cmm_setup", "execute", "find_contacts", "trapezoid"]
