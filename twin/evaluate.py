@@ -1,7 +1,9 @@
 """Evaluation against the truth: the only module that reads what only the simulator knows.
 
-Every function returns SI values (metres, radians); :mod:`twin.io.report` turns them into the
-report's unit-named fields.
+Reports, figures, recordings and studies measure against the truth through an
+:class:`Evaluation` of the realized scenario (or the functions below); no other module opens
+the truth (``tests/test_architecture.py`` checks it). Every function returns SI values
+(metres, radians); :mod:`twin.io.report` turns them into the report's unit-named fields.
 """
 
 from __future__ import annotations
@@ -34,6 +36,54 @@ def true_normals_base(points_base: np.ndarray, T_base_workpiece_true: np.ndarray
     p = transform_points(inv_pose(T_base_workpiece_true), points_base)
     cp = index.query(p)
     return index.smooth_normals(cp.face, cp.foot) @ T_base_workpiece_true[:3, :3].T
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """The truth of one realized scenario, opened for evaluation only (robot base frame, SI).
+
+    Attributes:
+        realized: the realized scenario whose truth is measured against.
+    """
+
+    realized: Realized
+
+    @property
+    def T_base_workpiece(self) -> np.ndarray:
+        """(4, 4) the part's true pose in the robot base frame."""
+        return self.realized.T_base_workpiece_true
+
+    def surface_error_m(self, points_base: np.ndarray) -> np.ndarray:
+        """(N,) signed distance [m] of base-frame points to the true surface (positive outside)."""
+        return surface_error_m(points_base, self.T_base_workpiece, self.realized.workpiece.index)
+
+    def in_true_workpiece(self, points_base: np.ndarray) -> np.ndarray:
+        """(N, 3) base-frame points in the true workpiece frame [m]."""
+        return transform_points(inv_pose(self.T_base_workpiece), points_base)
+
+    def pose_errors(self, T_base_workpiece_estimate: np.ndarray) -> PoseErrors:
+        """Rotation and translation errors of an estimate and of the nominal pose."""
+        return pose_errors(T_base_workpiece_estimate, self.realized)
+
+    def full_pose_errors(self, T_base_workpiece_estimate: np.ndarray, covariance: np.ndarray | None = None) -> dict:
+        """:func:`full_pose_errors` of an estimate against the true pose."""
+        return full_pose_errors(T_base_workpiece_estimate, self.T_base_workpiece, covariance)
+
+
+def ideal_distances_m(scan) -> np.ndarray:
+    """(N, B) the scan's ideal distances [m] (-1 where the beam missed): where each beam met the
+    true part, before the sensor's errors."""
+    return scan.d_true
+
+
+def true_pretravel_m(hit) -> float | None:
+    """The pre-travel [m] the simulator drew for a probe hit, or None for a miss."""
+    return None if hit.truth is None else float(hit.truth.pretravel_m)
+
+
+def true_part_pose_world(setup) -> np.ndarray:
+    """(4, 4) where the part truly lies on the CMM's table (world frame)."""
+    return setup.T_world_part_true
 
 
 @dataclass(frozen=True)

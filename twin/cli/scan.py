@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         if rrd is not None:
             from twin.viz import save_scan_recording
 
-            save_scan_recording(stage.file(rrd), true_cell, scan)
+            save_scan_recording(stage.file(rrd), true_cell, scan, realized)
             say("wrote the recording")
         stage.commit()
     summary = {

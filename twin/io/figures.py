@@ -14,7 +14,6 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
-from algorithms.geometry.se3 import inv_pose, transform_points
 from twin import evaluate
 
 DEVIATION_SCALE_UM = 10.0
@@ -126,10 +125,10 @@ def _twist_covariance(localization, covariance) -> np.ndarray | None:
 def scan_figures(scan, realized, sigma_m: float, folder: Path) -> list[Path]:
     """Residual histogram and deviation map of a scan."""
     pts = scan.valid_points_base
-    T_true = realized.T_base_workpiece_true
-    dev = evaluate.surface_error_m(pts, T_true, realized.workpiece.index)
+    truth = evaluate.Evaluation(realized)
+    dev = truth.surface_error_m(pts)
     on = np.abs(dev) < 1e-3
-    p_wp = transform_points(inv_pose(T_true), pts[on])
+    p_wp = truth.in_true_workpiece(pts[on])
     out = [residual_histogram(dev[on], sigma_m, folder / "scan_residuals.png", "scan points against the true surface"),
            deviation_map(p_wp, dev[on], _outline(realized.workpiece.mesh), folder / "scan_deviation_map.png",
                          "scan points: signed deviation (top view)")]
@@ -151,7 +150,7 @@ def run_figures(result, sigma_m: float, folder: Path) -> list[Path]:
     loc = result.localization
     if loc is not None:
         C = _twist_covariance(loc, result.pose_covariance)
-        xi = evaluate.full_pose_errors(loc.T_world_workpiece, result.realized.T_base_workpiece_true, None)["twist"]
+        xi = evaluate.Evaluation(result.realized).full_pose_errors(loc.T_world_workpiece)["twist"]
         if C is not None:
             out.append(error_ellipse({"estimate": (xi[3:5] * 1e6, C[3:5, 3:5] * 1e12)}, folder / "pose_error.png",
                                      "localization error against the truth"))
@@ -165,13 +164,13 @@ def locate_figures(result, sigma_m: float, folder: Path) -> list[Path]:
     realized = result.realized
     if result.scan is not None:
         out += scan_figures(result.scan, realized, sigma_m, folder)
-    T_true = realized.T_base_workpiece_true
+    truth = evaluate.Evaluation(realized)
     errs = {}
     if result.T_coarse is not None:
-        xi = evaluate.full_pose_errors(result.T_coarse, T_true, None)["twist"]
+        xi = truth.full_pose_errors(result.T_coarse)["twist"]
         errs["coarse"] = (xi[3:5] * 1e6, None)
     if result.T_final is not None:
-        xi = evaluate.full_pose_errors(result.T_final, T_true, None)["twist"]
+        xi = truth.full_pose_errors(result.T_final)["twist"]
         errs["final"] = (xi[3:5] * 1e6, np.asarray(result.covariance)[3:5, 3:5] * 1e12)
     if errs:
         out.append(error_ellipse(errs, folder / "pose_error.png", "locate: pose errors against the truth"))

@@ -145,13 +145,13 @@ def scan_path_report(result, sensor_sigma_m: float) -> dict:
 
 def cad_path_report(result) -> dict:
     realized = result.realized
-    T_true, index = realized.T_base_workpiece_true, realized.workpiece.index
+    truth = evaluate.Evaluation(realized)
     run = result.run("cad_path")
     cp = transform_path(result.T_base_workpiece_estimate, result.cad_path_workpiece)
     contact = cp.contact[cp.process_mask()]
-    err = evaluate.surface_error_m(contact, T_true, index)
+    err = truth.surface_error_m(contact)
     nominal = transform_path(realized.T_base_workpiece_nominal, result.cad_path_workpiece)
-    err_nom = evaluate.surface_error_m(nominal.contact[nominal.process_mask()], T_true, index)
+    err_nom = truth.surface_error_m(nominal.contact[nominal.process_mask()])
     bound = 3.0 * evaluate.contact_std_m(result.cad_path_workpiece, result.localization, result.pose_covariance) \
         + SURFACE_BOUND_FLOOR_M
     return {
@@ -247,8 +247,9 @@ def _hit_row(h) -> dict:
     if h.hit:
         row.update({"centre_m": np.round(h.centre, 10).tolist(), "trigger_t_s": round(float(h.trigger_t_s), 6),
                     "overtravel_um": round(float(h.overtravel_m * UM), 3)})
-        if h.truth is not None:
-            row["true_pretravel_um"] = round(float(h.truth.pretravel_m * UM), 4)
+        pretravel_m = evaluate.true_pretravel_m(h)
+        if pretravel_m is not None:
+            row["true_pretravel_um"] = round(float(pretravel_m * UM), 4)
     else:
         row["miss"] = h.miss
     return row
@@ -261,7 +262,7 @@ def locate_report(result) -> dict:
     realized = result.realized
     sc = realized.scenario
     p = sc.probe
-    T_true = realized.T_base_workpiece_true
+    T_true = evaluate.Evaluation(realized).T_base_workpiece
     report: dict = {"command": "locate", "scenario": sc.source or sc.name, "seed": sc.seed,
                     "complete": result.complete}
     if result.failure is not None:

@@ -29,6 +29,7 @@ from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.paths.normals import angle_deg, pca_normals, triangulation_normals
 from algorithms.paths.pointcloud import organize_scan_lines, prepare_scan_lines, remove_outliers
 from algorithms.paths.spline import fit_lines
+from twin import evaluate
 from twin.scenario import load_scenario
 from twin.studies.spec import Study
 from twin.studies.trials import noise_free_scan, scan_points, trial_streams
@@ -65,7 +66,7 @@ def normals_trial(study: Study, cell: int, trial: int) -> dict:
     try:
         lines = _lines(spec["cloud"], p, geo.plan.line)
         pts = np.concatenate(lines)
-        T = geo.realized.T_base_workpiece_true
+        T = evaluate.Evaluation(geo.realized).T_base_workpiece
         t0 = time.perf_counter()
         if spec["method"] == "triangulation":
             n = np.concatenate(triangulation_normals(lines, orient=T[:3, 2]))

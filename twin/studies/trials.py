@@ -48,6 +48,7 @@ from algorithms.errors import AlgorithmError
 from algorithms.geometry.se3 import inv_pose, make_pose, rotation_error_rad, transform_points, translation_error_m
 from algorithms.registration.global_search.multistart import model_centroid
 from algorithms.registration.uncertainty import crlb, observability, pose_error_twist
+from twin import evaluate
 from twin.cell import build_cell
 from twin.errors import TwinError
 from twin.plan import ScanPlan, plan_scan
@@ -220,7 +221,7 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
     scenario = load_scenario(settings.scenario_path, settings.overrides, machine="arm")
     geo = noise_free_scan(scenario)
     rng_init, rng_err, rng_subset, rng_method = trial_streams(study.seed, cell, trial)
-    T_true = geo.realized.T_base_workpiece_true
+    T_true = evaluate.Evaluation(geo.realized).T_base_workpiece
     points, valid = scan_points(scenario, geo, rng_err)
     pts = points[valid & (geo.plan.line >= 0)[:, None]]
     if 0 < loc["points"] < len(pts):  # a random subset of the valid points, drawn per trial
@@ -253,7 +254,7 @@ def points_trial(study: Study, cell: int, trial: int) -> dict:
     scenario = load_scenario(settings.scenario_path, settings.overrides, machine="arm")
     realized, design = part_design(scenario, spec)
     rng_init, rng_err, rng_points, rng_method = trial_streams(study.seed, cell, trial)
-    workpiece, T_true = realized.workpiece, realized.T_base_workpiece_true
+    workpiece, T_true = realized.workpiece, evaluate.Evaluation(realized).T_base_workpiece
     x = model_points(workpiece.mesh, design, spec, loc["subsample"], rng_points)
     cp = workpiece.index.query(x)
     pts = measured_points(x, workpiece.index.smooth_normals(cp.face, cp.foot), T_true, spec, rng_err)
@@ -275,7 +276,7 @@ def full_trial(study: Study, cell: int, trial: int) -> dict:
     if loc is None:
         return _failed(f"failed_{result.failure[0]}" if result.failure else "failed")
     pts = result.scan.line_points_base if result.scan is not None else np.empty((0, 3))
-    T_true = realized.T_base_workpiece_true
+    T_true = evaluate.Evaluation(realized).T_base_workpiece
     out = Outcome(loc.T_world_workpiece, loc.rmse_m, loc.iterations, loc.status.value,
                   result.timings_s.get("localize_s", loc.time_s))
     m = _metrics(out, T_true, len(pts), bound(pts, T_true, realized.workpiece.index, sensor_sigma_m(scenario)))

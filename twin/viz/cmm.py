@@ -12,6 +12,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from algorithms.geometry.se3 import transform_points
+from twin import evaluate
 from twin.cmm_machine import CmmRun, CmmSetup
 from twin.viz.blueprint import TIMELINE, cumulative, eye_on
 
@@ -26,7 +27,7 @@ def save_cmm_recording(path: str | Path, setup: CmmSetup, runs: dict[str, CmmRun
     """Write the ``.rrd`` of one or more program runs on one scenario (world frame)."""
     path = Path(path)
     rec = rr.RecordingStream(app_id)
-    T_true, T_nom = setup.T_world_part_true, setup.T_world_part_nominal
+    T_true, T_nom = evaluate.true_part_pose_world(setup), setup.T_world_part_nominal
     mesh = setup.mesh
     with rec:
         rec.save(str(path))
@@ -68,7 +69,7 @@ def _log_run(root: str, run: CmmRun, setup: CmmSetup, T_nom: np.ndarray, colour)
                                            radii=0.0012, colors=[[40, 220, 90]], labels=[h.label for h in hits]),
                static=True)
     if run.contacts:
-        where = transform_points(setup.T_world_part_true, np.array([c.part_point_m for c in run.contacts]))
+        where = transform_points(evaluate.true_part_pose_world(setup), np.array([c.part_point_m for c in run.contacts]))
         rr.log(f"{root}/contacts", rr.Points3D(where, radii=0.003, colors=[[255, 0, 60]],
                                                labels=[f"{c.solid}, statement {c.statement + 1} ({c.kind}), "
                                                        f"t {c.first_t_s:.2f} s" for c in run.contacts]), static=True)

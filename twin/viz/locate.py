@@ -9,6 +9,7 @@ import numpy as np
 import rerun as rr
 
 from algorithms.geometry.se3 import transform_points
+from twin import evaluate
 from twin.viz.blueprint import REPORT_ENTITY, send_blueprint
 from twin.viz.cell import body_poses, log_cell, log_pose_with_outline
 from twin.viz.scan import POSE_EVERY, log_scan
@@ -32,7 +33,7 @@ def save_locate_recording(path: str | Path, result, cell, report: dict | None = 
         rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         log_cell(cell)
         if result.scan is not None:
-            log_scan(cell, result.scan, T_wb, result.realized.workpiece.index)
+            log_scan(cell, result.scan, T_wb, evaluate.Evaluation(result.realized))
         for name, T, colour in (("coarse", result.T_coarse, COARSE_COLOUR), ("estimate", result.T_final, FINAL_COLOUR)):
             if T is not None:
                 log_pose_with_outline(f"world/workpiece/{name}", T_wb @ T, cell.mesh, colour)

@@ -12,6 +12,7 @@ import rerun as rr
 from algorithms.geometry.se3 import transform_points
 from twin import evaluate
 from twin.cell import Cell
+from twin.realize import Realized
 from twin.viz.blueprint import PATH_COLOURS, REPORT_ENTITY, send_blueprint
 from twin.viz.cell import log_cell, log_pose_with_outline, mesh_outline
 from twin.viz.paths import log_normals, log_path_lines, log_replay, log_tool_frames
@@ -23,19 +24,19 @@ PATH_TITLES = {"scan_path": "scan path", "cad_path": "CAD path"}
 ITERATION_SPAN_S = 0.8
 
 
-def save_scan_recording(path: str | Path, cell: Cell, scan, app_id: str = "scan_twin") -> Path:
+def save_scan_recording(path: str | Path, cell: Cell, scan, realized: Realized, app_id: str = "scan_twin") -> Path:
     """Write a ``.rrd`` file with the cell that scanned, the moving arm, the beam, points and distances."""
-    return _save(path, cell, scan, None, app_id)
+    return _save(path, cell, scan, None, evaluate.Evaluation(realized), app_id)
 
 
 def save_run_recording(path: str | Path, result, app_id: str = "scan_twin_run") -> Path:
     """Write a ``.rrd`` of ``twin run``: the scan, the estimate, then each process path planned
     and replayed (:class:`twin.workflows.loop.RunResult`; the cell shown is the replay cell, the true
     cell with the tool)."""
-    return _save(path, result.replay_cell, result.scan, result, app_id)
+    return _save(path, result.replay_cell, result.scan, result, evaluate.Evaluation(result.realized), app_id)
 
 
-def _save(path: str | Path, cell: Cell, scan, result, app_id: str) -> Path:
+def _save(path: str | Path, cell: Cell, scan, result, truth: evaluate.Evaluation, app_id: str) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(app_id)
@@ -43,9 +44,8 @@ def _save(path: str | Path, cell: Cell, scan, result, app_id: str) -> Path:
     with rec:
         rec.save(str(path))
         begin(cell, [r.name for r in runs], getattr(result, "localization", None) is not None)
-        index = result.realized.workpiece.index if result is not None else None
         if scan is not None:
-            log_scan(cell, scan, cell.T_world_base, index)
+            log_scan(cell, scan, cell.T_world_base, truth)
         loc = getattr(result, "localization", None)
         if loc is not None:
             log_estimate(cell, loc, float(scan.t[-1]))
@@ -75,7 +75,7 @@ class LiveRecording:
         self.say = say
         self.lost = False
         self.cell: Cell | None = None
-        self.index = None
+        self.evaluation: evaluate.Evaluation | None = None
         self.t_scan_end_s = 0.0
 
     def __call__(self, event: str, value) -> None:
@@ -86,11 +86,11 @@ class LiveRecording:
         with self.rec:
             if event == "cells":
                 self.cell, realized = value
-                self.index = realized.workpiece.index
+                self.evaluation = evaluate.Evaluation(realized)
                 names = (["scan_path"] if realized.scenario.sensor.kind == "point" else []) + ["cad_path"]
                 begin(self.cell, names, True)
             elif event == "scan":
-                log_scan(self.cell, value, self.cell.T_world_base, self.index)
+                log_scan(self.cell, value, self.cell.T_world_base, self.evaluation)
                 self.t_scan_end_s = float(value.t[-1])
             elif event == "localization":
                 log_estimate(self.cell, value, self.t_scan_end_s)

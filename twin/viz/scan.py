@@ -34,9 +34,9 @@ STATUS_COLOURS = {VALID: (40, 180, 70), OUT_OF_WINDOW: (150, 60, 200), INCIDENCE
 STATUS_LEGEND = ", ".join(f"{STATUS_NAMES[k]} rgb{v}" for k, v in STATUS_COLOURS.items())
 
 
-def log_scan(cell: Cell, scan, T_world_base: np.ndarray, index=None) -> None:
-    """The arm moving, the beam, the points appearing and the distance, on ``sim_time``.
-    ``index``: the part's MeshIndex for the deviation colours (built from the cell's mesh if None)."""
+def log_scan(cell: Cell, scan, T_world_base: np.ndarray, truth: evaluate.Evaluation) -> None:
+    """The arm moving, the beam, the points appearing and the distance, on ``sim_time``;
+    ``truth`` gives the points' deviation from the true surface (their colours) and the ideal hits."""
     idx = np.arange(0, len(scan.t), POSE_EVERY)
     times = rr.TimeColumn("sim_time", duration=scan.t[idx])
     poses = body_poses(cell, scan.q_true[idx])
@@ -62,7 +62,7 @@ def log_scan(cell: Cell, scan, T_world_base: np.ndarray, index=None) -> None:
     pts = scan.points_base.reshape(n, -1, 3)
     ok = scan.valid.reshape(n, -1)
     line = np.repeat(scan.line[:, None], pts.shape[1], axis=1)
-    dev = _deviation(cell, scan, pts[ok], index)
+    dev = _deviation(truth, pts[ok])
     dev_all = np.full(ok.shape, np.nan)
     dev_all[ok] = dev
     R, p = T_world_base[:3, :3], T_world_base[:3, 3]
@@ -87,7 +87,8 @@ def _log_status(scan, T_world_base: np.ndarray) -> None:
     """Every sample whose beam met the part, at its ideal hit as the controller would place it
     (logged joints, believed hand-eye), coloured by status and appearing as measured."""
     n = len(scan.t)
-    d_hit = np.where(scan.d_true > 0, scan.d_true, np.nan)
+    d_ideal = evaluate.ideal_distances_m(scan)
+    d_hit = np.where(d_ideal > 0, d_ideal, np.nan)
     hits = scan.sensor.reconstruct(scan.q, d_hit, UR5E_DH, scan.T_flange_sensor_nominal).reshape(n, -1, 3)
     status = scan.status.reshape(n, -1)
     met = np.isfinite(hits).all(axis=2)
@@ -105,14 +106,10 @@ def _log_status(scan, T_world_base: np.ndarray) -> None:
                                                           colors=palette[status[i0:i0 + POINT_CHUNK][sel]]))
 
 
-def _deviation(cell: Cell, scan, points_base: np.ndarray, index) -> np.ndarray:
+def _deviation(truth: evaluate.Evaluation, points_base: np.ndarray) -> np.ndarray:
     """Signed distance [m] of base-frame points to the TRUE surface; NaN off the part."""
     if len(points_base) == 0:
         return np.zeros(0)
-    if index is None:
-        from algorithms.geometry.mesh_index import MeshIndex
-
-        index = MeshIndex(cell.mesh)
-    dev = evaluate.surface_error_m(points_base, scan.T_base_workpiece_true, index)
+    dev = truth.surface_error_m(points_base)
     dev[np.abs(dev) > OFF_PART_M] = np.nan
     return dev
