@@ -5,8 +5,8 @@ The tree: median splits, ``_BVH_LEAF`` triangles a leaf, boxes in float32 rounde
 nodes packed two to a cache line (:func:`build_bvh`). With a hint (a face near the answer, e.g.
 the previous iteration's) the search starts at the hint's leaf with the hint's distance as
 bound and walks up, visiting the sibling of each node on the way only where its box is nearer
-than the best so far: exact, and about twice as fast as a search from the root. The
-point-triangle test is the one of
+than the best so far: exact, and faster than a search from the root, as most siblings cost one
+box test. The point-triangle test is the one of
 :func:`algorithms.geometry.mesh_index.closest_points_on_triangles` (Ericson's sign tests).
 
 Module-level functions with ``cache=True``, so that numba's disk cache finds them again in the
@@ -31,7 +31,7 @@ from algorithms.errors import AlgorithmError
 from algorithms.geometry.query_pool import in_chunks
 
 _nb: ModuleType | None
-try:  # optional: compiled kernels (about 10-50x faster than numpy); results are identical
+try:  # optional: compiled kernels (much faster than numpy); results are identical
     import numba as _nb
 except ImportError:  # pragma: no cover - depends on the environment
     _nb = None

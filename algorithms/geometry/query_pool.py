@@ -1,7 +1,7 @@
 """Many-point queries split over the cores: one chunk per core on a shared thread pool.
 
 Threads over a serial compiled kernel (which releases the GIL) rather than numba's
-``parallel=True``: the same speed, and half the first-run compilation time.
+``parallel=True``: no slower, and less to compile on the first run.
 """
 
 from __future__ import annotations
