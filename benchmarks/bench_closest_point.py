@@ -39,7 +39,8 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from algorithms.geometry.mesh_index import HAVE_NUMBA, MeshIndex
+from algorithms.geometry.bvh_kernels import HAVE_NUMBA
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import make_pose, transform_points
 from algorithms.registration import Status
 from algorithms.registration.local import METHODS, _morton_order, localize

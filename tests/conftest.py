@@ -15,7 +15,7 @@ def _compiled_kernels():
     import numpy as np
     import trimesh
 
-    from algorithms.geometry.mesh_index import compile_kernels
+    from algorithms.geometry.bvh_kernels import compile_kernels
     from algorithms.registration import localize
 
     compile_kernels(announce=False)

@@ -6,7 +6,8 @@ import pytest
 import trimesh
 
 from algorithms.errors import AlgorithmError
-from algorithms.geometry.mesh_index import HAVE_NUMBA, MeshIndex, closest_points_on_triangles
+from algorithms.geometry.bvh_kernels import HAVE_NUMBA
+from algorithms.geometry.mesh_index import MeshIndex, closest_points_on_triangles
 from tests.tolerances import (
     BACKEND_DISTANCE_M,
     BACKEND_FOOT_M,

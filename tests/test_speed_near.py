@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from algorithms.geometry.mesh_index import HAVE_NUMBA, MeshIndex, compile_kernels, kernels_cached
+from algorithms.geometry.bvh_kernels import HAVE_NUMBA, compile_kernels, kernels_cached
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import exp_se3
 from tests.test_closest_point import brute_force_d2, heightfield, sample_on_faces
 from tests.tolerances import BRUTE_FORCE_REL

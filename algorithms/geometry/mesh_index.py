@@ -1,70 +1,49 @@
-"""Exact closest points on a triangle mesh, for many points at once.
+"""Exact closest points on a triangle mesh, for many points at once (:class:`MeshIndex`).
 
-This is the inner loop of every localization algorithm: given query points in the mesh's
-frame, find for each the nearest point on the surface (the *foot*), the face it lies on,
-the distance and the outward face normal there.
+The inner loop of every localization algorithm: for each query point in the mesh's frame, the
+nearest point on the surface (the *foot*), the face it lies on, the distance and the outward
+face normal there. The point-triangle test is Ericson's (Real-Time Collision Detection, 5.1.5):
+sign tests on dot products, no tolerance, so it is invariant to the scale of the mesh (unlike
+``trimesh.proximity.closest_point``, whose absolute tolerances put feet in the wrong Voronoi
+region on metre-scale meshes with millimetre triangles; ``tests/test_closest_point.py`` checks
+exactness on points sampled on the mesh).
 
-Why not ``trimesh.proximity.closest_point``: trimesh 5.2 decides the Voronoi region of the
-triangle with absolute tolerances (an absolute 1e-13 on products of squared edge lengths),
-which puts points in the wrong region on metre-scale meshes with millimetre triangles: of
-2,000 points sampled on a 19k-face, 150 mm part, 21 % got a "closest point" up to 0.17 mm
-away (``tests/test_closest_point.py`` checks exactness on points sampled on the mesh). Here the point-triangle test is
-Ericson's (Real-Time Collision Detection, 5.1.5): only sign tests on dot products, no
-tolerance, so it is invariant to the scale of the mesh.
-
-Two backends give the same answers (exact; only the face chosen between faces at exactly
-equal distance may differ):
-
-``numba`` (used when numba is installed): a bounding-volume hierarchy over the triangles
-(median splits, 4 triangles a leaf) searched per point with best-first pruning by box
-distance, on one thread per core above a few thousand points. With a ``hint`` (the previous iteration's
-face of each point) the search starts at the hint's leaf with the hint's distance as bound
-and walks up, visiting the sibling of each node on the way only where its box is closer than
-the best so far: exact, and about twice as fast as a search from the root.
-
-``numpy`` (fallback): a KD-tree over sample points, as follows.
-
-* At build time every face gets one or more *sample points* on it (the centroids of an
-  ``m x m`` subdivision of the face, ``m`` chosen so that every point of the face lies within
-  ``radius`` of one of its samples). The samples go into a ``scipy.spatial.cKDTree``.
-* A query asks the tree for the ``k`` nearest samples and computes the exact distance to
-  their faces; call the best ``d_best``. Any face ``f`` not among them has all its samples
-  at least ``d_k`` (the k-th neighbour distance) away, so its distance is at least
-  ``d_k - radius``. If ``d_k - radius >= d_best`` the answer is proven; otherwise the point is
-  re-asked with more neighbours and, at the last resort, with every sample within
-  ``d_best + radius`` (a ball query). The answer is exact in every case, not approximate.
-
-Units follow the mesh (metres in this project).
+Two backends give the same answers (exact; only the face chosen between faces at exactly equal
+distance may differ): ``numba``, a bounding-volume hierarchy searched by compiled kernels
+(:mod:`algorithms.geometry.bvh_kernels`), and ``numpy``, a KD-tree over sample points on the
+faces (:meth:`MeshIndex._nearest_faces_numpy`). Units follow the mesh (metres in this project).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from types import ModuleType
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from algorithms.arraytypes import ArrayLike, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
+from algorithms.geometry.bvh_kernels import (
+    HAVE_NUMBA,
+    Bvh,
+    build_bvh,
+    closest_on_tree,
+    compile_kernels,
+    face_table,
+    near_on_tree,
+    realign_nodes,
+)
+from algorithms.geometry.query_pool import PARALLEL_MIN_POINTS
 
-_nb: ModuleType | None
-try:  # optional: compiled kernels (about 10-50x faster); results are identical
-    import numba as _nb
-except ImportError:  # pragma: no cover - depends on the environment
-    _nb = None
-HAVE_NUMBA = _nb is not None
-
-__all__ = ["ClosestPoints", "MeshIndex", "NearFaces", "PARALLEL_MIN_POINTS", "closest_points_on_triangles",
-           "compile_kernels", "query_kernels", "kernels_cached"]
+__all__ = ["NEAR_K", "ClosestPoints", "MeshIndex", "NearFaces", "closest_points_on_triangles"]
 
 # Neighbour counts tried before the ball query (points near the surface need few).
 _K_STAGES = (8, 48)
 #: Faces each point keeps in its :class:`NearFaces` list (the foot's face and its neighbours).
 NEAR_K = 4
-#: From this many points on, a query uses every core (threads cost more than they save
-# for a few hundred points).
-PARALLEL_MIN_POINTS = 4000
 
 
 @dataclass(frozen=True)
@@ -81,13 +60,13 @@ class ClosestPoints:
             :meth:`MeshIndex.query`).
     """
 
-    foot: np.ndarray
-    distance: np.ndarray
-    face: np.ndarray
-    normal: np.ndarray
+    foot: FloatArray
+    distance: FloatArray
+    face: IntArray
+    normal: FloatArray
     rel_error: float = 0.0
 
-    def plane_residual(self, points: np.ndarray) -> np.ndarray:
+    def plane_residual(self, points: ArrayLike) -> FloatArray:
         """(N,) [m] ``<points - foot, normal>``: signed point-to-tangent-plane residual."""
         return np.einsum("ij,ij->i", np.asarray(points, dtype=np.float64) - self.foot, self.normal)
 
@@ -113,13 +92,13 @@ class NearFaces:
         n_rebuilt: how many points the last query had to look up in the tree.
     """
 
-    anchor: np.ndarray
-    faces: np.ndarray
-    reach: np.ndarray
+    anchor: FloatArray
+    faces: IntArray
+    reach: FloatArray
     n_rebuilt: int = 0
 
 
-def closest_points_on_triangles(points: np.ndarray, triangles: np.ndarray):
+def closest_points_on_triangles(points: ArrayLike, triangles: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Exact closest point on each triangle to each point (pairwise, Ericson 5.1.5).
 
     Args:
@@ -202,101 +181,6 @@ def _barycentric(d1, d2, abab, acac, abac):
     return v, w
 
 
-_compiled = False
-
-
-def query_kernels():
-    """The compiled query kernels, for other compiled functions (None without numba):
-    ``tree(q, hints, *arrays, out_face, out_foot, out_dist, out_normal, shrink)`` answers
-    :meth:`MeshIndex.query` (``hints`` -1 for none, ``shrink = 1 / (1 + rel_error)^2``) and
-    ``near(q, anchor, faces, reach, *arrays, out_face, out_foot, out_dist, out_normal, rebuilt)``
-    :meth:`MeshIndex.query_near` (the lists updated in place), ``arrays`` those of
-    :meth:`MeshIndex.kernel_arrays`."""
-    if _nb is None:
-        return None
-    return _nb_query_serial, _nb_near_serial
-
-
-def kernels_cached(kernels=None) -> bool | None:
-    """Whether numba's on-disk cache holds the given compiled functions (default: every
-    closest-point kernel) for their current source (None: cannot tell, numba's cache layout
-    being private)."""
-    try:
-        return all(bool(k._cache._cache_file._load_index()) for k in (kernels or _KERNELS))
-    except Exception:  # pragma: no cover - depends on numba's internals
-        return None
-
-
-def compile_kernels(announce=True) -> float:
-    """Compile (or load from numba's cache) every closest-point kernel now, and return the
-    seconds it took.
-
-    Numba compiles the kernels on their first call and caches them on disk (``cache=True``),
-    so only the first run of an installation pays the compilation (see
-    ``benchmarks/results_speed.md`` for the time measured; loading the cache takes well under
-    a second). :class:`MeshIndex` calls this on the
-    first index a process builds; with ``announce`` it says on stderr that it is compiling
-    when the cache does not hold the kernels (``twin warmup`` calls it at install time).
-    """
-    global _compiled
-    if _nb is None or _compiled:
-        return 0.0
-    import sys
-    import time
-
-    t0 = time.perf_counter()
-    if announce and kernels_cached() is False:
-        print("compiling closest-point kernels, first run only ...", file=sys.stderr, flush=True)
-    _compiled = True
-    # one tetrahedron and one point: every kernel in the argument types of real calls
-    vertices = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
-
-    class _Tet:
-        pass
-
-    tet = _Tet()
-    tet.vertices, tet.faces = vertices, faces  # type: ignore[attr-defined]
-    index = MeshIndex(tet, backend="numba")
-    q = np.array([[0.2, 0.2, 0.2], [2.0, 2.0, 2.0]])
-    index._query_numba(q, None)
-    index._query_near_numba(q, None)
-    return time.perf_counter() - t0
-
-
-def _in_chunks(run, n: int) -> None:
-    """run(a, b) over [0, n): in one call below PARALLEL_MIN_POINTS, else in one chunk per core on
-    threads (the compiled kernels release the GIL). Threads over a serial kernel instead of
-    numba's parallel=True: the same speed here, and half the first-run compilation time."""
-    workers = min(_pool_size(), -(-n // PARALLEL_MIN_POINTS))
-    if workers <= 1:
-        run(0, n)
-        return
-    bounds = np.linspace(0, n, workers + 1).astype(int)
-    list(_pool().map(lambda k: run(bounds[k], bounds[k + 1]), range(workers)))
-
-
-def _pool_size() -> int:
-    import os
-
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
-_POOL = None
-
-
-def _pool():
-    global _POOL
-    if _POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=_pool_size(), thread_name_prefix="mesh_index")
-    return _POOL
-
-
 class MeshIndex:
     """A spatial index over a triangle mesh for exact closest-point queries.
 
@@ -308,105 +192,63 @@ class MeshIndex:
             (F, 3)), in the frame the queries will be given in.
         backend: ``"auto"`` (compiled BVH search when numba is installed, else numpy),
             ``"numba"`` or ``"numpy"``. Both are exact and give the same feet and
-            distances; numba is 10-50x faster.
+            distances; numba is much faster.
 
     Raises:
         AlgorithmError: no faces, non-finite vertices, face indices out of range, or an
             unknown/unavailable backend.
     """
 
-    def __init__(self, mesh, backend: str = "auto"):
-        if backend not in ("auto", "numba", "numpy"):
-            raise AlgorithmError(f"backend must be 'auto', 'numba' or 'numpy', got {backend!r}")
-        if backend == "numba" and _nb is None:
-            raise AlgorithmError("backend 'numba' requested but numba is not installed (pip install numba)")
-        if backend == "auto":
-            backend = "numba" if _nb is not None else "numpy"
-        self.backend = backend
-        try:
-            vertices = np.asarray(mesh.vertices, dtype=np.float64)
-            faces = np.asarray(mesh.faces, dtype=np.int64)
-        except AttributeError as exc:  # pragma: no cover - message only
-            raise AlgorithmError(f"mesh must have vertices and faces, got {type(mesh).__name__}") from exc
-        if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
-            raise AlgorithmError(f"mesh must have at least one triangle face, got faces of shape {faces.shape}")
-        if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) < 3:
-            raise AlgorithmError(f"mesh vertices must be (V, 3) with V >= 3, got {vertices.shape}")
-        if not np.all(np.isfinite(vertices)):
-            raise AlgorithmError("mesh vertices contain NaN or infinite coordinates")
-        if faces.min() < 0 or faces.max() >= len(vertices):
-            raise AlgorithmError("mesh faces index vertices that do not exist")
+    def __init__(self, mesh: Any, backend: str = "auto") -> None:
+        self.backend = _backend_name(backend)
+        vertices, faces = _mesh_arrays(mesh)
         self.mesh = mesh
         self.vertices = vertices
         self.faces = faces
         tri = vertices[faces]
-        a = tri[:, 0]
-        ab = tri[:, 1] - a
-        ac = tri[:, 2] - a
-        cross = np.cross(ab, ac)
-        area2 = np.linalg.norm(cross, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            normals = cross / area2[:, None]
-        normals[~np.isfinite(normals).all(axis=1)] = 0.0
-        self.face_normals = normals
+        self._data, self.face_normals = face_table(tri)
         self.n_faces = len(faces)
-        # Per-face constants, packed so that one row gather fetches all a pair needs:
-        # columns a(3) ab(3) ac(3) |ab|^2 |ac|^2 ab.ac
-        self._data = np.empty((len(faces), 12))
-        self._data[:, 0:3] = a
-        self._data[:, 3:6] = ab
-        self._data[:, 6:9] = ac
-        self._data[:, 9] = np.einsum("ij,ij->i", ab, ab)
-        self._data[:, 10] = np.einsum("ij,ij->i", ac, ac)
-        self._data[:, 11] = np.einsum("ij,ij->i", ab, ac)
+        if self.backend == "numpy":
+            self._build_sample_tree(tri)
+        else:
+            compile_kernels()
+            self._bvh: Bvh = build_bvh(tri, self._data)
+        self.extent = float(np.linalg.norm(np.ptp(vertices, axis=0)))  # bounding-box diagonal [m]
+        # median edge length [m]: the scale below which a point's nearest faces stay its
+        # nearest faces (see query_near)
+        self.face_size = float(np.median(np.linalg.norm(self._data[:, 3:6], axis=1)))
+        self._smooth: FloatArray | None = None
+        self._pseudo: tuple[FloatArray, FloatArray] | None = None
 
-        # Sample points: centroids of an m x m subdivision of each face. Every point of a
-        # sub-triangle is within (its largest centroid-vertex distance) of its centroid, and
-        # all m^2 sub-triangles of a face are congruent (up to a point reflection), so the
-        # covering radius of face f is r_f / m_f with r_f that of the whole face.
+    def _build_sample_tree(self, tri: FloatArray) -> None:
+        """The numpy backend's KD-tree over sample points on the faces.
+
+        Every face gets the centroids of an ``m x m`` subdivision of it as samples, ``m`` chosen
+        so that every point of the face lies within ``radius`` of one of its samples. Every
+        point of a sub-triangle is within (its largest centroid-vertex distance) of its
+        centroid, and all m^2 sub-triangles of a face are congruent (up to a point reflection),
+        so the covering radius of face f is r_f / m_f with r_f that of the whole face.
+        """
         centroid = tri.mean(axis=1)
         r_face = np.linalg.norm(tri - centroid[:, None, :], axis=2).max(axis=1)
         positive = r_face[r_face > 0]
         target = np.percentile(positive, 90) if len(positive) else 1.0
         m = np.maximum(1, np.ceil(r_face / target - 1e-12)).astype(np.int64)
         m = np.minimum(m, 64)  # a huge face among tiny ones: cap the sample count
-        if self.backend == "numpy":
-            samples, sample_face = _subdivision_centroids(tri, m)
-            self.radius = float(np.max(r_face / m)) * (1.0 + 1e-9) + 1e-300
-            self._sample_face = sample_face
-            self._tree = cKDTree(samples, leafsize=16)
-            self.n_samples = len(samples)
-        else:
-            compile_kernels()
-            lo, hi, left, right, start, count, perm, up, leaf_of = _nb_build(
-                tri.min(axis=1), tri.max(axis=1), centroid, _BVH_LEAF)
-            inner = left >= 0
-            assert np.array_equal(right[inner], left[inner] + 1)  # siblings are adjacent
-            # The face constants in leaf order, so that a leaf's triangles are one contiguous
-            # block (``perm`` maps a leaf slot back to its face), and the nodes packed
-            # (see _pack_nodes).
-            self._bvh = (np.ascontiguousarray(self._data[perm]),
-                         *_pack_nodes(lo, hi, left, start, count, up, leaf_of, perm))
-        scale = np.ptp(vertices, axis=0)
-        self.extent = float(np.linalg.norm(scale))  # bounding-box diagonal [m]
-        # median edge length [m]: the scale below which a point's nearest faces stay its
-        # nearest faces (see query_near)
-        self.face_size = float(np.median(np.linalg.norm(ab, axis=1))) if len(ab) else 0.0
-        self._smooth: np.ndarray | None = None
-        self._pseudo: tuple | None = None
+        samples, sample_face = _subdivision_centroids(tri, m)
+        self.radius = float(np.max(r_face / m)) * (1.0 + 1e-9) + 1e-300
+        self._sample_face = sample_face
+        self._tree = cKDTree(samples, leafsize=16)
+        self.n_samples = len(samples)
 
-    def __setstate__(self, state):
-        """Unpickled (a worker process): the node records back in one aligned block (pickle
-        copies the two views of it apart)."""
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickled (a worker process): the node records back in one aligned block."""
         self.__dict__.update(state)
         if getattr(self, "_bvh", None) is not None:
-            leaf_data, _nodes_f, nodes_i, hint_map, perm = self._bvh
-            nodes_f, packed = _node_records(len(nodes_i))
-            packed[:] = nodes_i  # the whole records, boxes' bits included
-            self._bvh = (leaf_data, nodes_f, packed, hint_map, perm)
+            self._bvh = realign_nodes(self._bvh)
 
     # ------------------------------------------------------------------ queries
-    def query(self, points, hint=None, rel_error: float = 0.0) -> ClosestPoints:
+    def query(self, points: ArrayLike, hint: ArrayLike | None = None, rel_error: float = 0.0) -> ClosestPoints:
         """Exact (or, with ``rel_error``, nearly exact) closest points on the mesh.
 
         Args:
@@ -434,6 +276,19 @@ class MeshIndex:
             raise AlgorithmError(f"rel_error must be a finite number >= 0, got {rel_error}")
         if self.backend == "numba":
             return self._query_numba(q, hint, rel_error)
+        return self._finish(q, self._nearest_faces_numpy(q))
+
+    def _nearest_faces_numpy(self, q: FloatArray) -> IntArray:
+        """(N,) the nearest face of each point, by the KD-tree over the face samples.
+
+        The tree gives the ``k`` nearest samples; the exact distance to their faces gives
+        ``d_best``. Any face not among them has all its samples at least ``d_k`` (the k-th
+        neighbour distance) away, so its distance is at least ``d_k - radius``: where
+        ``d_k - radius >= d_best`` the answer is proven; the other points are asked again with
+        more neighbours and, at the last resort, with every sample within ``d_best + radius``
+        (a ball query). Exact in every case, not approximate.
+        """
+        n = len(q)
         workers = -1 if n >= PARALLEL_MIN_POINTS else 1
         best_d2 = np.full(n, np.inf)
         best_face = np.zeros(n, dtype=np.int64)
@@ -464,42 +319,32 @@ class MeshIndex:
                 break
         if len(pending):
             self._ball_stage(q, pending, best_d2, best_face, workers)
-        return self._finish(q, best_face)
+        return best_face
 
-    def _query_numba(self, q, hint, rel_error=0.0):
-        n = len(q)
+    def _face_hints(self, hint: ArrayLike | None, n: int) -> IntArray:
+        """(n,) the hint faces as the compiled search takes them: -1 for none or out of range."""
         if hint is None:
-            hints = np.full(n, -1, dtype=np.int64)
-        else:
-            hints = np.asarray(hint, dtype=np.int64).reshape(-1)
-            if hints.shape != (n,):
-                raise AlgorithmError(f"hint must be ({n},) face indices, got {hints.shape}")
-            hints = np.where((hints >= 0) & (hints < self.n_faces), hints, -1)
-        face = np.empty(n, dtype=np.int64)
-        foot = np.empty((n, 3))
-        dist = np.empty(n)
-        normal = np.empty((n, 3))
-        # writeable C arrays: the types the kernel was compiled (and cached) for
-        q = np.require(q, requirements=("C", "W"))
-        bvh = self._bvh
-        normals = self.face_normals
+            return np.full(n, -1, dtype=np.int64)
+        hints = np.asarray(hint, dtype=np.int64).reshape(-1)
+        if hints.shape != (n,):
+            raise AlgorithmError(f"hint must be ({n},) face indices, got {hints.shape}")
+        return np.where((hints >= 0) & (hints < self.n_faces), hints, -1)
 
-        def run(a, b):
-            _nb_query_serial(q[a:b], hints[a:b], self._data, *bvh, normals, face[a:b], foot[a:b],
-                             dist[a:b], normal[a:b], 1.0 / (1.0 + rel_error) ** 2)
-
-        _in_chunks(run, n)
+    def _query_numba(self, q: FloatArray, hint: ArrayLike | None, rel_error: float) -> ClosestPoints:
+        face, foot, dist, normal = closest_on_tree(q, self._face_hints(hint, len(q)), self._data, self._bvh,
+                                                   self.face_normals, rel_error)
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal, rel_error=rel_error)
 
-    def kernel_arrays(self) -> tuple:
+    def kernel_arrays(self) -> tuple[FloatArray, FloatArray, NDArray[np.float32], NDArray[np.int32],
+                                     NDArray[np.int32], IntArray, FloatArray]:
         """``(data, leaf_data, nodes_f, nodes_i, hint_map, perm, normals)``: the
-        arrays the compiled kernels of :func:`query_kernels` search, for compiled callers that
-        run their own loop of queries (numba backend only)."""
+        arrays the compiled kernels of :func:`~algorithms.geometry.bvh_kernels.query_kernels` search, for
+        compiled callers that run their own loop of queries (numba backend only)."""
         if self.backend != "numba":
             raise AlgorithmError("kernel_arrays needs the numba backend")
         return (self._data, *self._bvh, self.face_normals)
 
-    def query_near(self, points, near: NearFaces | None = None) -> tuple[ClosestPoints, NearFaces]:
+    def query_near(self, points: ArrayLike, near: NearFaces | None = None) -> tuple[ClosestPoints, NearFaces]:
         """Exact closest points, answered from each point's list of nearest faces where the
         list's certificate holds (see :class:`NearFaces`), from the tree elsewhere.
 
@@ -526,7 +371,7 @@ class MeshIndex:
             return self._query_near_numpy(q, near)
         return self._query_near_numba(q, near)
 
-    def _query_near_numpy(self, q, near):
+    def _query_near_numpy(self, q: FloatArray, near: NearFaces | None) -> tuple[ClosestPoints, NearFaces]:
         """The numpy backend keeps no lists: every query is a tree query."""
         n = len(q)
         cp = self.query(q)
@@ -536,27 +381,15 @@ class MeshIndex:
         near.n_rebuilt = n
         return cp, near
 
-    def _query_near_numba(self, q, near):
+    def _query_near_numba(self, q: FloatArray, near: NearFaces | None) -> tuple[ClosestPoints, NearFaces]:
         n = len(q)
         if near is None:
             near = NearFaces(anchor=np.zeros((n, 3)), faces=np.full((n, NEAR_K), -1, np.int64),
                              reach=np.full((n, NEAR_K), -np.inf))
         elif near.faces.shape[0] != n:
             raise AlgorithmError(f"near lists were made for {near.faces.shape[0]} points, got {n}")
-        face = np.empty(n, dtype=np.int64)
-        foot = np.empty((n, 3))
-        dist = np.empty(n)
-        normal = np.empty((n, 3))
-        rebuilt = np.zeros(n, dtype=np.uint8)
-        bvh = self._bvh
-        normals = self.face_normals
-
-        def run(a, b):
-            _nb_near_serial(q[a:b], near.anchor[a:b], near.faces[a:b], near.reach[a:b], self._data,
-                            *bvh, normals, face[a:b], foot[a:b], dist[a:b], normal[a:b], rebuilt[a:b])
-
-        _in_chunks(run, n)
-        near.n_rebuilt = int(rebuilt.sum())
+        face, foot, dist, normal, near.n_rebuilt = near_on_tree(
+            q, near.anchor, near.faces, near.reach, self._data, self._bvh, self.face_normals)
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=normal), near
 
     def _best_of(self, q, faces):
@@ -621,7 +454,7 @@ class MeshIndex:
         return ClosestPoints(foot=foot, distance=dist, face=face, normal=self.face_normals[face])
 
     # ------------------------------------------------------------ smooth normals
-    def smooth_normals(self, face: np.ndarray, foot: np.ndarray) -> np.ndarray:
+    def smooth_normals(self, face: ArrayLike, foot: ArrayLike) -> FloatArray:
         """Unit normals of the underlying smooth surface at feet on given faces.
 
         Per-corner normals are angle-weighted means of the normals of the faces around the
@@ -660,7 +493,7 @@ class MeshIndex:
         ok = np.isfinite(v) & np.isfinite(w)
         return np.where(ok, v, 0.0), np.where(ok, w, 0.0)
 
-    def signed_distance(self, points) -> np.ndarray:
+    def signed_distance(self, points: ArrayLike) -> FloatArray:
         """(N,) distance to the surface [m], negative inside the (closed) model.
 
         The sign is that of ``(point - foot) . pseudonormal`` with the angle-weighted
@@ -784,426 +617,30 @@ def _corner_normals(vertices, faces, face_normals, crease_deg: float = 30.0):
     return np.where(norm > 1e-300, out / np.maximum(norm, 1e-300), fallback)
 
 
-# ---------------------------------------------------------------------------------------
-# Compiled path (numba): a bounding-volume hierarchy over the triangles, searched per point
-# with best-first pruning. Same Ericson test, same regions, so the same answers as the
-# numpy path (ties between faces at equal distance may pick a different face).
-# ---------------------------------------------------------------------------------------
-_BVH_LEAF = 4
-_STACK = 128
+def _backend_name(backend: str) -> str:
+    """The backend an index uses: ``backend``, or for ``"auto"`` numba where installed."""
+    if backend not in ("auto", "numba", "numpy"):
+        raise AlgorithmError(f"backend must be 'auto', 'numba' or 'numpy', got {backend!r}")
+    if backend == "numba" and not HAVE_NUMBA:
+        raise AlgorithmError("backend 'numba' requested but numba is not installed (pip install numba)")
+    if backend == "auto":
+        return "numba" if HAVE_NUMBA else "numpy"
+    return backend
 
 
-def _node_records(n: int):
-    """(float32, int32) views of n new 32-byte records, 64-byte aligned: records 2k and
-    2k + 1 share a cache line."""
-    raw = np.zeros(n * 32 + 64, np.uint8)
-    off = (-raw.ctypes.data) % 64
-    buf = raw[off : off + n * 32]
-    return buf.view(np.float32).reshape(n, 8), buf.view(np.int32).reshape(n, 8)
-
-
-def _pack_nodes(lo, hi, left, start, count, up, leaf_of, perm):
-    """The tree's nodes in 32-byte records, two to a 64-byte cache line: a node and its
-    sibling share a line, so the hinted queries' walk from a leaf to the root (one sibling box
-    a level) reads one line a level instead of four rows of four arrays.
-
-    Record ``r`` (node ``r - 1`` of :func:`_nb_build`; record 0 unused, so that siblings are
-    the pairs ``(2k, 2k + 1)`` and a node's sibling is ``r ^ 1``; the root is record 1):
-    ``nodes_f[r, 0:6]`` the box (lower, upper corner) in float32, rounded outwards so that
-    the distance to it stays a lower bound; ``nodes_i[r, 6]`` the first child's record, or
-    for a leaf ``-(8 start + count) - 1`` (its slots in the leaf order); ``nodes_i[r, 7]`` the
-    parent's record (0 at the root). ``nodes_f`` and ``nodes_i`` are two views of the same
-    memory. ``hint_map[f]``: face f's slot in the leaf order and its leaf's record.
-
-    Returns (nodes_f, nodes_i, hint_map, perm)."""
-    n = len(lo)
-    if 8 * len(perm) + 8 >= 2**31:
-        raise AlgorithmError(f"meshes of up to {2**28 - 1} faces are supported, got {len(perm)}")
-    nodes_f, nodes_i = _node_records(n + 1)
-    lo32 = lo.astype(np.float32)
-    hi32 = hi.astype(np.float32)
-    lo32 = np.where(lo32.astype(np.float64) > lo, np.nextafter(lo32, np.float32(-np.inf)), lo32)
-    hi32 = np.where(hi32.astype(np.float64) < hi, np.nextafter(hi32, np.float32(np.inf)), hi32)
-    nodes_f[0, 0:3] = np.inf
-    nodes_f[0, 3:6] = -np.inf
-    nodes_f[1:, 0:3] = lo32
-    nodes_f[1:, 3:6] = hi32
-    nodes_i[1:, 6] = np.where(left >= 0, left + 1, -(8 * start + count) - 1)
-    nodes_i[1:, 7] = up + 1  # the root's -1 becomes 0
-    slot = np.empty(len(perm), np.int64)
-    slot[perm] = np.arange(len(perm))
-    hint_map = np.empty((len(perm), 2), np.int32)
-    hint_map[:, 0] = slot
-    hint_map[:, 1] = leaf_of + 1
-    return nodes_f, nodes_i, hint_map, perm
-
-if _nb is not None:
-
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_tri(px, py, pz, data, f):  # pragma: no cover - compiled
-        ax = data[f, 0]
-        ay = data[f, 1]
-        az = data[f, 2]
-        bx = data[f, 3]
-        by = data[f, 4]
-        bz = data[f, 5]
-        cx = data[f, 6]
-        cy = data[f, 7]
-        cz = data[f, 8]
-        apx = px - ax
-        apy = py - ay
-        apz = pz - az
-        d1 = bx * apx + by * apy + bz * apz
-        d2 = cx * apx + cy * apy + cz * apz
-        v = 0.0
-        w = 0.0
-        if d1 <= 0.0 and d2 <= 0.0:
-            pass
-        else:
-            d3 = d1 - data[f, 9]
-            d4 = d2 - data[f, 11]
-            if d3 >= 0.0 and d4 <= d3:
-                v = 1.0
-            else:
-                vc = d1 * d4 - d3 * d2
-                if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-                    v = d1 / (d1 - d3)
-                else:
-                    d5 = d1 - data[f, 11]
-                    d6 = d2 - data[f, 10]
-                    if d6 >= 0.0 and d5 <= d6:
-                        w = 1.0
-                    else:
-                        vb = d5 * d2 - d1 * d6
-                        if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-                            w = d2 / (d2 - d6)
-                        else:
-                            va = d3 * d6 - d5 * d4
-                            e43 = d4 - d3
-                            e56 = d5 - d6
-                            if va <= 0.0 and e43 >= 0.0 and e56 >= 0.0:
-                                t = e43 / (e43 + e56)
-                                v = 1.0 - t
-                                w = t
-                            else:
-                                den = va + vb + vc
-                                if den != 0.0:
-                                    v = vb / den
-                                    w = vc / den
-        ex = apx - v * bx - w * cx
-        ey = apy - v * by - w * cy
-        ez = apz - v * bz - w * cz
-        return ex * ex + ey * ey + ez * ez, v, w
-
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_box_d2(px, py, pz, nodes_f, r):  # pragma: no cover - compiled
-        dx = max(np.float64(nodes_f[r, 0]) - px, 0.0, px - np.float64(nodes_f[r, 3]))
-        dy = max(np.float64(nodes_f[r, 1]) - py, 0.0, py - np.float64(nodes_f[r, 4]))
-        dz = max(np.float64(nodes_f[r, 2]) - pz, 0.0, pz - np.float64(nodes_f[r, 5]))
-        return dx * dx + dy * dy + dz * dz
-
-    @_nb.njit(cache=True, nogil=True)
-    def _nb_build(tri_lo, tri_hi, cen, leaf):  # pragma: no cover - compiled
-        nf = cen.shape[0]
-        perm = np.arange(nf)
-        maxn = 2 * nf + 1
-        lo = np.empty((maxn, 3))
-        hi = np.empty((maxn, 3))
-        left = np.full(maxn, -1, np.int64)
-        right = np.full(maxn, -1, np.int64)
-        start = np.zeros(maxn, np.int64)
-        count = np.zeros(maxn, np.int64)
-        stack = np.empty(maxn, np.int64)
-        count[0] = nf
-        n_nodes = 1
-        sp = 1
-        stack[0] = 0
-        while sp > 0:
-            sp -= 1
-            node = stack[sp]
-            s = start[node]
-            c = count[node]
-            for k in range(3):
-                lo[node, k] = np.inf
-                hi[node, k] = -np.inf
-            clo = np.full(3, np.inf)
-            chi = np.full(3, -np.inf)
-            for j in range(s, s + c):
-                f = perm[j]
-                for k in range(3):
-                    lo[node, k] = min(lo[node, k], tri_lo[f, k])
-                    hi[node, k] = max(hi[node, k], tri_hi[f, k])
-                    clo[k] = min(clo[k], cen[f, k])
-                    chi[k] = max(chi[k], cen[f, k])
-            if c <= leaf:
-                continue
-            axis = 0
-            if chi[1] - clo[1] > chi[axis] - clo[axis]:
-                axis = 1
-            if chi[2] - clo[2] > chi[axis] - clo[axis]:
-                axis = 2
-            seg = perm[s : s + c].copy()
-            keys = np.empty(c)
-            for j in range(c):
-                keys[j] = cen[seg[j], axis]
-            order = np.argsort(keys)
-            for j in range(c):
-                perm[s + j] = seg[order[j]]
-            mid = c // 2
-            lft = n_nodes
-            rgt = n_nodes + 1
-            n_nodes += 2
-            start[lft] = s
-            count[lft] = mid
-            start[rgt] = s + mid
-            count[rgt] = c - mid
-            left[node] = lft
-            right[node] = rgt
-            stack[sp] = lft
-            stack[sp + 1] = rgt
-            sp += 2
-        up = np.full(n_nodes, -1, np.int64)
-        leaf_of = np.empty(nf, np.int64)
-        for node in range(n_nodes):
-            if left[node] >= 0:
-                up[left[node]] = node
-                up[right[node]] = node
-            else:
-                for j in range(start[node], start[node] + count[node]):
-                    leaf_of[perm[j]] = node
-        return (lo[:n_nodes].copy(), hi[:n_nodes].copy(), left[:n_nodes].copy(), right[:n_nodes].copy(),
-                start[:n_nodes].copy(), count[:n_nodes].copy(), perm, up, leaf_of)
-
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_descend(px, py, pz, root, best, bestj, leaf_data, nodes_f, nodes_i, stack, stack_lb,
-                    shrink):  # pragma: no cover - compiled
-        """Best-first search of the subtree at record ``root``; returns the improved (best,
-        slot)."""
-        stack[0] = root
-        stack_lb[0] = _nb_box_d2(px, py, pz, nodes_f, root)
-        sp = 1
-        while sp > 0:
-            sp -= 1
-            if stack_lb[sp] >= best * shrink:
-                continue
-            r = stack[sp]
-            c = nodes_i[r, 6]
-            if c < 0:
-                code = -c - 1
-                s = code >> 3
-                for j in range(s, s + (code & 7)):
-                    d2, _v, _w = _nb_tri(px, py, pz, leaf_data, j)
-                    if d2 < best:
-                        best = d2
-                        bestj = j
-            else:
-                dl = _nb_box_d2(px, py, pz, nodes_f, c)
-                dr = _nb_box_d2(px, py, pz, nodes_f, c + 1)
-                # push the farther child first so the nearer is searched first
-                if dl <= dr:
-                    if dr < best * shrink:
-                        stack[sp] = c + 1
-                        stack_lb[sp] = dr
-                        sp += 1
-                    if dl < best * shrink:
-                        stack[sp] = c
-                        stack_lb[sp] = dl
-                        sp += 1
-                else:
-                    if dl < best * shrink:
-                        stack[sp] = c
-                        stack_lb[sp] = dl
-                        sp += 1
-                    if dr < best * shrink:
-                        stack[sp] = c + 1
-                        stack_lb[sp] = dr
-                        sp += 1
-        return best, bestj
-
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_out(i, px, py, pz, tri, j, f, normals, out_face, out_foot, out_dist,
-                out_normal):  # pragma: no cover - compiled
-        """Write point i's answer: face f, whose constants are row j of tri (the face-order
-        or the leaf-order table)."""
-        d2, v, w = _nb_tri(px, py, pz, tri, j)
-        out_face[i] = f
-        out_dist[i] = np.sqrt(d2)
-        for k in range(3):
-            out_foot[i, k] = tri[j, k] + v * tri[j, 3 + k] + w * tri[j, 6 + k]
-            out_normal[i, k] = normals[f, k]
-
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_one(i, q, hints, leaf_data, nodes_f, nodes_i, hint_map, perm, normals, out_face, out_foot,
-                out_dist, out_normal, stack, stack_lb, shrink):  # pragma: no cover - compiled
-        px = q[i, 0]
-        py = q[i, 1]
-        pz = q[i, 2]
-        h = hints[i]
-        # Bottom-up from the hint's leaf: every subtree off the leaf-to-root path is the
-        # sibling of a node on it, so visiting each sibling (pruned by its box) is exact, and
-        # with the hint's distance as the bound most siblings cost one box test. Without a
-        # hint: the whole tree from the root. (One call site of _nb_descend: it is inlined.)
-        best = np.inf
-        bestj = -1
-        r = 1
-        if h >= 0:
-            bestj = hint_map[h, 0]
-            best, _v, _w = _nb_tri(px, py, pz, leaf_data, bestj)
-            r = hint_map[h, 1]
-        sub = r
-        while True:
-            if sub > 0:
-                best, bestj = _nb_descend(px, py, pz, sub, best, bestj, leaf_data, nodes_f, nodes_i,
-                                          stack, stack_lb, shrink)
-            if r == 1:
-                break
-            sib = r ^ 1
-            sub = sib if _nb_box_d2(px, py, pz, nodes_f, sib) < best * shrink else 0
-            r = nodes_i[r, 7]
-        _nb_out(i, px, py, pz, leaf_data, bestj, perm[bestj], normals, out_face, out_foot, out_dist,
-                out_normal)
-
-    @_nb.njit(cache=True, nogil=True)
-    def _nb_query_serial(q, hints, data, leaf_data, nodes_f, nodes_i, hint_map, perm, normals,
-                         out_face, out_foot, out_dist, out_normal, shrink):  # pragma: no cover
-        stack = np.empty(_STACK, np.int64)
-        stack_lb = np.empty(_STACK)
-        for i in range(q.shape[0]):
-            _nb_one(i, q, hints, leaf_data, nodes_f, nodes_i, hint_map, perm, normals, out_face, out_foot,
-                    out_dist, out_normal, stack, stack_lb, shrink)
-
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_descend_k(px, py, pz, root, kd2, kj, m, leaf_data, nodes_f, nodes_i, stack,
-                      stack_lb):  # pragma: no cover - compiled
-        """Best-first search of the subtree at record ``root`` for the K nearest faces:
-        ``kd2``/``kj`` (K,) hold the ``m`` nearest found so far (leaf slots), ascending; returns
-        the new ``m``."""
-        kk = kd2.shape[0]
-        stack[0] = root
-        stack_lb[0] = _nb_box_d2(px, py, pz, nodes_f, root)
-        sp = 1
-        while sp > 0:
-            sp -= 1
-            bnd = kd2[kk - 1] if m == kk else np.inf
-            if stack_lb[sp] >= bnd:
-                continue
-            r = stack[sp]
-            c = nodes_i[r, 6]
-            if c < 0:
-                code = -c - 1
-                s = code >> 3
-                for j in range(s, s + (code & 7)):
-                    d2, _v, _w = _nb_tri(px, py, pz, leaf_data, j)
-                    if m == kk and d2 >= kd2[kk - 1]:
-                        continue
-                    pos = m if m < kk else kk - 1
-                    while pos > 0 and kd2[pos - 1] > d2:
-                        kd2[pos] = kd2[pos - 1]
-                        kj[pos] = kj[pos - 1]
-                        pos -= 1
-                    kd2[pos] = d2
-                    kj[pos] = j
-                    if m < kk:
-                        m += 1
-            else:
-                dl = _nb_box_d2(px, py, pz, nodes_f, c)
-                dr = _nb_box_d2(px, py, pz, nodes_f, c + 1)
-                if dl <= dr:
-                    if dr < bnd:
-                        stack[sp] = c + 1
-                        stack_lb[sp] = dr
-                        sp += 1
-                    if dl < bnd:
-                        stack[sp] = c
-                        stack_lb[sp] = dl
-                        sp += 1
-                else:
-                    if dl < bnd:
-                        stack[sp] = c
-                        stack_lb[sp] = dl
-                        sp += 1
-                    if dr < bnd:
-                        stack[sp] = c + 1
-                        stack_lb[sp] = dr
-                        sp += 1
-        return m
-
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, nodes_f, nodes_i, hint_map, perm,
-                     normals, out_face, out_foot, out_dist, out_normal, rebuilt, kd2, kj,
-                     stack, stack_lb):  # pragma: no cover - compiled
-        px = q[i, 0]
-        py = q[i, 1]
-        pz = q[i, 2]
-        kk = faces.shape[1]
-        dx = px - anchor[i, 0]
-        dy = py - anchor[i, 1]
-        dz = pz - anchor[i, 2]
-        moved = np.sqrt(dx * dx + dy * dy + dz * dz)
-        best = np.inf
-        bestf = -1
-        certified = False
-        for j in range(kk):
-            f = faces[i, j]
-            if f < 0:
-                certified = bestf >= 0  # the list holds every face of the mesh
-                break
-            d2, _v, _w = _nb_tri(px, py, pz, data, f)
-            if d2 < best:
-                best = d2
-                bestf = f
-            slack = reach[i, j] - moved
-            if slack >= 0.0 and best <= slack * slack:
-                certified = True
-                break
-        tri = data  # certified: the list's face, from the face-order table
-        row = bestf
-        if not certified:
-            # the certificate fails: the K nearest faces here, from the tree (walking up from
-            # the list's best face when there is one, as in _nb_one; from the root otherwise)
-            m = 0
-            r = hint_map[bestf, 1] if bestf >= 0 else 1
-            sub = r
-            while True:  # as in _nb_one, with one call site
-                if sub > 0:
-                    m = _nb_descend_k(px, py, pz, sub, kd2, kj, m, leaf_data, nodes_f, nodes_i, stack,
-                                      stack_lb)
-                if r == 1:
-                    break
-                sib = r ^ 1
-                bnd = kd2[kk - 1] if m == kk else np.inf
-                sub = sib if _nb_box_d2(px, py, pz, nodes_f, sib) < bnd else 0
-                r = nodes_i[r, 7]
-            for j in range(kk):
-                if j >= m:
-                    faces[i, j] = -1
-                    reach[i, j] = np.inf
-                else:
-                    faces[i, j] = perm[kj[j]]
-                    if j + 1 < m:
-                        reach[i, j] = np.sqrt(kd2[j + 1])
-                    else:  # the last face of the list: the others are at least as far as it
-                        reach[i, j] = np.sqrt(kd2[j]) if m == kk else np.inf
-            anchor[i, 0] = px
-            anchor[i, 1] = py
-            anchor[i, 2] = pz
-            rebuilt[i] = 1
-            tri = leaf_data
-            row = kj[0]
-            bestf = faces[i, 0]
-        _nb_out(i, px, py, pz, tri, row, bestf, normals, out_face, out_foot, out_dist, out_normal)
-
-    @_nb.njit(cache=True, nogil=True)
-    def _nb_near_serial(q, anchor, faces, reach, data, leaf_data, nodes_f, nodes_i, hint_map, perm,
-                        normals, out_face, out_foot, out_dist, out_normal,
-                        rebuilt):  # pragma: no cover - compiled
-        stack = np.empty(_STACK, np.int64)
-        stack_lb = np.empty(_STACK)
-        kd2 = np.empty(faces.shape[1])
-        kj = np.empty(faces.shape[1], np.int64)
-        for i in range(q.shape[0]):
-            _nb_near_one(i, q, anchor, faces, reach, data, leaf_data, nodes_f, nodes_i, hint_map, perm,
-                         normals, out_face, out_foot, out_dist, out_normal, rebuilt, kd2, kj, stack,
-                         stack_lb)
-
-    _KERNELS = (_nb_build, _nb_query_serial, _nb_near_serial)
+def _mesh_arrays(mesh: Any) -> tuple[FloatArray, IntArray]:
+    """The mesh's (V, 3) float64 vertices and (F, 3) int64 faces, checked."""
+    try:
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        faces = np.asarray(mesh.faces, dtype=np.int64)
+    except AttributeError as exc:  # pragma: no cover - message only
+        raise AlgorithmError(f"mesh must have vertices and faces, got {type(mesh).__name__}") from exc
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise AlgorithmError(f"mesh must have at least one triangle face, got faces of shape {faces.shape}")
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) < 3:
+        raise AlgorithmError(f"mesh vertices must be (V, 3) with V >= 3, got {vertices.shape}")
+    if not np.all(np.isfinite(vertices)):
+        raise AlgorithmError("mesh vertices contain NaN or infinite coordinates")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise AlgorithmError("mesh faces index vertices that do not exist")
+    return vertices, faces

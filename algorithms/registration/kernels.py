@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from algorithms.geometry.mesh_index import query_kernels
+from algorithms.geometry.bvh_kernels import query_kernels
 from algorithms.registration.robust import MAD_TO_SIGMA
 
 _numba: ModuleType | None

@@ -108,13 +108,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from algorithms.errors import AlgorithmError
-from algorithms.geometry.mesh_index import (
-    PARALLEL_MIN_POINTS,
-    ClosestPoints,
-    MeshIndex,
-    NearFaces,
-    kernels_cached,
-)
+from algorithms.geometry.bvh_kernels import kernels_cached
+from algorithms.geometry.mesh_index import ClosestPoints, MeshIndex, NearFaces
+from algorithms.geometry.query_pool import PARALLEL_MIN_POINTS
 from algorithms.geometry.se3 import as_pose, exp_se3, hat, inv_pose, log_se3, make_pose
 from algorithms.registration.fit_check import poor_fit_reason, white_noise_sigma_m
 from algorithms.registration.inputs import (

@@ -15,7 +15,7 @@ import json
 
 import numpy as np
 
-from algorithms.geometry.mesh_index import HAVE_NUMBA, compile_kernels, kernels_cached
+from algorithms.geometry.bvh_kernels import HAVE_NUMBA, compile_kernels, kernels_cached
 
 
 def add_parser(sub) -> None:
