@@ -345,15 +345,22 @@ def localize_hybrid(
     _check_options(symmetric, stock_m, max_iterations)
     T_init = as_pose(init, name="init") if init is not None else None
     index = index if index is not None else MeshIndex(mesh)
-
     # 1. the finished points fix the pose on SE(3)/G_0 (Algorithm 2)
     sym = localize_symmetric(finished_points, mesh, symmetric=symmetric, init=T_init, sigma=sigma,
                              outlier=outlier, index=index, discrete=False)
+    # 2. the rough points place it along G_0 (the max-min, then Algorithm 3)
     problem = _RoughProblem.build(Z, delta, sym.free_directions, sym.T_world_workpiece, index)
-    # 2. the best achievable minimum margin over G_0, then Algorithm 3 from there when feasible
+    return _algorithm3(problem, sym, finished_points, labels, stock_m, max_iterations, tolerance, t0)
+
+
+def _algorithm3(problem: _RoughProblem, sym: SymmetricResult, finished_points: ArrayLike, labels: np.ndarray,
+                stock_m: float | None, max_iterations: int, tolerance: float, t0: float) -> HybridResult:
+    """The best achievable minimum margin over G_0, then Algorithm 3 from there when it is
+    not negative; ``t0``: the call's start (perf_counter) [s]."""
+    delta = problem.delta
     max_min = _max_min(problem, problem.at(sym.T_world_workpiece), max_iterations)
     best, limiting = _limiting_points(max_min.placement, delta, problem.size)
-    _refuse_points_inside(max_min.placement.d, stock_m, len(Z))
+    _refuse_points_inside(max_min.placement.d, stock_m, len(delta))
     feasible = best >= 0.0
     if feasible:
         final = _envelope(problem, max_min.placement, max_iterations, tolerance)
@@ -370,7 +377,7 @@ def localize_hybrid(
         converged=converged,
         status=_status(feasible, converged, sym, free_dirs),
         message=summary + f"; finished features: {sym.group.describe()}",
-        rmse_m=_finished_rmse(finished_points, sym, T_out, index),
+        rmse_m=_finished_rmse(finished_points, sym, T_out, problem.index),
         iterations=max_min.iterations + final.iterations,
         history=final.history,
         inliers=sym.inliers,

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -246,13 +248,11 @@ def global_localize(
         mesh: the CAD model (``trimesh.Trimesh``) in the workpiece frame [m]; may be None when
             ``index`` is given.
         method: ``"multistart"`` | ``"genetic"`` | ``"pso"``.
-        rng: random generator (perturbations, GA, PSO, subsets); default
-            ``np.random.default_rng(0)`` so that a call is reproducible.
+        rng: random generator (perturbations, GA, PSO, subsets); default ``default_rng(0)``.
         index: a prebuilt :class:`algorithms.geometry.mesh_index.MeshIndex` of ``mesh``.
-        noise_sigma_m: measurement noise sigma [m] along the normals. Sets Algorithm 5's
-            ``delta2``, the perturbations and the residual check (the POOR_FIT verdict). None:
-            estimated from the best fit (the residual check then cannot reject the best pose;
-            ambiguity is still tested).
+        noise_sigma_m: measurement noise sigma [m] along the normals: Algorithm 5's ``delta2``,
+            the perturbations and the residual check (POOR_FIT). None: estimated from the best
+            fit (the residual check then cannot reject it; ambiguity is still tested).
         model_error_m: allowance for model error (tessellation, form) [m], added in
             quadrature to sigma in the residual and ambiguity tests.
         polish: local method of :func:`algorithms.registration.local.localize` applied to the
@@ -260,24 +260,22 @@ def global_localize(
         outlier: the outlier rule of the polish and the GA's fine stage: ``"mad"`` (default),
             a distance [m] or None (see :mod:`algorithms.registration.robust`).
         start_table: multistart start orientations (see :func:`orientation_table`).
-        stop_at_first: document 000's literal rule: stop at the first start passing all
-            tests (no second-best comparison from the other starts).
+        stop_at_first: document 000's literal rule: stop at the first start passing all tests.
         n_coarse: points used in the coarse phases (farthest-point subset).
         n_verify: points used to refine and compare candidate minima (random subset).
         max_candidates: distinct coarse minima refined with exact closest points.
         ga_bits, ga_mutation, ga_population, ga_generations: GA settings (defaults: the
             document's 100 / 100 and our 10 bits, per-bit mutation).
-        ga_restarts: at most this many GA runs; a run is accepted when a short exact descent
-            from its pose leaves an RMS residual within 2 sigma_eff (needs ``noise_sigma_m``;
-            without it one run is made). One run is the document's algorithm.
+        ga_restarts: at most this many GA runs, until one passes Algorithm 5's acceptance (needs
+            ``noise_sigma_m``; without it one run, the document's algorithm).
         pso_particles, pso_iterations: PSO settings (defaults: the patent's 40 / 100).
         pso_rotation_range_rad, pso_translation_range_m: PSO search range around the coarse
             pre-registration (defaults 5 degrees and 2 % of the model's size).
         pso_fitness: ``"exact"`` (patent: nearest model points) or ``"field"`` (coarse field).
 
     Returns:
-        GlobalLocalizationResult: ``status`` OK (one pose the noise explains), AMBIGUOUS
-        (``solutions`` holds every equally good pose), UNOBSERVABLE, POOR_FIT or FAILED.
+        GlobalLocalizationResult: ``status`` OK, AMBIGUOUS (``solutions``: every equally good
+        pose), UNOBSERVABLE, POOR_FIT, NOT_CONVERGED (the polish) or FAILED.
 
     Raises:
         AlgorithmError: bad points, units, options or an unknown method.
@@ -289,14 +287,9 @@ def global_localize(
     rng = _checked_rng(rng)
     index = mesh_index(mesh, index)
     opts = _checked_options(
-        method, noise_sigma_m=noise_sigma_m, model_error_m=model_error_m, polish=polish, outlier=outlier,
-        start_table=start_table, stop_at_first=stop_at_first, n_coarse=n_coarse, n_verify=n_verify,
-        max_candidates=max_candidates,
-        ga=GASettings(bits=ga_bits, mutation=ga_mutation, population=ga_population, generations=ga_generations,
-                      restarts=ga_restarts),
-        pso=PSOSettings(rotation_range_rad=pso_rotation_range_rad, translation_range_m=pso_translation_range_m,
-                        particles=pso_particles, iterations=pso_iterations, fitness=pso_fitness),
-    )
+        method, noise_sigma_m, model_error_m, polish, outlier, start_table, stop_at_first, n_coarse, n_verify,
+        max_candidates, GASettings(ga_bits, ga_mutation, ga_population, ga_generations, ga_restarts),
+        PSOSettings(pso_rotation_range_rad, pso_translation_range_m, pso_particles, pso_iterations, pso_fitness))
     R0 = orientation_table(start_table)
     y = P[rows]
     check_units(y, index)
@@ -304,28 +297,28 @@ def global_localize(
     pts = _subsets(P, rows, y, opts, rng, model.extent)
     noise = _noise(noise_sigma_m, model_error_m)
     timings: dict[str, float] = {}
-
     search = _search(opts, model, pts, noise, R0, rng, timings)
-    t = time.perf_counter()
-    refined_T, refined_eps = refine_candidates(model.exact, pts.y_v, search.primary, search.coarse.lanes,
-                                               model.extent, opts.max_candidates, pts.L)
-    timings["refine_s"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    T_best = search.primary if search.primary is not None else refined_T[int(np.argmin(refined_eps))]
-    res = localize_checked(pts.y, model.index, opts.polish or DEFAULT_POLISH, T_best, sigma=noise.sigma_local,
-                           outlier_cfg=opts.outlier_cfg, max_iterations=None if opts.polish is not None else 1,
-                           rows=pts.rows, n_input=len(pts.P), t_start=t0)
-    T_final = res.T_world_workpiece if opts.polish is not None else T_best
-    timings["polish_s"] = time.perf_counter() - t
-
+    with _stopwatch(timings, "refine_s"):
+        refined_T, refined_eps = refine_candidates(model.exact, pts.y_v, search.primary, search.coarse.lanes,
+                                                   model.extent, opts.max_candidates, pts.L)
+    with _stopwatch(timings, "polish_s"):
+        T_best = search.primary if search.primary is not None else refined_T[int(np.argmin(refined_eps))]
+        res, T_final = _polish(opts, model, pts, noise, T_best, t0)
     verdict = _verify_on_inliers(opts, model, pts, noise, res, T_final, refined_T, refined_eps)
-    diagnostics = _diagnostics(opts, model, pts, noise, search, res, verdict, timings)
     status, message = _final_status(opts.polish, res, verdict)
     base = {f.name: getattr(res, f.name) for f in fields(RegistrationResult)}
     base.update(T_world_workpiece=T_final, method=method, status=status, message=message,
                 solutions=verdict.solutions, time_s=time.perf_counter() - t0)
-    return GlobalLocalizationResult(**base, candidates=verdict.candidates, diagnostics=diagnostics)
+    return GlobalLocalizationResult(**base, candidates=verdict.candidates,
+                                    diagnostics=_diagnostics(opts, model, pts, noise, search, res, verdict, timings))
+
+
+@contextmanager
+def _stopwatch(timings: dict[str, float], key: str) -> Iterator[None]:
+    """``timings[key]``: the wall time of the block [s]."""
+    t = time.perf_counter()
+    yield
+    timings[key] = time.perf_counter() - t
 
 
 def _checked_rng(rng: np.random.Generator | None) -> np.random.Generator:
@@ -336,7 +329,7 @@ def _checked_rng(rng: np.random.Generator | None) -> np.random.Generator:
     return rng
 
 
-def _checked_options(method: str, *, noise_sigma_m: float | None, model_error_m: float, polish: str | None,
+def _checked_options(method: str, noise_sigma_m: float | None, model_error_m: float, polish: str | None,
                      outlier: OutlierConfig, start_table: StartTable, stop_at_first: bool, n_coarse: int,
                      n_verify: int, max_candidates: int, ga: GASettings, pso: PSOSettings) -> _Options:
     """Refuse bad options (in this order), with what is allowed."""
@@ -428,6 +421,16 @@ def _search(opts: _Options, model: _Model, pts: _Points, noise: _Noise, R0: Floa
         timings.update(more)
         return _Search(coarse, primary, None, pso_diag)
     return _Search(coarse, None, None, None)
+
+
+def _polish(opts: _Options, model: _Model, pts: _Points, noise: _Noise, T_best: Pose,
+            t0: float) -> tuple[RegistrationResult, Pose]:
+    """The local method from ``T_best`` on every point (without ``polish``: one step, for the
+    inliers and the directions; the pose stays ``T_best``). Returns (its result, the pose)."""
+    res = localize_checked(pts.y, model.index, opts.polish or DEFAULT_POLISH, T_best, sigma=noise.sigma_local,
+                           outlier_cfg=opts.outlier_cfg, max_iterations=None if opts.polish is not None else 1,
+                           rows=pts.rows, n_input=len(pts.P), t_start=t0)
+    return res, res.T_world_workpiece if opts.polish is not None else T_best
 
 
 def _verify_on_inliers(opts: _Options, model: _Model, pts: _Points, noise: _Noise, res: RegistrationResult,
