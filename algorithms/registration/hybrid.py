@@ -31,11 +31,12 @@ What the document leaves open, and the choices made here:
   ``d_i - A_i lambda - delta_i >= t``); where the LP sees no gain (the smallest margins flat
   to first order: rough points over finished faces parallel to ``G_0``'s motions) compass
   steps along each direction, from the trust region's size down to ``COMPASS_MIN_REL`` of the
-  rough points' size, are tried before a maximum is declared. When it is negative no pose along ``G_0`` gives every
-  rough point its allowance: the result says so (``feasible = False``), its pose is the
-  max-min placement (the best achievable), and ``limiting_points`` names the points that
-  hold the margin down (within ``LIMIT_TOL_REL`` of the size of the rough-point set of the
-  minimum). When it is not negative, Algorithm 3 starts from there.
+  rough points' size, are tried before a maximum is declared. When it is negative no pose
+  along ``G_0`` gives every rough point its allowance: the result says so
+  (``feasible = False``), its pose is the max-min placement (the best achievable), and
+  ``limiting_points`` names the points that hold the margin down (within ``LIMIT_TOL_REL``
+  of the size of the rough-point set of the minimum). When it is not negative, Algorithm 3
+  starts from there.
 * A rough point that even at the max-min placement lies inside the finished model by more
   than the stock (``stock_m``, default the 10th percentile of the rough points' signed
   distances there: the thin end of the stock) is not on a rough surface (a finished-surface
@@ -261,7 +262,8 @@ class _RoughProblem:
     def lp(self, c: FloatArray, A_ub: FloatArray | None, b_ub: FloatArray | None,
            bounds: list[tuple[float | None, float | None]]) -> FloatArray | None:
         """scipy's HiGHS on ``min c x  s.t.  A_ub x <= b_ub``, x in bounds; None when it fails."""
-        from scipy.optimize import linprog  # imported here: scipy.optimize costs 0.1 s to import
+        # imported here: importing the package need not load scipy.optimize
+        from scipy.optimize import linprog
 
         self.lp_solves += 1
         res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")

@@ -13,13 +13,15 @@ the start is abandoned ("go to the next initial pose").
 
 Readings and choices:
 
-* The start table. The original prints "alpha0, beta0 in {30, -30, 90, -90, 150, -150}
-  degrees -> 36 groups", while its prose says every orientation is within Algorithm 1's
-  45 degree convergence radius of a start. Read as printed (``R0 = Rz(alpha0) Ry(beta0)``,
-  ``start_table="liu2001"``) the 36 rotations leave parts of SO(3) far beyond 45 degrees
-  from every start (``benchmarks/results_global_search.md``). The default ``"icosahedral"``
-  uses the 60 rotations of the icosahedral group (covering radius 44.3 degrees), which is
-  what the document's argument needs. A ``(K, 3, 3)`` array of rotations may be passed too.
+* The start table. The original gives "alpha0, beta0 in {30, -30, 90, -90, 150, -150}
+  degrees -> 36 groups g0(p0, alpha0, beta0, gamma0)", while its prose says alpha0 and
+  gamma0 vary at 30 degree granularity and beta0 is assumed known within 45 degrees. Read
+  as printed (``R0 = Rz(alpha0) Ry(beta0)``, gamma0 = 0; ``start_table="liu2001"``), the 36
+  rotations leave parts of SO(3) far more than 45 degrees from every start
+  (``benchmarks/results_global_search.md``): they do not honour the document's premise that
+  Algorithm 1 converges from within 45 degrees. The default ``"icosahedral"`` uses the 60
+  rotations of the icosahedral group (covering radius 44.3 degrees), which is what the
+  document's argument needs. A ``(K, 3, 3)`` array of rotations may be passed too.
   When ``noise_sigma_m`` is known and no icosahedral start passes the tests, a second round
   runs from the same 60 rotations turned by ``SECOND_ROUND_ROTVEC``.
 * ``eps`` is the document's ``sum ||g^-1 y_i - x_i||^2`` (squared distance to the foot).

@@ -8,17 +8,16 @@ or translation by more than 1 % of the part's size, refined with exact closest p
 same points): a distinct pose whose residual is lower by more than the noise can explain
 means the search ended in a local minimum (``Status.FAILED``); a best pose whose residual the
 noise cannot explain is a poor fit (``Status.POOR_FIT``: points of another part, or no start
-reached the pose); one that is statistically
-indistinguishable (``|eps_2 - eps_1| <= 2 chi2_0.999(6) sigma_eff^2``, about 45
-sigma_eff^2) makes the result *ambiguous* (``Status.AMBIGUOUS``): ``solutions`` lists the
-equally good poses. A symmetric or near-symmetric part is therefore never reported as a
-confident unique success.
+reached the pose); one that is statistically indistinguishable
+(``|eps_2 - eps_1| <= 2 chi2_0.999(6) sigma_eff^2``, about 45 sigma_eff^2) makes the result
+*ambiguous* (``Status.AMBIGUOUS``): ``solutions`` lists the equally good poses. A symmetric
+or near-symmetric part is therefore never reported as a confident unique success.
 
 The distinct solutions come from the multistart's coarse minima (for ``"genetic"`` and
 ``"pso"`` too: the coarse multistart phase runs for them as pre-registration or as this
-check), at most ``max_candidates`` of them, refined on ``n_verify`` points (screened: a candidate
-still in a clearly worse basin after SCREEN_ITERATIONS steps is not refined further). Besides, every
-rigid motion ``S`` that maps the model onto itself
+check), at most ``max_candidates`` of them, refined on ``n_verify`` points (screened: a
+candidate still in a clearly worse basin after SCREEN_ITERATIONS steps is not refined
+further). Besides, every rigid motion ``S`` that maps the model onto itself
 (:func:`algorithms.registration.symmetric.model_symmetries`: a cube's 24 rotations, a block's
 half turns) gives the pose ``T S``, which fits any points exactly as well as ``T``: those
 poses join ``solutions`` (when their residual on the verification points agrees), so a part
