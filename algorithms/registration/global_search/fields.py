@@ -43,7 +43,7 @@ class CoarseField:
     it is only used for the coarse phases, never for a reported pose.
     """
 
-    def __init__(self, mesh: Any, cells_per_extent: int = 64, pad_frac: float = 0.6):
+    def __init__(self, mesh: Any, cells_per_extent: int = 64, pad_frac: float = 0.6) -> None:
         # imported here: only a search's first call on a mesh builds a field
         import trimesh
         from scipy import ndimage
@@ -98,7 +98,7 @@ class ExactOracle:
 
     tangent_tol = 0.0
 
-    def __init__(self, index: Any):
+    def __init__(self, index: Any) -> None:
         self.index = index
 
     def closest(self, x: FloatArray, hint: IntArray | None = None) -> tuple[FloatArray, FloatArray, IntArray]:

@@ -79,7 +79,7 @@ class _SwarmFitness:
     """Particles ``[omega, t]`` (P, 6) to motions ``Delta`` about the points' centroid ``c``
     (initial model frame) and their fitness ``sum ||Delta^-1 z_i - P_i||^2`` [m^2]."""
 
-    def __init__(self, oracle: NearestSurface, z: FloatArray):
+    def __init__(self, oracle: NearestSurface, z: FloatArray) -> None:
         self.oracle = oracle
         self.z = z  # (n, 3) [m] the points in the initial model frame
         self.c = z.mean(axis=0)
