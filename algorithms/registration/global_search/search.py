@@ -403,11 +403,10 @@ def _search(opts: _Options, model: _Model, pts: _Points, noise: _Noise, R0: Floa
     """Algorithm 5's coarse phase, then the genetic or swarm stage when asked (``timings`` [s]
     gets each stage's wall time)."""
     problem = _coarse_problem(model, pts, noise)
-    t = time.perf_counter()
-    coarse = multistart_stage(problem, R0, opts.start_table, rng,
-                              stop_at_first=opts.stop_at_first and opts.method == "multistart",
-                              sigma_known=noise.sigma_known)
-    timings["coarse_multistart_s"] = time.perf_counter() - t
+    with _stopwatch(timings, "coarse_multistart_s"):
+        coarse = multistart_stage(problem, R0, opts.start_table, rng,
+                                  stop_at_first=opts.stop_at_first and opts.method == "multistart",
+                                  sigma_known=noise.sigma_known)
     if opts.method == "genetic":
         primary, ga_diag, more = genetic_stage(problem, model.exact, model.index, model.mesh, rng,
                                                sigma=noise.sigma_local, sig_eff=noise.sig_eff,
