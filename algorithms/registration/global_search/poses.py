@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from algorithms.arraytypes import FloatArray
+
 __all__ = ["apply_model_motion", "make_poses", "rotvec_to_matrix", "to_model"]
 
 
-def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+def rotvec_to_matrix(w: FloatArray) -> FloatArray:
     """(B, 3) rotation vectors -> (B, 3, 3) rotations (Rodrigues)."""
     th = np.linalg.norm(w, axis=1)
     small = th < 1e-12
@@ -36,13 +38,14 @@ def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
     return R
 
 
-def to_model(T: np.ndarray, y: np.ndarray) -> np.ndarray:
+def to_model(T: FloatArray, y: FloatArray) -> FloatArray:
     """Points y (N, 3) [world] into the model frames of poses T (B, 4, 4) -> (B, N, 3)."""
     return (y[None, :, :] - T[:, None, :3, 3]) @ T[:, :3, :3]
 
 
-def apply_model_motion(T: np.ndarray, Rd: np.ndarray, c: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """New poses when model-frame points move by ``x' = Rd (x - c) + c + v``.
+def apply_model_motion(T: FloatArray, Rd: FloatArray, c: FloatArray, v: FloatArray) -> FloatArray:
+    """New poses (B, 4, 4) when model-frame points move by ``x' = Rd (x - c) + c + v``
+    (Rd (B, 3, 3), c and v (B, 3) [m]).
 
     ``x = T^-1 y``, so the new ``T^-1 = M T^-1`` and ``T_new = T M^-1``.
     """
@@ -55,7 +58,8 @@ def apply_model_motion(T: np.ndarray, Rd: np.ndarray, c: np.ndarray, v: np.ndarr
     return T @ Minv
 
 
-def make_poses(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+def make_poses(R: FloatArray, p: FloatArray) -> FloatArray:
+    """(B, 3, 3) rotations and (B, 3) translations -> (B, 4, 4) poses."""
     T = np.tile(np.eye(4), (len(R), 1, 1))
     T[:, :3, :3] = R
     T[:, :3, 3] = p

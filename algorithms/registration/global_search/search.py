@@ -23,33 +23,47 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray, IntArray, Pose
 from algorithms.errors import AlgorithmError
-from algorithms.registration.global_search.fields import ExactOracle, coarse_field
+from algorithms.registration.global_search.fields import CoarseField, ExactOracle, coarse_field
 from algorithms.registration.global_search.genetic import (
     GA_BITS,
     GA_GENERATIONS,
     GA_POPULATION,
+    GASettings,
     GeneticDiagnostics,
     genetic_stage,
 )
 from algorithms.registration.global_search.multistart import (
     FIELD_FLOOR_FACTOR,
     NOISE_ACCEPT_FACTOR,
+    CoarseProblem,
+    MultistartOutcome,
+    StartTable,
     farthest_point_subset,
     model_centroid,
     multistart_stage,
     orientation_table,
 )
-from algorithms.registration.global_search.pso import PSO_ITERATIONS, PSO_PARTICLES, PSODiagnostics, pso_stage
-from algorithms.registration.global_search.verify import refine, refine_candidates, symmetries_of, verify
+from algorithms.registration.global_search.pso import (
+    PSO_ITERATIONS,
+    PSO_PARTICLES,
+    PSODiagnostics,
+    PSOSettings,
+    pso_stage,
+)
+from algorithms.registration.global_search.verify import Verdict, refine, refine_candidates, symmetries_of, verify
 from algorithms.registration.inputs import check_units, finite_rows, mesh_index
 from algorithms.registration.local import METHODS, localize_checked
 from algorithms.registration.result import RegistrationResult, Status
-from algorithms.registration.robust import outlier_config
+from algorithms.registration.robust import OutlierConfig, outlier_config
 
 __all__ = [
     "pso_refine",
@@ -127,7 +141,7 @@ class GlobalLocalizationResult(RegistrationResult):
     ``history``, the covariance and the directions are those of the final polish.
     """
 
-    candidates: tuple = ()
+    candidates: tuple[tuple[Pose, float], ...] = ()
     diagnostics: GlobalDiagnostics
 
     @property
@@ -136,18 +150,79 @@ class GlobalLocalizationResult(RegistrationResult):
         return self.status is Status.AMBIGUOUS
 
 
+@dataclass(frozen=True)
+class _Options:
+    """The checked options of a call."""
+
+    method: str
+    polish: str | None
+    outlier_cfg: OutlierConfig
+    model_error_m: float
+    start_table: StartTable
+    stop_at_first: bool
+    n_coarse: int
+    n_verify: int
+    max_candidates: int
+    ga: GASettings
+    pso: PSOSettings
+
+
+@dataclass(frozen=True)
+class _Model:
+    """The CAD model and its nearest-surface oracles."""
+
+    index: Any  # MeshIndex
+    mesh: Any  # trimesh.Trimesh, workpiece frame [m]
+    extent: float  # [m]
+    c_model: FloatArray  # (3,) [m] area centroid, workpiece frame
+    field: CoarseField
+    exact: ExactOracle
+
+
+@dataclass(frozen=True)
+class _Points:
+    """The measured points and their subsets (world frame, metres)."""
+
+    P: FloatArray  # (N_in, 3) the rows as given
+    rows: IntArray  # indices of the finite rows
+    y: FloatArray  # (N, 3) the finite points
+    y_c: FloatArray  # (n_coarse, 3) farthest-point subset of the coarse phases
+    idx_v: IntArray  # indices into y of the verification subset
+    y_v: FloatArray  # (n_verify, 3) the verification subset
+    L: float  # characteristic length [m]: RMS distance of y_c from its centroid
+
+
+@dataclass(frozen=True)
+class _Noise:
+    """The noise model of the tests."""
+
+    sigma_known: bool  # noise_sigma_m was given
+    sigma_local: float | None  # sigma of the local fits (0, exact data, counts as none)
+    sig_eff: float | None  # [m] sqrt(sigma^2 + model_error^2); None: estimated in the verification
+
+
+@dataclass(frozen=True)
+class _Search:
+    """What the method's search found before the exact refinement."""
+
+    coarse: MultistartOutcome  # Algorithm 5's coarse phase (every method runs it)
+    primary: Pose | None  # the genetic or swarm result (None for the multistart)
+    genetic: GeneticDiagnostics | None
+    pso: PSODiagnostics | None
+
+
 def global_localize(
-    points,
-    mesh=None,
+    points: ArrayLike,
+    mesh: Any = None,
     method: str = "multistart",
     *,
     rng: np.random.Generator | None = None,
-    index=None,
+    index: Any = None,
     noise_sigma_m: float | None = None,
     model_error_m: float = DEFAULT_MODEL_ERROR_M,
     polish: str | None = DEFAULT_POLISH,
-    outlier="mad",
-    start_table="icosahedral",
+    outlier: OutlierConfig = "mad",
+    start_table: StartTable = "icosahedral",
     stop_at_first: bool = False,
     n_coarse: int = 150,
     n_verify: int = 400,
@@ -173,13 +248,11 @@ def global_localize(
         mesh: the CAD model (``trimesh.Trimesh``) in the workpiece frame [m]; may be None when
             ``index`` is given.
         method: ``"multistart"`` | ``"genetic"`` | ``"pso"``.
-        rng: random generator (perturbations, GA, PSO, subsets); default
-            ``np.random.default_rng(0)`` so that a call is reproducible.
+        rng: random generator (perturbations, GA, PSO, subsets); default ``default_rng(0)``.
         index: a prebuilt :class:`algorithms.geometry.mesh_index.MeshIndex` of ``mesh``.
-        noise_sigma_m: measurement noise sigma [m] along the normals. Sets Algorithm 5's
-            ``delta2``, the perturbations and the residual check (the POOR_FIT verdict). None:
-            estimated from the best fit (the residual check then cannot reject the best pose;
-            ambiguity is still tested).
+        noise_sigma_m: measurement noise sigma [m] along the normals: Algorithm 5's ``delta2``,
+            the perturbations and the residual check (POOR_FIT). None: estimated from the best
+            fit (the residual check then cannot reject it; ambiguity is still tested).
         model_error_m: allowance for model error (tessellation, form) [m], added in
             quadrature to sigma in the residual and ambiguity tests.
         polish: local method of :func:`algorithms.registration.local.localize` applied to the
@@ -187,24 +260,22 @@ def global_localize(
         outlier: the outlier rule of the polish and the GA's fine stage: ``"mad"`` (default),
             a distance [m] or None (see :mod:`algorithms.registration.robust`).
         start_table: multistart start orientations (see :func:`orientation_table`).
-        stop_at_first: document 000's literal rule: stop at the first start passing all
-            tests (no second-best comparison from the other starts).
+        stop_at_first: document 000's literal rule: stop at the first start passing all tests.
         n_coarse: points used in the coarse phases (farthest-point subset).
         n_verify: points used to refine and compare candidate minima (random subset).
         max_candidates: distinct coarse minima refined with exact closest points.
         ga_bits, ga_mutation, ga_population, ga_generations: GA settings (defaults: the
             document's 100 / 100 and our 10 bits, per-bit mutation).
-        ga_restarts: at most this many GA runs; a run is accepted when a short exact descent
-            from its pose leaves an RMS residual within 2 sigma_eff (needs ``noise_sigma_m``;
-            without it one run is made). One run is the document's algorithm.
+        ga_restarts: at most this many GA runs, until one passes Algorithm 5's acceptance (needs
+            ``noise_sigma_m``; without it one run, the document's algorithm).
         pso_particles, pso_iterations: PSO settings (defaults: the patent's 40 / 100).
         pso_rotation_range_rad, pso_translation_range_m: PSO search range around the coarse
             pre-registration (defaults 5 degrees and 2 % of the model's size).
         pso_fitness: ``"exact"`` (patent: nearest model points) or ``"field"`` (coarse field).
 
     Returns:
-        GlobalLocalizationResult: ``status`` OK (one pose the noise explains), AMBIGUOUS
-        (``solutions`` holds every equally good pose), UNOBSERVABLE, POOR_FIT or FAILED.
+        GlobalLocalizationResult: ``status`` OK, AMBIGUOUS (``solutions``: every equally good
+        pose), UNOBSERVABLE, POOR_FIT, NOT_CONVERGED (the polish) or FAILED.
 
     Raises:
         AlgorithmError: bad points, units, options or an unknown method.
@@ -213,13 +284,55 @@ def global_localize(
     if method not in GLOBAL_METHODS:
         raise AlgorithmError(f"method must be one of {', '.join(GLOBAL_METHODS)}; got {method!r}")
     P, rows = finite_rows(points)
-    if rng is None:
-        rng = np.random.default_rng(0)
-    elif not isinstance(rng, np.random.Generator):
-        raise AlgorithmError(f"rng must be a numpy.random.Generator or None, got {type(rng).__name__}")
+    rng = _checked_rng(rng)
     index = mesh_index(mesh, index)
-    if mesh is None:
-        mesh = index.mesh
+    opts = _checked_options(
+        method, noise_sigma_m, model_error_m, polish, outlier, start_table, stop_at_first, n_coarse, n_verify,
+        max_candidates, GASettings(ga_bits, ga_mutation, ga_population, ga_generations, ga_restarts),
+        PSOSettings(pso_rotation_range_rad, pso_translation_range_m, pso_particles, pso_iterations, pso_fitness))
+    R0 = orientation_table(start_table)
+    y = P[rows]
+    check_units(y, index)
+    model = _model(index, index.mesh if mesh is None else mesh)
+    pts = _subsets(P, rows, y, opts, rng, model.extent)
+    noise = _noise(noise_sigma_m, model_error_m)
+    timings: dict[str, float] = {}
+    search = _search(opts, model, pts, noise, R0, rng, timings)
+    with _stopwatch(timings, "refine_s"):
+        refined_T, refined_eps = refine_candidates(model.exact, pts.y_v, search.primary, search.coarse.lanes,
+                                                   model.extent, opts.max_candidates, pts.L)
+    with _stopwatch(timings, "polish_s"):
+        T_best = search.primary if search.primary is not None else refined_T[int(np.argmin(refined_eps))]
+        res, T_final = _polish(opts, model, pts, noise, T_best, t0)
+    verdict = _verify_on_inliers(opts, model, pts, noise, res, T_final, refined_T, refined_eps)
+    status, message = _final_status(opts.polish, res, verdict)
+    base = {f.name: getattr(res, f.name) for f in fields(RegistrationResult)}
+    base.update(T_world_workpiece=T_final, method=method, status=status, message=message,
+                solutions=verdict.solutions, time_s=time.perf_counter() - t0)
+    return GlobalLocalizationResult(**base, candidates=verdict.candidates,
+                                    diagnostics=_diagnostics(opts, model, pts, noise, search, res, verdict, timings))
+
+
+@contextmanager
+def _stopwatch(timings: dict[str, float], key: str) -> Iterator[None]:
+    """``timings[key]``: the wall time of the block [s]."""
+    t = time.perf_counter()
+    yield
+    timings[key] = time.perf_counter() - t
+
+
+def _checked_rng(rng: np.random.Generator | None) -> np.random.Generator:
+    if rng is None:
+        return np.random.default_rng(0)
+    if not isinstance(rng, np.random.Generator):
+        raise AlgorithmError(f"rng must be a numpy.random.Generator or None, got {type(rng).__name__}")
+    return rng
+
+
+def _checked_options(method: str, noise_sigma_m: float | None, model_error_m: float, polish: str | None,
+                     outlier: OutlierConfig, start_table: StartTable, stop_at_first: bool, n_coarse: int,
+                     n_verify: int, max_candidates: int, ga: GASettings, pso: PSOSettings) -> _Options:
+    """Refuse bad options (in this order), with what is allowed."""
     if noise_sigma_m is not None and not (np.isfinite(noise_sigma_m) and noise_sigma_m >= 0):
         raise AlgorithmError(f"noise_sigma_m must be a length >= 0 [m] or None, got {noise_sigma_m}")
     if not (np.isfinite(model_error_m) and model_error_m >= 0):
@@ -227,140 +340,155 @@ def global_localize(
     if polish is not None and polish not in METHODS:
         raise AlgorithmError(f"polish must be one of {', '.join(METHODS)} or None; got {polish!r}")
     outlier_cfg = outlier_config(outlier)
-    if ga_mutation not in ("per_bit", "per_chromosome"):
-        raise AlgorithmError(f"ga_mutation must be 'per_bit' or 'per_chromosome', got {ga_mutation!r}")
-    if pso_fitness not in ("exact", "field"):
-        raise AlgorithmError(f"pso_fitness must be 'exact' or 'field', got {pso_fitness!r}")
+    if ga.mutation not in ("per_bit", "per_chromosome"):
+        raise AlgorithmError(f"ga_mutation must be 'per_bit' or 'per_chromosome', got {ga.mutation!r}")
+    if pso.fitness not in ("exact", "field"):
+        raise AlgorithmError(f"pso_fitness must be 'exact' or 'field', got {pso.fitness!r}")
     for name, v, lo in (
         ("n_coarse", n_coarse, 6),
         ("n_verify", n_verify, 6),
         ("max_candidates", max_candidates, 1),
-        ("ga_bits", ga_bits, 2),
-        ("ga_population", ga_population, 2),
-        ("ga_generations", ga_generations, 1),
-        ("ga_restarts", ga_restarts, 1),
-        ("pso_particles", pso_particles, 1),
-        ("pso_iterations", pso_iterations, 1),
+        ("ga_bits", ga.bits, 2),
+        ("ga_population", ga.population, 2),
+        ("ga_generations", ga.generations, 1),
+        ("ga_restarts", ga.restarts, 1),
+        ("pso_particles", pso.particles, 1),
+        ("pso_iterations", pso.iterations, 1),
     ):
         if int(v) < lo:
             raise AlgorithmError(f"{name} must be >= {lo}, got {v}")
-    R0 = orientation_table(start_table)
-    y = P[rows]
-    check_units(y, index)
+    return _Options(method, polish, outlier_cfg, model_error_m, start_table, stop_at_first, int(n_coarse),
+                    int(n_verify), int(max_candidates), ga, pso)
 
+
+def _model(index: Any, mesh: Any) -> _Model:
+    """The model's size, area centroid, coarse field (cached per mesh) and exact oracle."""
     extent = float(index.extent)
     c_model = model_centroid(mesh)
-    cfield = coarse_field(mesh)
-    exact = ExactOracle(index)
-    timings: dict[str, float] = {}
+    return _Model(index, mesh, extent, c_model, coarse_field(mesh), ExactOracle(index))
 
-    idx_c = farthest_point_subset(y, int(n_coarse))
-    y_c = y[idx_c]
-    if len(y) > n_verify:
-        idx_v = np.sort(rng.choice(len(y), size=int(n_verify), replace=False))
+
+def _subsets(P: FloatArray, rows: IntArray, y: FloatArray, opts: _Options, rng: np.random.Generator,
+             extent: float) -> _Points:
+    """The coarse subset (farthest points), the verification subset (random, drawn from
+    ``rng``) and the characteristic length L [m] (the model's size for a degenerate subset)."""
+    y_c = y[farthest_point_subset(y, opts.n_coarse)]
+    if len(y) > opts.n_verify:
+        idx_v = np.sort(rng.choice(len(y), size=opts.n_verify, replace=False))
     else:
         idx_v = np.arange(len(y))
-    y_v = y[idx_v]
     dc = y_c - y_c.mean(axis=0)
     L = float(np.sqrt(np.mean(np.einsum("ij,ij->i", dc, dc)))) or extent
-    sigma_known = noise_sigma_m is not None
-    sigma_local = (noise_sigma_m or None) if sigma_known else None  # 0 (exact data) is no sigma for the fits
-    sig_eff: float | None
-    if noise_sigma_m is not None:
-        sig_eff = s_eff = math.hypot(float(noise_sigma_m), model_error_m)
-        # the field's own error is heavy-tailed (exact for most points, up to a few cells near
-        # edges): the RMS over a 150-point subset reaches about twice its floor
-        delta2_field = len(y_c) * (NOISE_ACCEPT_FACTOR * s_eff + FIELD_FLOOR_FACTOR * cfield.floor_rms) ** 2
-    else:
-        sig_eff = None
-        delta2_field = np.inf
+    return _Points(P, rows, y, y_c, idx_v, y[idx_v], L)
 
-    # ---------------------------------------------------------------- search
-    primary = None  # GA / PSO: the method's own result before verification
-    t = time.perf_counter()
-    lanes, n_starts, second_round = multistart_stage(cfield, y_c, R0, start_table, c_model, L, delta2_field, rng,
-                                                     stop_at_first and method == "multistart", sigma_known)
-    timings["coarse_multistart_s"] = time.perf_counter() - t
-    ga_diag = pso_diag = None
-    if method == "genetic":
-        primary, ga_diag, more = genetic_stage(
-            cfield, exact, index, mesh, y_c, c_model, L, rng, sigma=sigma_local, sig_eff=sig_eff,
-            outlier_cfg=outlier_cfg, bits=ga_bits, mutation=ga_mutation, population=ga_population,
-            generations=ga_generations, restarts=ga_restarts)
+
+def _noise(noise_sigma_m: float | None, model_error_m: float) -> _Noise:
+    if noise_sigma_m is None:
+        return _Noise(False, None, None)
+    return _Noise(True, noise_sigma_m or None, math.hypot(float(noise_sigma_m), model_error_m))
+
+
+def _coarse_problem(model: _Model, pts: _Points, noise: _Noise) -> CoarseProblem:
+    """Algorithm 5's delta2 on the coarse field: the field's own error is heavy-tailed (exact
+    for most points, up to a few cells near edges), so the noise allowance is widened by
+    FIELD_FLOOR_FACTOR times the field's RMS floor; unknown noise: no delta2 (inf)."""
+    delta2 = np.inf
+    if noise.sig_eff is not None:
+        delta2 = len(pts.y_c) * (NOISE_ACCEPT_FACTOR * noise.sig_eff + FIELD_FLOOR_FACTOR * model.field.floor_rms) ** 2
+    return CoarseProblem(model.field, pts.y_c, model.c_model, pts.L, delta2)
+
+
+def _search(opts: _Options, model: _Model, pts: _Points, noise: _Noise, R0: FloatArray, rng: np.random.Generator,
+            timings: dict[str, float]) -> _Search:
+    """Algorithm 5's coarse phase, then the genetic or swarm stage when asked (``timings`` [s]
+    gets each stage's wall time)."""
+    problem = _coarse_problem(model, pts, noise)
+    with _stopwatch(timings, "coarse_multistart_s"):
+        coarse = multistart_stage(problem, R0, opts.start_table, rng,
+                                  stop_at_first=opts.stop_at_first and opts.method == "multistart",
+                                  sigma_known=noise.sigma_known)
+    if opts.method == "genetic":
+        primary, ga_diag, more = genetic_stage(problem, model.exact, model.index, model.mesh, rng,
+                                               sigma=noise.sigma_local, sig_eff=noise.sig_eff,
+                                               outlier_cfg=opts.outlier_cfg, settings=opts.ga)
         timings.update(more)
-    elif method == "pso":
-        T_init = lanes.T[np.argsort(lanes.eps)[0]]
-        trange = 0.02 * extent if pso_translation_range_m is None else float(pso_translation_range_m)
-        primary, pso_diag, more = pso_stage(
-            exact if pso_fitness == "exact" else cfield, y_c, T_init, L, rng,
-            rotation_range_rad=pso_rotation_range_rad, translation_range_m=trange, particles=pso_particles,
-            iterations=pso_iterations, fitness=pso_fitness)
+        return _Search(coarse, primary, ga_diag, None)
+    if opts.method == "pso":
+        T_init = coarse.lanes.T[np.argsort(coarse.lanes.eps)[0]]
+        oracle = model.exact if opts.pso.fitness == "exact" else model.field
+        primary, pso_diag, more = pso_stage(oracle, pts.y_c, T_init, rng, opts.pso, model.extent)
         timings.update(more)
+        return _Search(coarse, primary, None, pso_diag)
+    return _Search(coarse, None, None, None)
 
-    # ---------------------------------------------------------------- candidates
-    t = time.perf_counter()
-    refined_T, refined_eps = refine_candidates(exact, y_v, primary, lanes, extent, int(max_candidates), L)
-    timings["refine_s"] = time.perf_counter() - t
 
-    # ---------------------------------------------------------------- the answer and polish
-    t = time.perf_counter()
-    T_best = primary if primary is not None else refined_T[int(np.argmin(refined_eps))]
-    res = localize_checked(y, index, polish or DEFAULT_POLISH, T_best, sigma=sigma_local, outlier_cfg=outlier_cfg,
-                           max_iterations=None if polish is not None else 1, rows=rows, n_input=len(P), t_start=t0)
-    T_final = res.T_world_workpiece if polish is not None else T_best
-    timings["polish_s"] = time.perf_counter() - t
+def _polish(opts: _Options, model: _Model, pts: _Points, noise: _Noise, T_best: Pose,
+            t0: float) -> tuple[RegistrationResult, Pose]:
+    """The local method from ``T_best`` on every point (without ``polish``: one step, for the
+    inliers and the directions; the pose stays ``T_best``). Returns (its result, the pose)."""
+    res = localize_checked(pts.y, model.index, opts.polish or DEFAULT_POLISH, T_best, sigma=noise.sigma_local,
+                           outlier_cfg=opts.outlier_cfg, max_iterations=None if opts.polish is not None else 1,
+                           rows=pts.rows, n_input=len(pts.P), t_start=t0)
+    return res, res.T_world_workpiece if opts.polish is not None else T_best
 
-    # ---------------------------------------------------------------- verification
-    inlier_v = res.inliers[rows][idx_v]
+
+def _verify_on_inliers(opts: _Options, model: _Model, pts: _Points, noise: _Noise, res: RegistrationResult,
+                       T_final: Pose, refined_T: FloatArray, refined_eps: FloatArray) -> Verdict:
+    """:func:`.verify` on the polish's inliers among the verification points (the candidates
+    refined again on them when some are outliers)."""
+    y_v = pts.y_v
+    inlier_v = res.inliers[pts.rows][pts.idx_v]
     if not inlier_v.all():
-        # outliers among the verification points: verify on the polish's inliers alone
         y_v = y_v[inlier_v]
-        refined_T, refined_eps = refine(exact, y_v, refined_T, L)
-    verdict = verify(index, y_v, T_final, refined_T, refined_eps, extent=extent, sig_eff=sig_eff,
-                     model_error_m=model_error_m, method=method, observable=res.observable,
-                     polish_message=res.message, symmetries=symmetries_of(index))
-    diagnostics = GlobalDiagnostics(
-        method=method,
-        polish=polish,
+        refined_T, refined_eps = refine(model.exact, y_v, refined_T, pts.L)
+    return verify(model.index, y_v, T_final, refined_T, refined_eps, extent=model.extent, sig_eff=noise.sig_eff,
+                  model_error_m=opts.model_error_m, method=opts.method, observable=res.observable,
+                  polish_message=res.message, symmetries=symmetries_of(model.index))
+
+
+def _diagnostics(opts: _Options, model: _Model, pts: _Points, noise: _Noise, search: _Search,
+                 res: RegistrationResult, verdict: Verdict, timings: dict[str, float]) -> GlobalDiagnostics:
+    lanes = search.coarse.lanes
+    return GlobalDiagnostics(
+        method=opts.method,
+        polish=opts.polish,
         polish_status=res.status,
         polish_message=res.message,
-        field_cell_m=cfield.cell,
-        n_starts=n_starts,
-        second_round=second_round,
+        field_cell_m=model.field.cell,
+        n_starts=search.coarse.n_starts,
+        second_round=search.coarse.second_round,
         starts_accepted=int(lanes.accepted.sum()),
         coarse_iterations=int(lanes.iterations.sum()),
         perturbations=int(lanes.perturbations.sum()),
         sigma_eff_m=verdict.sigma_eff_m,
-        sigma_known=sigma_known,
+        sigma_known=noise.sigma_known,
         rms_verify_m=verdict.rms_m,
         n_verify=verdict.n_points,
-        n_coarse=len(y_c),
+        n_coarse=len(pts.y_c),
         timings_s=timings,
-        genetic=ga_diag,
-        pso=pso_diag,
+        genetic=search.genetic,
+        pso=search.pso,
     )
+
+
+def _final_status(polish: str | None, res: RegistrationResult, verdict: Verdict) -> tuple[Status, str]:
+    """The verification's verdict, overruled by the polish: its fit check sees what a residual
+    test against an estimated sigma cannot (POOR_FIT), and a polish that did not converge
+    returns a pose not at its minimum (NOT_CONVERGED)."""
     status, message = verdict.status, verdict.message
-    if res.poor_fit_reason is not None and status in (Status.OK, Status.AMBIGUOUS, Status.UNOBSERVABLE):
-        # the polish's fit check sees what a residual test against an estimated sigma cannot
-        status, message = Status.POOR_FIT, f"poor fit: {res.poor_fit_reason}; {verdict.message}"
-    elif polish is not None and not res.converged and status in (Status.OK, Status.AMBIGUOUS, Status.UNOBSERVABLE):
-        # the pose returned is the polish's: not at its minimum, whatever the verification saw
-        status, message = Status.NOT_CONVERGED, f"polish {res.message}; {verdict.message}"
-    base = {f.name: getattr(res, f.name) for f in fields(RegistrationResult)}
-    base.update(
-        T_world_workpiece=T_final,
-        method=method,
-        status=status,
-        message=message,
-        solutions=verdict.solutions,
-        time_s=time.perf_counter() - t0,
-    )
-    return GlobalLocalizationResult(**base, candidates=verdict.candidates, diagnostics=diagnostics)
+    if status not in (Status.OK, Status.AMBIGUOUS, Status.UNOBSERVABLE):
+        return status, message
+    if res.poor_fit_reason is not None:
+        return Status.POOR_FIT, f"poor fit: {res.poor_fit_reason}; {verdict.message}"
+    if polish is not None and not res.converged:
+        return Status.NOT_CONVERGED, f"polish {res.message}; {verdict.message}"
+    return status, message
 
 
-def pso_refine(points, T_init, *, index=None, mesh=None, rng: np.random.Generator | None = None,
-               rotation_range_rad: float = math.radians(5.0), translation_range_m: float | None = None,
-               particles: int = PSO_PARTICLES, iterations: int = PSO_ITERATIONS) -> tuple[np.ndarray, PSODiagnostics]:
+def pso_refine(points: ArrayLike, T_init: ArrayLike, *, index: Any = None, mesh: Any = None,
+               rng: np.random.Generator | None = None, rotation_range_rad: float = math.radians(5.0),
+               translation_range_m: float | None = None, particles: int = PSO_PARTICLES,
+               iterations: int = PSO_ITERATIONS) -> tuple[Pose, PSODiagnostics]:
     """Document 003's step 4 alone: the particle swarm from a given pre-registration
     ``T_init`` (workpiece to world), exact nearest model points, no polish.
 
@@ -380,13 +508,11 @@ def pso_refine(points, T_init, *, index=None, mesh=None, rng: np.random.Generato
     y = P[rows]
     index = mesh_index(mesh, index)
     check_units(y, index)
-    T_init = np.asarray(T_init, dtype=np.float64)
-    if T_init.shape != (4, 4) or not np.all(np.isfinite(T_init)):
-        raise AlgorithmError(f"T_init must be a finite (4, 4) pose, got shape {T_init.shape}")
+    T0 = np.asarray(T_init, dtype=np.float64)
+    if T0.shape != (4, 4) or not np.all(np.isfinite(T0)):
+        raise AlgorithmError(f"T_init must be a finite (4, 4) pose, got shape {T0.shape}")
     rng = np.random.default_rng(0) if rng is None else rng
-    dc = y - y.mean(axis=0)
-    L = float(np.sqrt(np.mean(np.einsum("ij,ij->i", dc, dc)))) or float(index.extent)
-    trange = 0.02 * float(index.extent) if translation_range_m is None else float(translation_range_m)
-    T, diag, _ = pso_stage(ExactOracle(index), y, T_init, L, rng, rotation_range_rad=rotation_range_rad,
-                           translation_range_m=trange, particles=particles, iterations=iterations, fitness="exact")
+    settings = PSOSettings(rotation_range_rad=rotation_range_rad, translation_range_m=translation_range_m,
+                           particles=particles, iterations=iterations, fitness="exact")
+    T, diag, _ = pso_stage(ExactOracle(index), y, T0, rng, settings, float(index.extent))
     return T, diag
