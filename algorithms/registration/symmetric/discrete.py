@@ -24,6 +24,7 @@ from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import hat as _hat
 from algorithms.geometry.se3 import transform_points
+from algorithms.registration.symmetric.features import TriangleMesh
 
 __all__ = ["SYMMETRY_TOL_REL", "model_symmetries", "pseudo_normals"]
 
@@ -54,7 +55,8 @@ class _Surface:
     axes: FloatArray
 
 
-def model_symmetries(mesh: object, tol_rel: float = SYMMETRY_TOL_REL, index: MeshIndex | None = None) -> FloatArray:
+def model_symmetries(mesh: TriangleMesh, tol_rel: float = SYMMETRY_TOL_REL,
+                     index: MeshIndex | None = None) -> FloatArray:
     """Rigid motions (K, 4, 4) of the workpiece frame that map the model onto itself.
 
     Always holds the identity first. Candidates: rotations about the area centroid of the

@@ -28,7 +28,7 @@ from algorithms.registration.local import localize
 from algorithms.registration.result import RegistrationResult, Status, fit_status
 from algorithms.registration.symmetric.detect import DETECTION_TOL, detect_symmetry
 from algorithms.registration.symmetric.discrete import model_symmetries, pseudo_normals
-from algorithms.registration.symmetric.features import Feature
+from algorithms.registration.symmetric.features import Feature, TriangleMesh
 from algorithms.registration.symmetric.groups import (
     FEATURE_TABLE,
     SymmetryGroup,
@@ -214,7 +214,7 @@ def _pipeline_result(s1: _Stage1, res2: SymmetricResult, group: SymmetryGroup, s
 
 def localize_symmetric(
     points: ArrayLike,
-    mesh: object,
+    mesh: TriangleMesh | MeshIndex,
     symmetric: str | Feature | SymmetryGroup = "auto",
     init: ArrayLike | None = None,
     sigma: float | None = None,

@@ -51,7 +51,7 @@ from algorithms.registration.robust import (
     same_mask,
 )
 from algorithms.registration.symmetric.detect import DETECTION_TOL
-from algorithms.registration.symmetric.features import Feature
+from algorithms.registration.symmetric.features import Feature, TriangleMesh
 from algorithms.registration.symmetric.groups import SymmetryGroup
 
 __all__ = [
@@ -455,7 +455,7 @@ class _Information:
     rows: FloatArray
     residuals: FloatArray
     sigma_m: float
-    covariance: FloatArray | None
+    covariance: np.ndarray | None
     relative_eigenvalues: FloatArray
     rank: int
     condition: float
@@ -529,7 +529,7 @@ def _result(pb: _Problem, st: _State, info: _Information, t0: float) -> Symmetri
 
 def algorithm2(
     points: ArrayLike,
-    model: Feature | MeshIndex | object,
+    model: Feature | TriangleMesh | MeshIndex,
     group: SymmetryGroup | None = None,
     init: ArrayLike | None = None,
     sigma: float | None = None,
