@@ -495,8 +495,8 @@ def _measure_point(label: str, point_m: FloatArray, normal: FloatArray) -> Measu
     """The MeasurePoint of a file's point and normal, keeping a normal that is already unit to the
     file's 9 decimals as written.
 
-    (MeasurePoint divides by the norm and rounds again, which moves the last decimal of about 2 %
-    of normals that were already rounded; a file written from a program must read back equal.)
+    (MeasurePoint divides by the norm and rounds again, which can move the last decimal of a
+    normal that was already rounded; a file written from a program must read back equal.)
     """
     mp = MeasurePoint(label, tuple(float(x) for x in point_m), tuple(float(c) for c in normal))  # type: ignore[arg-type]
     written = tuple(float(c) for c in normal)

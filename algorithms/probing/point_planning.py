@@ -149,8 +149,8 @@ def _thin(points: FloatArray, spacing_m: float) -> IntArray:
     is kept unless a kept one is that close (random sequential adsorption).
 
     ``trimesh.points.remove_close`` drops one point of every close pair at once, which also
-    drops points whose only close neighbour is dropped too: it left 0.3 points per
-    ``spacing^2`` on a cube where this keeps about 0.5.
+    drops points whose only close neighbour is dropped too: it thins far more (the counts are
+    in ``benchmarks/results_history_symmetric_paths.md``).
     """
     pairs = cKDTree(points).query_pairs(spacing_m, output_type="ndarray")
     first = np.concatenate([pairs[:, 0], pairs[:, 1]])
