@@ -96,7 +96,7 @@ def _check_symmetric(symmetric: object, tol: float) -> None:
 
 
 def _algorithm1(points: ArrayLike, index: MeshIndex, init: ArrayLike | None, sigma: float | None,
-                outlier: object, method: str) -> _Stage1:
+                outlier: str | float | None, method: str) -> _Stage1:
     """Step 1: Algorithm 1 from ``init``, and the surface points at its pose."""
     res1 = localize(points, index=index, method=method, init=init, sigma=sigma, outlier=outlier)
     P = np.asarray(points, dtype=np.float64)

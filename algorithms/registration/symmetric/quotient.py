@@ -315,7 +315,7 @@ def _check_group(group: SymmetryGroup | None, model: _Model) -> SymmetryGroup:
 
 
 def _problem(points: ArrayLike, model: object, group: SymmetryGroup | None, init: ArrayLike | None,
-             sigma: float | None, max_iterations: int, tolerance: float, outlier: object) -> _Problem:
+             sigma: float | None, max_iterations: int, tolerance: float, outlier: str | float | None) -> _Problem:
     """Check Algorithm 2's input (the order of the checks decides which error is raised)."""
     mdl = _Model(model)
     group = _check_group(group, mdl)
