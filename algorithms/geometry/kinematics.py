@@ -202,6 +202,7 @@ def ur_inverse(T_base_flange: ArrayLike, dh: DHTable, branches: Iterable[int] | 
             if not any(b >> 1 == 2 * i1 + i5 for b in wanted):
                 continue
             wrist = _wrist(R16, p16, s5_sign * np.arccos(c5), dh)
+            # the elbow: the cosine law of the two-link problem (a2, a3) reaching (x3, y3)
             c3 = (wrist.x3**2 + wrist.y3**2 - dh.a[1] ** 2 - dh.a[2] ** 2) / (2 * dh.a[1] * dh.a[2])
             ok = shoulder.reachable & (np.abs(c3) <= 1.0)
             for i3, s3_sign in enumerate((1.0, -1.0)):
