@@ -21,7 +21,7 @@ from algorithms.registration.symmetric import (
     localize_symmetric,
     model_symmetries,
 )
-from algorithms.registration.symmetric.quotient import _move_group
+from algorithms.registration.symmetric.pipeline import _move_group
 from tests.helpers import scenario
 from tests.test_features import bumpy_mesh, example_features, sample_feature
 from tests.tolerances import (

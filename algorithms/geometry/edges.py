@@ -11,6 +11,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from algorithms.arraytypes import ArrayLike, FloatArray
+
 __all__ = ["SHARP_EDGE_DEG", "SharpEdges"]
 
 #: Faces meeting at more than this angle make a sharp edge.
@@ -26,7 +28,8 @@ class SharpEdges:
         step_m: sample spacing along the edges [m]; distances are exact to ``step_m / 2``.
     """
 
-    def __init__(self, vertices, faces, angle_deg: float = SHARP_EDGE_DEG, step_m: float = 5e-5):
+    def __init__(self, vertices: ArrayLike, faces: ArrayLike, angle_deg: float = SHARP_EDGE_DEG,
+                 step_m: float = 5e-5) -> None:
         mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64),
                                process=False)
         edges = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(angle_deg)]
@@ -37,7 +40,7 @@ class SharpEdges:
         self.step_m = step_m
         self.tree = cKDTree(np.vstack(samples)) if samples else None
 
-    def distance(self, points: np.ndarray) -> np.ndarray:
+    def distance(self, points: ArrayLike) -> FloatArray:
         """(N,) distance of each point to the nearest sharp edge [m] (inf without edges)."""
         P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if self.tree is None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 
 # The planning raster is shifted off round numbers so that rays do not run exactly along the
@@ -17,7 +18,7 @@ from algorithms.errors import AlgorithmError
 GRID_SHIFT_M = 1.2345e-4
 
 
-def _unit_vector(v, name: str) -> np.ndarray:
+def _unit_vector(v: ArrayLike, name: str) -> FloatArray:
     a = np.asarray(v, dtype=np.float64)
     if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-12:
         raise AlgorithmError(f"{name} must be a finite non-zero (3,) vector, got {v!r}")
@@ -25,8 +26,8 @@ def _unit_vector(v, name: str) -> np.ndarray:
 
 
 def raycast_parallel(
-    vertices, faces, origins, direction, chunk: int = 20000
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    vertices: ArrayLike, faces: ArrayLike, origins: ArrayLike, direction: ArrayLike, chunk: int = 20000
+) -> tuple[BoolArray, FloatArray, IntArray]:
     """First hits of parallel rays on a triangle mesh (exact, vectorised).
 
     The triangles are projected onto the plane orthogonal to ``direction`` and grouped by

@@ -9,12 +9,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from algorithms.arraytypes import ArrayLike, FloatArray, Pose
 from algorithms.errors import AlgorithmError
 
 RIGID_TOL = 1e-6
 
 
-def as_pose(T, name: str = "pose", tol: float = RIGID_TOL) -> np.ndarray:
+def as_pose(T: ArrayLike, name: str = "pose", tol: float = RIGID_TOL) -> Pose:
     """Return ``T`` as a (4, 4) float64 rigid transform or raise ``AlgorithmError``.
 
     Rigid means: last row [0, 0, 0, 1], rotation block orthonormal within ``tol`` and det = +1.
@@ -37,7 +38,7 @@ def as_pose(T, name: str = "pose", tol: float = RIGID_TOL) -> np.ndarray:
     return T
 
 
-def make_pose(R=None, p=None) -> np.ndarray:
+def make_pose(R: ArrayLike | None = None, p: ArrayLike | None = None) -> Pose:
     """Build a (4, 4) pose from a (3, 3) rotation and a (3,) translation [m]."""
     T = np.eye(4)
     if R is not None:
@@ -47,7 +48,7 @@ def make_pose(R=None, p=None) -> np.ndarray:
     return T
 
 
-def inv_pose(T: np.ndarray) -> np.ndarray:
+def inv_pose(T: Pose) -> Pose:
     """Inverse of a rigid transform, without a general matrix inverse."""
     R = T[:3, :3]
     out = np.eye(4)
@@ -56,12 +57,12 @@ def inv_pose(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def hat(w: np.ndarray) -> np.ndarray:
+def hat(w: FloatArray) -> FloatArray:
     """Skew-symmetric matrix of a 3-vector: ``hat(w) @ x == cross(w, x)``."""
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
-def exp_se3(xi) -> np.ndarray:
+def exp_se3(xi: ArrayLike) -> Pose:
     """Exponential map of a twist ``[omega, v]`` to a (4, 4) pose."""
     xi = np.asarray(xi, dtype=np.float64)
     w, v = xi[:3], xi[3:]
@@ -79,7 +80,7 @@ def exp_se3(xi) -> np.ndarray:
     return make_pose(R, V @ v)
 
 
-def log_se3(T: np.ndarray) -> np.ndarray:
+def log_se3(T: Pose) -> FloatArray:
     """Logarithm of a pose: the twist ``[omega, v]`` with ``exp_se3(xi) == T``."""
     w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
     theta = np.linalg.norm(w)
@@ -92,17 +93,17 @@ def log_se3(T: np.ndarray) -> np.ndarray:
     return np.concatenate([w, V_inv @ T[:3, 3]])
 
 
-def rotation_error_rad(T_est: np.ndarray, T_true: np.ndarray) -> float:
+def rotation_error_rad(T_est: Pose, T_true: Pose) -> float:
     """Document 000's rotation error: the angle of ``R_est^T R_true`` [rad]."""
     R = T_est[:3, :3].T @ T_true[:3, :3]
     return float(np.linalg.norm(Rotation.from_matrix(R).as_rotvec()))
 
 
-def translation_error_m(T_est: np.ndarray, T_true: np.ndarray) -> float:
+def translation_error_m(T_est: Pose, T_true: Pose) -> float:
     """Document 000's translation error: distance between the two origins [m]."""
     return float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
 
 
-def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a (4, 4) pose to (N, 3) points."""
+def transform_points(T: Pose, points: FloatArray) -> FloatArray:
+    """Points (N, 3) [m] in frame b mapped by ``T = T_a_b`` into frame a."""
     return points @ T[:3, :3].T + T[:3, 3]

@@ -29,9 +29,12 @@ measures when.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from scipy.spatial import cKDTree
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.errors import AlgorithmError
 
 
@@ -39,7 +42,7 @@ class NormalsError(AlgorithmError):
     """Bad input to normal estimation."""
 
 
-def _check_lines(lines) -> list[np.ndarray]:
+def _check_lines(lines: Sequence[ArrayLike]) -> list[FloatArray]:
     out = []
     for i, line in enumerate(lines):
         a = np.asarray(line, dtype=np.float64)
@@ -55,7 +58,7 @@ def _check_lines(lines) -> list[np.ndarray]:
     return out
 
 
-def triangulation_normals(lines, orient=None) -> tuple:
+def triangulation_normals(lines: Sequence[ArrayLike], orient: ArrayLike | None = None) -> tuple[FloatArray, ...]:
     """Unit normals of every point of a scan-line cloud by cross-line triangulation.
 
     Args:
@@ -114,7 +117,7 @@ def triangulation_normals(lines, orient=None) -> tuple:
     return tuple(out)
 
 
-def pca_normals(points, k: int = 16, orient=None) -> np.ndarray:
+def pca_normals(points: ArrayLike, k: int = 16, orient: ArrayLike | None = None) -> FloatArray:
     """k-nearest-neighbour PCA normals.
 
     Args:
@@ -145,7 +148,7 @@ def pca_normals(points, k: int = 16, orient=None) -> np.ndarray:
     return n
 
 
-def angle_deg(a, b, unsigned: bool = False) -> np.ndarray:
+def angle_deg(a: ArrayLike, b: ArrayLike, unsigned: bool = False) -> FloatArray:
     """(N,) angles [deg] between unit vectors; ``unsigned`` ignores the sign (PCA normals)."""
     c = np.einsum("ij,ij->i", np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
     if unsigned:
@@ -153,7 +156,8 @@ def angle_deg(a, b, unsigned: bool = False) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
-def smooth_line_normals(lines, normals, knot_spacing_m: float = 0.004) -> tuple:
+def smooth_line_normals(lines: Sequence[ArrayLike], normals: Sequence[ArrayLike],
+                        knot_spacing_m: float = 0.004) -> tuple[FloatArray, ...]:
     """Normals smoothed along each line by a cubic least-squares B-spline in arc length.
 
     Cross-line triangulation takes the *nearest* point of each adjacent line, which jumps

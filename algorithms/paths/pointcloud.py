@@ -45,6 +45,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.ndimage import correlate1d, maximum_filter1d
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 
 # Outlier filter (Hampel) defaults.
@@ -79,33 +80,33 @@ class LineCloud:
             ``outliers``, ``off_part``, ``merged``), accumulated over the steps.
     """
 
-    lines: tuple
-    line_ids: np.ndarray
-    index: tuple
-    direction: np.ndarray
-    across: np.ndarray
-    removed: dict = field(default_factory=dict)
+    lines: tuple[FloatArray, ...]
+    line_ids: IntArray
+    index: tuple[IntArray, ...]
+    direction: FloatArray
+    across: FloatArray
+    removed: dict[str, int] = field(default_factory=dict)
 
     @property
     def n_points(self) -> int:
         return int(sum(len(ln) for ln in self.lines))
 
-    def stacked(self) -> np.ndarray:
+    def stacked(self) -> FloatArray:
         """(N, 3) all points, line after line."""
         return np.concatenate(self.lines) if self.lines else np.empty((0, 3))
 
-    def line_of_point(self) -> np.ndarray:
+    def line_of_point(self) -> IntArray:
         """(N,) position of each stacked point's line in ``lines`` (0..L-1)."""
         return np.concatenate([np.full(len(ln), i) for i, ln in enumerate(self.lines)])
 
 
-def _count(removed: dict, key: str, n: int) -> dict:
+def _count(removed: dict[str, int], key: str, n: int) -> dict[str, int]:
     out = dict(removed)
     out[key] = out.get(key, 0) + int(n)
     return out
 
 
-def organize_scan_lines(points, line, empty: str = "error", min_points: int = MIN_LINE_POINTS,
+def organize_scan_lines(points: ArrayLike, line: ArrayLike, empty: str = "error", min_points: int = MIN_LINE_POINTS,
                         order: str = "input") -> LineCloud:
     """Group samples by scan line and order them along and across the lines.
 
@@ -129,6 +130,13 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
         PointCloudError: shapes, no labelled line, an empty line (``empty="error"``), or
             fewer than two lines.
     """
+    P, lab = _check_scan_input(points, line, empty, order)
+    rows, line_ids, removed = _valid_lines(P, lab, empty, min_points)
+    direction, across, means = _line_axes(P, rows)
+    return _ordered_cloud(P, rows, line_ids, direction, across, means, order, removed)
+
+
+def _check_scan_input(points: ArrayLike, line: ArrayLike, empty: str, order: str) -> tuple[FloatArray, IntArray]:
     P = np.asarray(points, dtype=np.float64)
     lab = np.asarray(line)
     if P.ndim != 2 or P.shape[1] != 3:
@@ -141,6 +149,18 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
         raise PointCloudError(f"order must be 'input' or 'projection', got {order!r}")
     if empty not in ("error", "drop"):
         raise PointCloudError(f"empty must be 'error' or 'drop', got {empty!r}")
+    return P, lab
+
+
+def _valid_lines(P: FloatArray, lab: IntArray, empty: str, min_points: int
+                 ) -> tuple[list[IntArray], list[int], dict[str, int]]:
+    """Rows of the finite samples of every line with at least ``min_points`` of them (in input
+    order), the lines' labels, and the counts of the samples dropped.
+
+    Raises:
+        PointCloudError: no labelled sample, a line too short (``empty="error"``), or fewer
+            than two lines left.
+    """
     finite = np.all(np.isfinite(P), axis=1)
     on_line = lab >= 0
     labels = np.unique(lab[on_line])
@@ -167,16 +187,24 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
             f"a scan-line cloud needs at least 2 lines with valid points, got {len(keep_idx)} "
             f"({which}): normals across lines cannot be formed"
         )
-    # Along-line direction: principal direction of the per-line spreads (pooled covariance
-    # of the lines about their own means), robust to the across-line spread of the raster.
+    return keep_idx, keep_ids, removed
+
+
+def _line_axes(P: FloatArray, rows: list[IntArray]) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The unit along-line direction (3,), the unit across direction (3,) and the line means (L, 3).
+
+    Along: the principal direction of the per-line spreads (pooled covariance of the lines
+    about their own means), robust to the across-line spread of the raster. Across: the
+    spread of the line means, orthogonal to it. Signs: along the first line's travel, across
+    from the first line to the last.
+    """
     C = np.zeros((3, 3))
-    for rows in keep_idx:
-        q = P[rows] - P[rows].mean(axis=0)
+    for r in rows:
+        q = P[r] - P[r].mean(axis=0)
         C += q.T @ q
     _, V = np.linalg.eigh(C)
     direction = V[:, -1]
-    # Across: the spread of the line means, orthogonal to the direction.
-    means = np.array([P[r].mean(axis=0) for r in keep_idx])
+    means = np.array([P[r].mean(axis=0) for r in rows])
     dm = means - means.mean(axis=0)
     dm -= np.outer(dm @ direction, direction)
     if np.linalg.norm(dm) == 0:
@@ -184,26 +212,31 @@ def organize_scan_lines(points, line, empty: str = "error", min_points: int = MI
     else:
         _, _, vt = np.linalg.svd(dm, full_matrices=False)
         across = vt[0]
-    # Deterministic signs: direction along the first line's travel, across from line 0 on.
-    first = P[keep_idx[0]]
+    first = P[rows[0]]
     if (first[-1] - first[0]) @ direction < 0:
         direction = -direction
     if (means[-1] - means[0]) @ across < 0:
         across = -across
+    return direction, across, means
+
+
+def _ordered_cloud(P: FloatArray, rows: list[IntArray], line_ids: list[int], direction: FloatArray,
+                   across: FloatArray, means: FloatArray, order: str, removed: dict[str, int]) -> LineCloud:
+    """The lines ordered across, their samples along ``direction`` (see ``order``)."""
     lines, idx = [], []
     line_order = np.argsort(means @ across, kind="stable")
     for k in line_order:
-        rows = keep_idx[k]
+        r = rows[k]
         if order == "projection":
-            rows = rows[np.argsort(P[rows] @ direction, kind="stable")]
-        elif (P[rows[-1]] - P[rows[0]]) @ direction < 0:
-            rows = rows[::-1]
-        lines.append(P[rows])
-        idx.append(rows)
-    return LineCloud(tuple(lines), np.array(keep_ids)[line_order], tuple(idx), direction, across, removed)
+            r = r[np.argsort(P[r] @ direction, kind="stable")]
+        elif (P[r[-1]] - P[r[0]]) @ direction < 0:
+            r = r[::-1]
+        lines.append(P[r])
+        idx.append(r)
+    return LineCloud(tuple(lines), np.array(line_ids)[line_order], tuple(idx), direction, across, removed)
 
 
-def _local_quadratic(y: np.ndarray, w: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+def _local_quadratic(y: FloatArray, w: FloatArray, half: int) -> tuple[FloatArray, BoolArray]:
     """Weighted least-squares quadratic over +-``half`` samples around every sample, its value there.
 
     ``y`` (n, d), weights ``w`` (n,) (0 excludes a sample). With all weights 1 this is the
@@ -225,7 +258,7 @@ def _local_quadratic(y: np.ndarray, w: np.ndarray, half: int) -> tuple[np.ndarra
     return fit, supported
 
 
-def _robust_mask(c: np.ndarray, half: int, k: float, floor: float, passes: int) -> np.ndarray:
+def _robust_mask(c: FloatArray, half: int, k: float, floor: float, passes: int) -> BoolArray:
     """Inliers of the (n, 2) cross-line coordinates ``c`` of an ordered line.
 
     The local fits run over the sample index (samples come evenly in time). Each pass
@@ -304,7 +337,7 @@ def extract_boundary(cloud: LineCloud, max_gap_m: float = MAX_GAP_M, min_points:
     return replace(cloud, lines=tuple(lines), index=tuple(idx), removed=_count(cloud.removed, "off_part", off))
 
 
-def boundary_polygon(cloud: LineCloud) -> np.ndarray:
+def boundary_polygon(cloud: LineCloud) -> FloatArray:
     """(2L + 1, 3) closed boundary: the first points of the lines, then the last points backwards."""
     first = np.array([ln[0] for ln in cloud.lines])
     last = np.array([ln[-1] for ln in cloud.lines])
@@ -343,7 +376,7 @@ class CloudParams:
     empty: str = "error"
 
 
-def prepare_scan_lines(points, line, params: CloudParams = CloudParams()) -> LineCloud:
+def prepare_scan_lines(points: ArrayLike, line: ArrayLike, params: CloudParams = CloudParams()) -> LineCloud:
     """Steps 1-4 of the module docstring in order: organise, outliers, boundary, simplify."""
     cloud = organize_scan_lines(points, line, empty=params.empty)
     cloud = remove_outliers(cloud, params.outlier_window_m, params.outlier_k, params.outlier_min_residual_m)

@@ -22,10 +22,12 @@ lies within ``max_link_m`` of it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 
 EDGE_DEG = 20.0        # normals turning more than this between consecutive points: a sharp edge
@@ -47,13 +49,13 @@ class ProcessRegion:
         faces: optional indices of the mesh faces the points must lie on.
     """
 
-    axis: tuple = (0.0, 0.0, 1.0)
+    axis: tuple[float, ...] = (0.0, 0.0, 1.0)
     max_angle_rad: float = np.radians(60.0)
-    box_lo_m: tuple | None = None
-    box_hi_m: tuple | None = None
-    faces: np.ndarray | None = None
+    box_lo_m: tuple[float, ...] | None = None
+    box_hi_m: tuple[float, ...] | None = None
+    faces: IntArray | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         a = np.asarray(self.axis, dtype=np.float64)
         if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-12:
             raise RegionError(f"region axis must be a finite non-zero 3-vector, got {self.axis!r}")
@@ -68,7 +70,7 @@ class ProcessRegion:
                 raise RegionError(f"a region box needs finite corners with lo < hi, got "
                                   f"{self.box_lo_m}, {self.box_hi_m}")
 
-    def select(self, points_m, normals, faces=None) -> np.ndarray:
+    def select(self, points_m: ArrayLike, normals: ArrayLike, faces: ArrayLike | None = None) -> BoolArray:
         """(N,) bool: the points (N, 3) with unit normals (N, 3), on the mesh faces ``faces``
         (N,) (needed when the region names faces), that this region processes."""
         p = np.asarray(points_m, dtype=np.float64)
@@ -85,8 +87,8 @@ class ProcessRegion:
         return keep
 
 
-def split_runs(points_m, normals, keep=None, max_gap_m: float = 0.002, edge_rad: float = np.radians(EDGE_DEG),
-               min_points: int = MIN_RUN_POINTS) -> list[np.ndarray]:
+def split_runs(points_m: ArrayLike, normals: ArrayLike, keep: ArrayLike | None = None, max_gap_m: float = 0.002,
+               edge_rad: float = np.radians(EDGE_DEG), min_points: int = MIN_RUN_POINTS) -> list[IntArray]:
     """Index arrays of the runs of one ordered line (see the module docstring).
 
     Args:
@@ -124,7 +126,8 @@ def split_runs(points_m, normals, keep=None, max_gap_m: float = 0.002, edge_rad:
     return [r for r in runs if len(r) >= min_points]
 
 
-def chain_pieces(lines_pieces, direction, max_link_m: float) -> list[list[tuple[int, int]]]:
+def chain_pieces(lines_pieces: Sequence[Sequence[FloatArray]], direction: ArrayLike,
+                 max_link_m: float) -> list[list[tuple[int, int]]]:
     """Patches of pieces on consecutive lines (see the module docstring).
 
     Args:

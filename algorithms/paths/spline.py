@@ -25,11 +25,13 @@ scipy's ``make_lsq_spline`` solves eq. 7 (vector-valued y, one solve for x, y, z
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import BSpline, make_lsq_spline
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.errors import AlgorithmError
 
 KNOT_SPACING_M = 0.002
@@ -42,7 +44,7 @@ class SplineError(AlgorithmError):
     """Bad input to a line fit."""
 
 
-def centripetal_parameters(points: np.ndarray) -> np.ndarray:
+def centripetal_parameters(points: ArrayLike) -> FloatArray:
     """(n,) centripetal parameters in [0, 1] of an ordered polyline (n, 3).
 
     Raises:
@@ -73,18 +75,19 @@ class LineFit:
     """
 
     spline: BSpline = field(repr=False)
-    u: np.ndarray = field(repr=False)
+    u: FloatArray = field(repr=False)
     rms_error_m: float
     max_error_m: float
     length_m: float
     n_points: int
     n_spans: int
-    _arc: tuple = field(repr=False, default=())
+    _arc: tuple[FloatArray, ...] = field(repr=False, default=())  # (u, s): arc length s [m] at u
 
-    def __call__(self, u) -> np.ndarray:
+    def __call__(self, u: ArrayLike) -> FloatArray:
+        """Curve points (..., 3) [m] at parameters ``u`` in [0, 1]."""
         return self.spline(u)
 
-    def resample(self, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
+    def resample(self, spacing_m: float) -> tuple[FloatArray, FloatArray]:
         """Points every ``spacing_m`` of arc length (both ends kept) and unit tangents.
 
         Returns:
@@ -102,7 +105,7 @@ class LineFit:
         return pts, tan
 
 
-def fit_line(points, knot_spacing_m: float = KNOT_SPACING_M, degree: int = DEGREE) -> LineFit:
+def fit_line(points: ArrayLike, knot_spacing_m: float = KNOT_SPACING_M, degree: int = DEGREE) -> LineFit:
     """Least-squares B-spline fit of one ordered line with centripetal parameters.
 
     Args:
@@ -140,7 +143,7 @@ def fit_line(points, knot_spacing_m: float = KNOT_SPACING_M, degree: int = DEGRE
                    spans, (uu, ss))
 
 
-def _distance_to_curve(spl: BSpline, u0: np.ndarray, p: np.ndarray, iterations: int = 4) -> np.ndarray:
+def _distance_to_curve(spl: BSpline, u0: FloatArray, p: FloatArray, iterations: int = 4) -> FloatArray:
     """Distance of each point to the curve, by Newton's method on the foot parameter from ``u0``."""
     d1, d2 = spl.derivative(1), spl.derivative(2)
     u = u0.copy()
@@ -173,15 +176,15 @@ class FittedLines:
         max_error_m: largest fit error [m].
     """
 
-    fits: tuple
-    lines: tuple
-    tangents: tuple
+    fits: tuple[LineFit, ...]
+    lines: tuple[FloatArray, ...]
+    tangents: tuple[FloatArray, ...]
     spacing_m: float
     rms_error_m: float
     max_error_m: float
 
 
-def fit_lines(lines, spacing_m: float, knot_spacing_m: float = KNOT_SPACING_M) -> FittedLines:
+def fit_lines(lines: Sequence[ArrayLike], spacing_m: float, knot_spacing_m: float = KNOT_SPACING_M) -> FittedLines:
     """Fit every line (see :func:`fit_line`) and resample each at ``spacing_m``."""
     fits, pts, tans = [], [], []
     sq, n = 0.0, 0

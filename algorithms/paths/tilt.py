@@ -24,20 +24,19 @@ where the normal turns fast, a pose out of reach), :func:`steer_axes` re-chooses
 around the trouble within the cone, for the lowest cost the caller measures on the arm (the
 twin: its largest joint step on the closed-form IK), the tool kept clear.
 
-Measured with ``twin run`` on the idle 2-core machine (README, "Measured"): at 30 deg the
-stretches dropped fell from 524 / 539 (scan / CAD path) to 391 / 419 on hemisphere_punch, from
-443 / 458 to 366 / 349 on bottle_punch, from 464 / 357 to 384 / 295 on cast_blank and from
-64 / 330 to 54 / 286 on the bracket, with 0 unintended contacts in every replay.
+What the tilt gains on the example parts: ``benchmarks/results_history_symmetric_paths.md``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy.ndimage import uniform_filter1d
+
+from algorithms.arraytypes import ArrayLike, FloatArray
 
 
 @dataclass(frozen=True)
@@ -47,8 +46,8 @@ class ToolProfile:
     tool's radius [m] at each, and the shank's radius [m] (for the shank's foot, below the
     first sample: :func:`foot_gap_m`)."""
 
-    distance_m: np.ndarray
-    radius_m: np.ndarray
+    distance_m: FloatArray
+    radius_m: FloatArray
     tip_radius_m: float
     shank_radius_m: float
     step_m: float
@@ -63,8 +62,8 @@ def tool_profile(reach_m: float, tip_radius_m: float, shank_radius_m: float, hol
     return ToolProfile(s, r, tip_radius_m, shank_radius_m, step_m)
 
 
-def profile_gaps_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
-                   signed_distance: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+def profile_gaps_m(centres: FloatArray, axes: FloatArray, profile: ToolProfile,
+                   signed_distance: Callable[[FloatArray], FloatArray]) -> FloatArray:
     """(N, S) gap [m] between the part and the tool at each profile sample (along ``axes``
     from the ball ``centres``)."""
     samples = centres[:, None, :] + profile.distance_m[None, :, None] * axes[:, None, :]
@@ -72,8 +71,8 @@ def profile_gaps_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
     return d - profile.radius_m[None, :]
 
 
-def clearance_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
-                signed_distance: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+def clearance_m(centres: FloatArray, axes: FloatArray, profile: ToolProfile,
+                signed_distance: Callable[[FloatArray], FloatArray]) -> FloatArray:
     """(N,) smallest gap [m] between the tool (along ``axes`` from the ball ``centres``) and the part."""
     if len(centres) == 0 or len(profile.distance_m) == 0:
         return np.full(len(centres), np.inf)
@@ -83,8 +82,8 @@ def clearance_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
 FOOT_AZIMUTHS = 12
 
 
-def foot_gap_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
-               signed_distance: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+def foot_gap_m(centres: FloatArray, axes: FloatArray, profile: ToolProfile,
+               signed_distance: Callable[[FloatArray], FloatArray]) -> FloatArray:
     """(N,) smallest gap [m] between the part and the shank's foot: its surface from the
     ball's equator up to the first profile sample (rings of FOOT_AZIMUTHS points every
     profile step). The profile starts above the ball because the contact surface lies at
@@ -110,7 +109,7 @@ def foot_gap_m(centres: np.ndarray, axes: np.ndarray, profile: ToolProfile,
 _LEVEL_PROJECTION = 0.25
 
 
-def _tangent_towards(normals: np.ndarray, up: np.ndarray) -> np.ndarray:
+def _tangent_towards(normals: FloatArray, up: FloatArray) -> FloatArray:
     """Unit tangents: ``up`` projected on each tangent plane; where the face nearly faces ``up``,
     a fixed direction perpendicular to ``up`` projected instead."""
     t = up[None, :] - (normals @ up)[:, None] * normals
@@ -121,10 +120,10 @@ def _tangent_towards(normals: np.ndarray, up: np.ndarray) -> np.ndarray:
     return t / np.linalg.norm(t, axis=1, keepdims=True)
 
 
-def clear_axes(contacts: np.ndarray, normals: np.ndarray, tip_radius_m: float, profile: ToolProfile,
-               signed_distance: Callable[[np.ndarray], np.ndarray], max_tilt_rad: float, min_clearance_m: float,
-               min_foot_gap_m: float = 0.0, up=(0.0, 0.0, 1.0), levels: int = 4, azimuths: int = 8,
-               window: int = 7) -> np.ndarray:
+def clear_axes(contacts: FloatArray, normals: FloatArray, tip_radius_m: float, profile: ToolProfile,
+               signed_distance: Callable[[FloatArray], FloatArray], max_tilt_rad: float, min_clearance_m: float,
+               min_foot_gap_m: float = 0.0, up: ArrayLike = (0.0, 0.0, 1.0), levels: int = 4, azimuths: int = 8,
+               window: int = 7) -> FloatArray:
     """Tool axes (N, 3) for one line of contact points (see the module docstring).
 
     Args:
@@ -186,7 +185,7 @@ def clear_axes(contacts: np.ndarray, normals: np.ndarray, tip_radius_m: float, p
     return axes / np.linalg.norm(axes, axis=1, keepdims=True)
 
 
-def into_cone(axes: np.ndarray, normals: np.ndarray, max_tilt_rad: float) -> np.ndarray:
+def into_cone(axes: FloatArray, normals: FloatArray, max_tilt_rad: float) -> FloatArray:
     """Unit axes (N, 3): each axis, or where it leans more than ``max_tilt_rad`` from its
     normal, the axis in the cone's boundary nearest it."""
     a = axes / np.linalg.norm(axes, axis=1, keepdims=True)
@@ -201,11 +200,12 @@ def into_cone(axes: np.ndarray, normals: np.ndarray, max_tilt_rad: float) -> np.
     return out
 
 
-def steer_axes(contacts: np.ndarray, normals: np.ndarray, axes: np.ndarray, lo: int, hi: int,
-               cost: Callable[[np.ndarray, np.ndarray], float], tip_radius_m: float, profile: ToolProfile,
-               signed_distance: Callable[[np.ndarray], np.ndarray], max_tilt_rad: float, min_clearance_m: float,
-               min_foot_gap_m: float = 0.0, windows=(5, 9, 17, 33), up=(0.0, 0.0, 1.0), levels: int = 4,
-               azimuths: int = 8, ramp: int = 3) -> np.ndarray | None:
+def steer_axes(contacts: FloatArray, normals: FloatArray, axes: FloatArray, lo: int, hi: int,
+               cost: Callable[[FloatArray, FloatArray], float], tip_radius_m: float, profile: ToolProfile,
+               signed_distance: Callable[[FloatArray], FloatArray], max_tilt_rad: float, min_clearance_m: float,
+               min_foot_gap_m: float = 0.0, windows: Sequence[int] = (5, 9, 17, 33), up: ArrayLike = (0.0, 0.0, 1.0),
+               levels: int = 4,
+               azimuths: int = 8, ramp: int = 3) -> FloatArray | None:
     """Re-choose the axes around one stretch of a line for the arm: the line's axes (N, 3)
     with the stretch ``lo:hi`` and its surroundings changed to the candidate of the lowest
     ``cost``, or None when no candidate keeps the tool clear and costs less than the current
@@ -236,7 +236,7 @@ def steer_axes(contacts: np.ndarray, normals: np.ndarray, axes: np.ndarray, lo: 
     reach = max(windows) // 2 + ramp
     ea, eb = max(0, lo - reach), min(N, hi + reach)          # every candidate changes only ea:eb
 
-    def blended(target: np.ndarray, a: int, b: int) -> np.ndarray:
+    def blended(target: FloatArray, a: int, b: int) -> FloatArray:
         """The axes with ``target`` (N, 3) on a:b, ramping from the current ones over ``ramp``."""
         w = np.zeros(N)
         w[a:b] = 1.0

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from algorithms.arraytypes import ArrayLike, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.arclength import ROTATION_LENGTH_M_PER_RAD, step_lengths
 from algorithms.paths.toolpath import ProcessPath
@@ -46,25 +47,26 @@ class Trajectory:
         speed_m_s: (N,) commanded path speed [m/s] (path parameter rate).
     """
 
-    t: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-    segment: np.ndarray
-    t_path: np.ndarray
-    q_path: np.ndarray
+    t: FloatArray
+    q: FloatArray
+    qd: FloatArray
+    qdd: FloatArray
+    segment: IntArray
+    t_path: FloatArray
+    q_path: FloatArray
     velocity_ratio: float
     acceleration_ratio: float
-    speed_m_s: np.ndarray = field(repr=False)
+    speed_m_s: FloatArray = field(repr=False)
     dt: float = 0.001
 
     @property
     def duration_s(self) -> float:
+        """Time of the last sample [s] (0 when empty)."""
         return float(self.t[-1]) if len(self.t) else 0.0
 
 
-def _segment_profile(qs: np.ndarray, T: np.ndarray, v_seg: float, a_path: float, vmax: np.ndarray,
-                     amax: np.ndarray, share: float, rotation_length: float):
+def _segment_profile(qs: FloatArray, T: FloatArray, v_seg: float, a_path: float, vmax: FloatArray,
+                     amax: FloatArray, share: float, rotation_length: float):
     """Rest-to-rest profile of one segment: fine grid s, speeds, spline q(s), knot arc lengths."""
     ds = step_lengths(T, rotation_length)
     if np.sum(ds) <= 1e-9:  # a turn on the spot: time it by the angle
@@ -108,7 +110,7 @@ def _segment_profile(qs: np.ndarray, T: np.ndarray, v_seg: float, a_path: float,
     return (spline, s, v, t), s_knots_all
 
 
-def _evaluate(profile, tau: np.ndarray):
+def _evaluate(profile, tau: FloatArray):
     """s, sd, sdd and q, qd, qdd at local times ``tau`` of a segment profile."""
     spline, s_f, v_f, t_f = profile
     tau = np.clip(tau, 0.0, t_f[-1])
@@ -124,8 +126,8 @@ def _evaluate(profile, tau: np.ndarray):
     return q, d1 * sd[:, None], d2 * (sd**2)[:, None] + d1 * a[:, None], sd
 
 
-def time_law(path: ProcessPath, q_path: np.ndarray, feed_m_s: float, transit_speed_m_s: float,
-             acceleration_m_s2: float, vmax: np.ndarray, amax: np.ndarray, dt: float = 0.001,
+def time_law(path: ProcessPath, q_path: ArrayLike, feed_m_s: float, transit_speed_m_s: float,
+             acceleration_m_s2: float, vmax: FloatArray, amax: FloatArray, dt: float = 0.001,
              touchdown_acceleration_m_s2: float | None = None) -> Trajectory:
     """Time the joint path (see the module docstring) and sample it every ``dt``.
 
@@ -141,7 +143,7 @@ def time_law(path: ProcessPath, q_path: np.ndarray, feed_m_s: float, transit_spe
             (touch-down and lift-off along the tool axis) [m/s^2]; default: the same.
 
     Raises:
-        TwinError: a speed or acceleration of zero or below, shapes.
+        AlgorithmError: a speed or acceleration of zero or below, shapes.
     """
     if touchdown_acceleration_m_s2 is None:
         touchdown_acceleration_m_s2 = acceleration_m_s2
@@ -183,7 +185,7 @@ def time_law(path: ProcessPath, q_path: np.ndarray, feed_m_s: float, transit_spe
         profiles.append((t_start, duration, prof, a, b))
         t_start += duration
     n = int(np.ceil(t_start / dt - 1e-9)) + 1
-    t = np.arange(n) * dt
+    t = np.arange(n, dtype=np.float64) * dt
     q = np.empty((n, 6))
     qd = np.zeros((n, 6))
     qdd = np.zeros((n, 6))

@@ -42,27 +42,38 @@ them by the localization estimate (:func:`transform_frames`).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray, IntArray, Pose
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.arclength import ROTATION_LENGTH_M_PER_RAD, cumulative_length
 from algorithms.geometry.raycast import GRID_SHIFT_M, raycast_parallel
 from algorithms.geometry.se3 import as_pose, inv_pose
 from algorithms.paths.regions import ProcessRegion, split_runs
 
+if TYPE_CHECKING:
+    import trimesh
+
 SEGMENT_KINDS = ("approach", "process", "retract", "transit")
 # Consecutive raster hits farther apart than this many point spacings: a step (or a hole).
 STEP_FACTOR = 2.0
+
+#: ``(n, 3) TCP positions -> (n,) bool``: whether the tool is clear of the part there.
+ClearCheck = Callable[[FloatArray], ArrayLike]
+#: (point (3,), unit normal (3,)) of a plane above the part [m].
+SafePlane = tuple[ArrayLike, ArrayLike]
 
 
 class ToolPathError(AlgorithmError):
     """Bad input to tool-frame or path construction."""
 
 
-def _unit(v: np.ndarray, what: str) -> np.ndarray:
+def _unit(v: FloatArray, what: str) -> FloatArray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     if np.any(n < 1e-12):
         i = int(np.flatnonzero(n.ravel() < 1e-12)[0])
@@ -70,15 +81,16 @@ def _unit(v: np.ndarray, what: str) -> np.ndarray:
     return v / n
 
 
-def _fixed_vector(v, name: str) -> np.ndarray:
+def _fixed_vector(v: ArrayLike | None, name: str) -> FloatArray:
     a = np.asarray(v, dtype=np.float64)
     if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-12:
         raise ToolPathError(f"{name} must be a finite non-zero (3,) vector, got {v!r}")
     return a / np.linalg.norm(a)
 
 
-def contact_frames(points, normals, heading: str = "travel", heading_direction=None,
-                   axis: str = "normal", axis_direction=None) -> np.ndarray:
+def contact_frames(points: ArrayLike, normals: ArrayLike, heading: str = "travel",
+                   heading_direction: ArrayLike | None = None, axis: str = "normal",
+                   axis_direction: ArrayLike | None = None) -> FloatArray:
     """Eq. (11) frames along one line of contact points.
 
     Args:
@@ -132,7 +144,8 @@ def contact_frames(points, normals, heading: str = "travel", heading_direction=N
     return T
 
 
-def tool_frames(T_contact, lead_rad: float = 0.0, tilt_rad: float = 0.0, tip_radius_m: float = 0.0) -> np.ndarray:
+def tool_frames(T_contact: ArrayLike, lead_rad: float = 0.0, tilt_rad: float = 0.0,
+                tip_radius_m: float = 0.0) -> FloatArray:
     """Tool (TCP) frames from contact frames: lead/tilt and the ball-end offset (see module).
 
     Args:
@@ -158,7 +171,7 @@ def tool_frames(T_contact, lead_rad: float = 0.0, tilt_rad: float = 0.0, tip_rad
     return out
 
 
-def flange_poses(T_base_tool, T_flange_tool) -> np.ndarray:
+def flange_poses(T_base_tool: ArrayLike, T_flange_tool: ArrayLike) -> FloatArray:
     """Eq. (13): ``T_base_flange = T_base_tool @ inv(T_flange_tool)``.
 
     Raises:
@@ -174,7 +187,7 @@ def flange_poses(T_base_tool, T_flange_tool) -> np.ndarray:
     return T @ inv_pose(T_ft)
 
 
-def transform_frames(T_a_b, T_b_frames) -> np.ndarray:
+def transform_frames(T_a_b: ArrayLike, T_b_frames: ArrayLike) -> FloatArray:
     """(K, 4, 4) frames given in b expressed in a (document 003 step 5: CAD path by the estimate)."""
     T = as_pose(T_a_b, "T_a_b")
     return T @ np.asarray(T_b_frames, dtype=np.float64)
@@ -198,24 +211,26 @@ class ProcessPath:
         tip_radius_m: the ball-end radius the poses were made for.
     """
 
-    T_tool: np.ndarray
-    contact: np.ndarray
-    normal: np.ndarray
-    segment: np.ndarray
-    segments: tuple
-    s: np.ndarray
+    T_tool: FloatArray
+    contact: FloatArray
+    normal: FloatArray
+    segment: IntArray
+    segments: tuple[tuple[int, int, str, int], ...]
+    s: FloatArray
     tip_radius_m: float = 0.0
-    info: dict = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
 
     @property
     def n_lines(self) -> int:
+        """The number of process lines."""
         return sum(1 for s in self.segments if s[2] == "process")
 
-    def process_mask(self) -> np.ndarray:
+    def process_mask(self) -> BoolArray:
+        """(K,) True on the poses in contact (the process lines)."""
         return np.isfinite(self.contact[:, 0])
 
 
-def transform_path(T_a_b, path: ProcessPath) -> ProcessPath:
+def transform_path(T_a_b: ArrayLike, path: ProcessPath) -> ProcessPath:
     """The same path with every pose, point and normal given in frame b expressed in frame a.
 
     Document 003's step 5: a CAD path (workpiece frame) moved by the localization estimate
@@ -226,7 +241,7 @@ def transform_path(T_a_b, path: ProcessPath) -> ProcessPath:
                        path.segment.copy(), path.segments, path.s.copy(), path.tip_radius_m, dict(path.info))
 
 
-def _straight(T_a: np.ndarray, T_b: np.ndarray, step_m: float, turn_sign: float = 0.0) -> np.ndarray:
+def _straight(T_a: Pose, T_b: Pose, step_m: float, turn_sign: float = 0.0) -> FloatArray:
     """Poses from T_a to T_b: linear position, slerp rotation, about ``step_m`` apart.
 
     ``turn_sign`` picks the direction of an (ambiguous) half turn about T_a's z.
@@ -249,7 +264,8 @@ def _straight(T_a: np.ndarray, T_b: np.ndarray, step_m: float, turn_sign: float 
     return out
 
 
-def _transit(up_a: np.ndarray, up_b: np.ndarray, step_m: float, turn_sign: float, clear, safe_plane) -> np.ndarray:
+def _transit(up_a: Pose, up_b: Pose, step_m: float, turn_sign: float, clear: ClearCheck | None,
+             safe_plane: SafePlane | None) -> FloatArray:
     """A move in the air between two lines: straight when ``clear`` accepts it (or no check
     is given), else up to the safe plane, across it and down."""
     straight = _straight(up_a, up_b, step_m, turn_sign)
@@ -264,9 +280,10 @@ def _transit(up_a: np.ndarray, up_b: np.ndarray, step_m: float, turn_sign: float
     return np.concatenate([legs[0], legs[1][1:], legs[2][1:]])
 
 
-def assemble_path(lines_T_tool, lines_contact, lines_normal, retract_m: float = 0.02,
-                  transit_step_m: float = 0.002, tip_radius_m: float = 0.0, clear=None,
-                  safe_plane=None) -> ProcessPath:
+def assemble_path(lines_T_tool: Sequence[ArrayLike], lines_contact: Sequence[ArrayLike],
+                  lines_normal: Sequence[ArrayLike], retract_m: float = 0.02, transit_step_m: float = 0.002,
+                  tip_radius_m: float = 0.0, clear: ClearCheck | None = None,
+                  safe_plane: SafePlane | None = None) -> ProcessPath:
     """String process lines into one program (see module docstring).
 
     Args:
@@ -332,9 +349,9 @@ class ToolSettings:
     """How contact points become tool poses (see the module docstring; angles in radians)."""
 
     heading: str = "smooth"
-    heading_direction: tuple = (1.0, 0.0, 0.0)
+    heading_direction: tuple[float, ...] = (1.0, 0.0, 0.0)
     axis: str = "normal"
-    axis_direction: tuple = (0.0, 0.0, 1.0)
+    axis_direction: tuple[float, ...] = (0.0, 0.0, 1.0)
     lead_rad: float = 0.0
     tilt_rad: float = 0.0
     tip_radius_m: float = 0.0
@@ -343,8 +360,10 @@ class ToolSettings:
     zigzag: bool = True
 
 
-def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSettings(), T_frame_ref=None,
-               clear=None, safe_plane=None, lines_axis=None) -> ProcessPath:
+def build_path(lines_contact: Sequence[ArrayLike], lines_normal: Sequence[ArrayLike],
+               settings: ToolSettings = ToolSettings(), T_frame_ref: ArrayLike | None = None,
+               clear: ClearCheck | None = None, safe_plane: SafePlane | None = None,
+               lines_axis: Sequence[ArrayLike] | None = None) -> ProcessPath:
     """Contact points and normals per line -> a zig-zag :class:`ProcessPath` of tool poses.
 
     Args:
@@ -390,9 +409,11 @@ def build_path(lines_contact, lines_normal, settings: ToolSettings = ToolSetting
                          clear, safe_plane)
 
 
-def cad_raster(mesh, line_spacing_m: float = 0.004, point_spacing_m: float = 0.001, margin_m: float = 0.005,
-               line_axis: str = "x", region=None, normals=None,
-               process_region: ProcessRegion | None = None) -> tuple[list, list]:
+def cad_raster(mesh: trimesh.Trimesh, line_spacing_m: float = 0.004, point_spacing_m: float = 0.001,
+               margin_m: float = 0.005, line_axis: str = "x",
+               region: tuple[tuple[float, float], tuple[float, float]] | None = None,
+               normals: Callable[[IntArray, FloatArray], ArrayLike] | None = None,
+               process_region: ProcessRegion | None = None) -> tuple[list[FloatArray], list[FloatArray]]:
     """A raster of contact points on the CAD model, seen from +z (workpiece frame).
 
     Lines run along ``line_axis``, ``line_spacing_m`` apart, points ``point_spacing_m``
@@ -403,7 +424,7 @@ def cad_raster(mesh, line_spacing_m: float = 0.004, point_spacing_m: float = 0.0
     (:func:`algorithms.paths.regions.split_runs`); every piece becomes a line.
 
     Args:
-        mesh: object with ``vertices`` (V, 3) and ``faces`` (F, 3) [m], workpiece frame.
+        mesh: the CAD model (its ``vertices`` (V, 3) [m] and ``faces`` (F, 3)), workpiece frame.
         normals: optional callable ``(face (N,), points (N, 3)) -> (N, 3)`` smooth unit
             normals (e.g. ``MeshIndex.smooth_normals``); default: the face normals.
         process_region: optional :class:`ProcessRegion` (which surfaces are processed).

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.errors import AlgorithmError
 from algorithms.probing.program import Goto, ProbeSettings, Program, SelectStylus, Statement
 from algorithms.probing.safety_plane import (
@@ -55,7 +56,7 @@ BISECTION_TOL_M = 2e-4
 #: Kinds of moves a program makes (:func:`program_moves`); the planners sweep the transits.
 TRANSIT_KINDS = ("goto", "approach", "index")
 
-Check = Callable[[np.ndarray, np.ndarray, str], MoveCheck]
+Check = Callable[[FloatArray, FloatArray, str], MoveCheck]
 
 
 @dataclass(frozen=True)
@@ -69,14 +70,15 @@ class Move:
     index of the program statement that makes it.
     """
 
-    start_m: np.ndarray
-    end_m: np.ndarray
+    start_m: FloatArray
+    end_m: FloatArray
     stylus: str
     kind: str
     statement: int
 
     @property
     def length_m(self) -> float:
+        """Length of the move [m]."""
         return float(np.linalg.norm(self.end_m - self.start_m))
 
 
@@ -84,7 +86,7 @@ class Move:
 class StylusReach:
     """Where a stylus's ball sits relative to the probe head (part frame)."""
 
-    direction: np.ndarray
+    direction: FloatArray
     reach_m: float
     ball_radius_m: float
 
@@ -95,7 +97,7 @@ def program_moves(program: Program, styli: dict[str, StylusReach]) -> list[Move]
     Raises:
         AlgorithmError: a stylus the machine lacks, or a motion before the first GOTO and stylus.
     """
-    cur: np.ndarray | None = None
+    cur: FloatArray | None = None
     stylus: str | None = None
     s = program.settings
     out: list[Move] = []
@@ -139,8 +141,8 @@ class Collision:
 
     statement: int
     kind: str
-    start_m: np.ndarray
-    end_m: np.ndarray
+    start_m: FloatArray
+    end_m: FloatArray
     check: MoveCheck
 
 
@@ -190,8 +192,8 @@ def sweep_program(program: Program, styli: dict[str, StylusReach], check: Check)
     return out
 
 
-def find_safe_path(target_m: np.ndarray, line_point_m: np.ndarray, safe_m: np.ndarray, normal: np.ndarray,
-                   stylus: str, check: Check, tol_m: float = BISECTION_TOL_M) -> np.ndarray | None:
+def find_safe_path(target_m: FloatArray, line_point_m: FloatArray, safe_m: FloatArray, normal: FloatArray,
+                   stylus: str, check: Check, tol_m: float = BISECTION_TOL_M) -> FloatArray | None:
     """Document 002's find-safe-path: a point M on the penetration line from which the straight
     move to ``target_m`` is clear.
 
@@ -241,11 +243,11 @@ def _program(teach: Teach, method: str, b: _Builder) -> Program:
     return Program(f"{teach.name} {method}", settings, tuple(b.statements))
 
 
-def _plane(teach: Teach, vertices) -> SafetyPlane:
+def _plane(teach: Teach, vertices: ArrayLike) -> SafetyPlane:
     return teach.plane if teach.plane is not None else SafetyPlane.through_highest_point(vertices)
 
 
-def plan_baseline(teach: Teach, stations: list[Station], vertices, styli: dict[str, StylusReach],
+def plan_baseline(teach: Teach, stations: list[Station], vertices: ArrayLike, styli: dict[str, StylusReach],
                   check: Check) -> Plan:
     """The clearance-plane rule: safe positions before and after each feature (consecutive
     touches of one feature), straight moves between its points."""
@@ -276,7 +278,7 @@ def _document_builder(teach: Teach, stations: list[Station], plane: SafetyPlane,
     leaving = {p.exit_after: (j, p) for j, p in enumerate(pens) if p.effective and p.exit_after is not None}
     b = _start(teach, stations)
     cur = stations[0].position_m
-    pending: tuple[int, Penetration, np.ndarray] | None = None
+    pending: tuple[int, Penetration, FloatArray] | None = None
     settings = teach.settings
     for i, st in enumerate(stations[1:], start=1):
         if i - 1 in entering:
@@ -306,7 +308,7 @@ def _document_builder(teach: Teach, stations: list[Station], plane: SafetyPlane,
             cur = m_pt.approach_centre(styli[st.stylus].ball_radius_m, settings.retract_m)
         if i in leaving:
             j, pen = leaving[i]
-            s = safe_position(pen.exit_m, plane, teach.safe_distance_m)
+            s = safe_position(pen.exit_m, plane, teach.safe_distance_m)  # type: ignore[arg-type]
             res = check(cur, s, st.stylus)
             if not res.clear:
                 m = find_safe_path(cur, pen.exit_m, s, plane.normal, st.stylus, check)  # type: ignore[arg-type]
@@ -321,7 +323,7 @@ def _document_builder(teach: Teach, stations: list[Station], plane: SafetyPlane,
     return b, pens
 
 
-def plan_document(teach: Teach, stations: list[Station], vertices, styli: dict[str, StylusReach],
+def plan_document(teach: Teach, stations: list[Station], vertices: ArrayLike, styli: dict[str, StylusReach],
                   check: Check) -> Plan:
     """Document 002's algorithm (see the module docstring)."""
     plane = _plane(teach, vertices)
@@ -330,7 +332,7 @@ def plan_document(teach: Teach, stations: list[Station], vertices, styli: dict[s
     return _finish("document", teach, b, stations, plane, styli, check, unresolved, pens)
 
 
-def plan_full_check(teach: Teach, stations: list[Station], vertices, styli: dict[str, StylusReach],
+def plan_full_check(teach: Teach, stations: list[Station], vertices: ArrayLike, styli: dict[str, StylusReach],
                     check: Check) -> Plan:
     """Document 002's program with every move swept and repaired through the taught path."""
     plane = _plane(teach, vertices)
@@ -366,8 +368,8 @@ def plan_full_check(teach: Teach, stations: list[Station], vertices, styli: dict
     return _finish("full_check", teach, b, stations, plane, styli, check, unresolved, pens)
 
 
-def _via_chain(move: Move, p0: float, p1: float, stations: list[Station], crossings: list[tuple[float, np.ndarray]],
-               check: Check) -> list[tuple[np.ndarray, float]] | None:
+def _via_chain(move: Move, p0: float, p1: float, stations: list[Station], crossings: list[tuple[float, FloatArray]],
+               check: Check) -> list[tuple[FloatArray, float]] | None:
     """Taught points between places ``p0`` and ``p1`` of the taught path that join
     the move's ends by clear straight moves (greedy: always the farthest reachable), or None."""
     lo, hi = min(p0, p1), max(p0, p1)
@@ -377,7 +379,7 @@ def _via_chain(move: Move, p0: float, p1: float, stations: list[Station], crossi
     cands.sort(key=lambda c: c[0])
     if p0 > p1:
         cands.reverse()
-    chain: list[tuple[np.ndarray, float]] = []
+    chain: list[tuple[FloatArray, float]] = []
     cur = move.start_m
     pts = cands + [(p1, move.end_m)]
     i = 0
@@ -420,9 +422,19 @@ def taught_path_collisions(stations: list[Station], check: Check) -> list[str]:
     return out
 
 
-def plan(method: str, teach: Teach, stations: list[Station], vertices, styli: dict[str, StylusReach],
+def plan(method: str, teach: Teach, stations: list[Station], vertices: ArrayLike, styli: dict[str, StylusReach],
          check: Check) -> Plan:
-    """Plan with the named method (one of :data:`PLANNERS`)."""
+    """Plan with the named method (one of :data:`PLANNERS`).
+
+    Args:
+        method: the planner's name.
+        teach: the taught program (points, styli, the safety plane if the operator set one).
+        stations: its taught path (:func:`algorithms.probing.safety_plane.taught_path`).
+        vertices: (V, 3) [m] the part's vertices, part frame: the default safety plane runs
+            through the highest one.
+        styli: where each stylus's ball sits relative to the head.
+        check: the swept collision check of a straight move.
+    """
     planners = {"baseline": plan_baseline, "document": plan_document, "full_check": plan_full_check}
     if method not in planners:
         raise AlgorithmError(f"unknown planner {method!r}; allowed: {', '.join(PLANNERS)}")

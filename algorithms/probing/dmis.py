@@ -43,6 +43,7 @@ from typing import NoReturn
 
 import numpy as np
 
+from algorithms.arraytypes import FloatArray
 from algorithms.errors import AlgorithmError
 from algorithms.probing.program import (
     LABEL_PATTERN,
@@ -313,7 +314,7 @@ class _Parser:
                       "digits or underscores")
         return label
 
-    def point_and_normal(self, st: _Statement, first: int, form: str) -> tuple[np.ndarray, np.ndarray]:
+    def point_and_normal(self, st: _Statement, first: int, form: str) -> tuple[FloatArray, FloatArray]:
         """The point [m] and the unit normal in ``st.fields[first:first + 6]``."""
         xyz = np.array([self.length_m(f, f"{st.word} coordinate {a}", form)
                         for a, f in zip("xyz", st.fields[first:first + 3], strict=True)])
@@ -490,12 +491,12 @@ class _Parser:
         self.ended = True
 
 
-def _measure_point(label: str, point_m: np.ndarray, normal: np.ndarray) -> MeasurePoint:
+def _measure_point(label: str, point_m: FloatArray, normal: FloatArray) -> MeasurePoint:
     """The MeasurePoint of a file's point and normal, keeping a normal that is already unit to the
     file's 9 decimals as written.
 
-    (MeasurePoint divides by the norm and rounds again, which moves the last decimal of about 2 %
-    of normals that were already rounded; a file written from a program must read back equal.)
+    (MeasurePoint divides by the norm and rounds again, which can move the last decimal of a
+    normal that was already rounded; a file written from a program must read back equal.)
     """
     mp = MeasurePoint(label, tuple(float(x) for x in point_m), tuple(float(c) for c in normal))  # type: ignore[arg-type]
     written = tuple(float(c) for c in normal)

@@ -21,14 +21,20 @@ Everything is in the workpiece (mesh) frame, in metres.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 from algorithms.registration.uncertainty import information_rows, sym_inverse
+
+if TYPE_CHECKING:
+    from algorithms.geometry.mesh_index import MeshIndex
 
 __all__ = [
     "REASONS",
@@ -78,9 +84,9 @@ class Candidates:
         faces: (N,) index of each point's face.
     """
 
-    points: np.ndarray
-    normals: np.ndarray
-    faces: np.ndarray
+    points: FloatArray
+    normals: FloatArray
+    faces: IntArray
 
 
 @dataclass(frozen=True)
@@ -95,13 +101,13 @@ class Feasibility:
             counts sum to N.
     """
 
-    mask: np.ndarray
-    reason: np.ndarray
+    mask: BoolArray
+    reason: IntArray
     counts: dict[str, int]
 
 
 # ------------------------------------------------------------------------------ candidates
-def sample_candidates(mesh, spacing_m: float, rng: np.random.Generator) -> Candidates:
+def sample_candidates(mesh: trimesh.Trimesh, spacing_m: float, rng: np.random.Generator) -> Candidates:
     """Points spread over a mesh's surface about ``spacing_m`` apart, with their face normals.
 
     Random sequential sampling: ``4 area / spacing^2`` uniform samples
@@ -138,13 +144,13 @@ def sample_candidates(mesh, spacing_m: float, rng: np.random.Generator) -> Candi
     return Candidates(points=raw[keep], normals=normals, faces=faces)
 
 
-def _thin(points: np.ndarray, spacing_m: float) -> np.ndarray:
+def _thin(points: FloatArray, spacing_m: float) -> IntArray:
     """Indices of a subset with no two points closer than ``spacing_m``: each point in turn
     is kept unless a kept one is that close (random sequential adsorption).
 
     ``trimesh.points.remove_close`` drops one point of every close pair at once, which also
-    drops points whose only close neighbour is dropped too: it left 0.3 points per
-    ``spacing^2`` on a cube where this keeps about 0.5.
+    drops points whose only close neighbour is dropped too: it thins far more (the counts are
+    in ``benchmarks/results_history_symmetric_paths.md``).
     """
     pairs = cKDTree(points).query_pairs(spacing_m, output_type="ndarray")
     first = np.concatenate([pairs[:, 0], pairs[:, 1]])
@@ -162,14 +168,14 @@ def _thin(points: np.ndarray, spacing_m: float) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- information
-def _rows_about_centroid(points, normals, centre=None) -> np.ndarray:
+def _rows_about_centroid(points: ArrayLike, normals: ArrayLike, centre: FloatArray | None = None) -> FloatArray:
     """Information rows (N, 6) with the rotation about ``centre`` (default: the centroid)."""
     p = np.asarray(points, dtype=np.float64)
     c = p.mean(axis=0) if centre is None else centre
     return information_rows(p - c, normals)
 
 
-def log_det_information(points, normals) -> float:
+def log_det_information(points: ArrayLike, normals: ArrayLike) -> float:
     """``log det sum g_i g_i^T`` of the information rows (-inf when singular).
 
     Args:
@@ -181,7 +187,7 @@ def log_det_information(points, normals) -> float:
     return float(value) if sign > 0 else -np.inf
 
 
-def predicted_pose_std(points, normals, sigma_m: float) -> np.ndarray:
+def predicted_pose_std(points: ArrayLike, normals: ArrayLike, sigma_m: float) -> FloatArray:
     """Predicted standard deviations (6,) of the pose twist ``[omega (rad), v (m)]``.
 
     The square roots of the diagonal of ``sigma^2 (J^T J)^-1`` with rows
@@ -205,7 +211,7 @@ def predicted_pose_std(points, normals, sigma_m: float) -> np.ndarray:
     return np.sqrt(np.diag(sym_inverse(G.T @ G))) * float(sigma_m)
 
 
-def _is_singular(G: np.ndarray) -> bool:
+def _is_singular(G: FloatArray) -> bool:
     """Whether rows ``[(p - c) x n, n]`` about the centroid leave a pose direction free."""
     # consistent units (as in uncertainty.observability): rotations times the RMS lever arm
     scale = np.sqrt(np.mean(np.sum(G[:, :3] ** 2, axis=1)))
@@ -217,7 +223,7 @@ def _is_singular(G: np.ndarray) -> bool:
 
 
 # ------------------------------------------------------------------------------ selection
-def _allowed(n_candidates: int, m, candidates_mask) -> np.ndarray:
+def _allowed(n_candidates: int, m: int, candidates_mask: ArrayLike | None) -> IntArray:
     """Checked indices of the allowed candidates, at least ``m`` of them."""
     if isinstance(m, bool) or not isinstance(m, int | np.integer) or m < 1:
         raise AlgorithmError(f"m must be a positive integer, got {m!r}")
@@ -234,7 +240,8 @@ def _allowed(n_candidates: int, m, candidates_mask) -> np.ndarray:
     return allowed
 
 
-def d_optimal(points, normals, m: int, *, candidates_mask=None, max_passes: int = MAX_EXCHANGE_PASSES) -> np.ndarray:
+def d_optimal(points: ArrayLike, normals: ArrayLike, m: int, *, candidates_mask: ArrayLike | None = None,
+              max_passes: int = MAX_EXCHANGE_PASSES) -> IntArray:
     """Choose ``m`` candidates maximising ``log det sum g_i g_i^T`` (D-optimal design).
 
     Greedy forward selection (each step adds the candidate with the largest
@@ -277,7 +284,7 @@ def d_optimal(points, normals, m: int, *, candidates_mask=None, max_passes: int 
     return allowed[chosen]
 
 
-def _greedy(G: np.ndarray, m: int) -> np.ndarray:
+def _greedy(G: FloatArray, m: int) -> IntArray:
     """Greedy forward selection of ``m`` rows of G (indices into G)."""
     ridge = RIDGE_REL * float(np.einsum("ij,ij->", G, G)) * np.eye(6)
     chosen: list[int] = []
@@ -294,7 +301,7 @@ def _greedy(G: np.ndarray, m: int) -> np.ndarray:
     return np.array(chosen)
 
 
-def _exchange(G: np.ndarray, chosen: np.ndarray, max_passes: int) -> np.ndarray:
+def _exchange(G: FloatArray, chosen: IntArray, max_passes: int) -> IntArray:
     """Fedorov exchange passes on a chosen set (indices into G)."""
     chosen = chosen.copy()
     free = np.ones(len(G), dtype=bool)
@@ -323,7 +330,7 @@ def _exchange(G: np.ndarray, chosen: np.ndarray, max_passes: int) -> np.ndarray:
     return chosen
 
 
-def spread_points(points, m: int, *, candidates_mask=None) -> np.ndarray:
+def spread_points(points: ArrayLike, m: int, *, candidates_mask: ArrayLike | None = None) -> IntArray:
     """Farthest-point sampling of ``m`` candidates (a geometric, information-blind baseline).
 
     Starts from the allowed candidate farthest from their centroid, then repeatedly adds the
@@ -352,7 +359,8 @@ def spread_points(points, m: int, *, candidates_mask=None) -> np.ndarray:
     return allowed[np.array(chosen)]
 
 
-def random_points(n_candidates: int, m: int, rng: np.random.Generator, *, candidates_mask=None) -> np.ndarray:
+def random_points(n_candidates: int, m: int, rng: np.random.Generator, *,
+                  candidates_mask: ArrayLike | None = None) -> IntArray:
     """``m`` distinct candidates drawn uniformly (a baseline).
 
     Args:
@@ -373,10 +381,10 @@ def random_points(n_candidates: int, m: int, rng: np.random.Generator, *, candid
 
 
 # ----------------------------------------------------------------------------- feasibility
-def feasible_candidates(index, points, normals, *, stylus_axis, ball_radius_m: float, stylus_radius_m: float,
-                        stylus_length_m: float, body_radius_m: float, body_length_m: float, approach_m: float,
-                        search_m: float, edge_margin_m: float, clearance_m: float,
-                        max_normal_change_deg: float = 10.0) -> Feasibility:
+def feasible_candidates(index: MeshIndex, points: ArrayLike, normals: ArrayLike, *, stylus_axis: ArrayLike,
+                        ball_radius_m: float, stylus_radius_m: float, stylus_length_m: float, body_radius_m: float,
+                        body_length_m: float, approach_m: float, search_m: float, edge_margin_m: float,
+                        clearance_m: float, max_normal_change_deg: float = 10.0) -> Feasibility:
     """Which candidates a touch probe with a fixed stylus direction can touch.
 
     The probe approaches each point ``p`` along its normal ``n``: the ball centre (radius
@@ -386,35 +394,22 @@ def feasible_candidates(index, points, normals, *, stylus_axis, ball_radius_m: f
     ``c0 + search_m n``: if the part lies up to ``search_m`` farther away than at the
     estimated pose, the probe starts that much farther from it and touches it at ``ct``
     relative to it; it never reaches the points beyond ``ct`` of the part it touches. The
-    ball and stylus tests sample that stretch (``c0 + search_m n`` to ``ct``).
+    ball and stylus tests sample that stretch (``c0 + search_m n`` to ``ct``), ball centres
+    ``min(r, stylus_radius_m, body_radius_m, 1 mm) / 2`` apart.
 
-    Tests, in order; a candidate gets the reason of the first it fails:
+    Tests, in order; a candidate gets the reason of the first it fails (each test runs on
+    the candidates that passed the ones before, with one mesh query for all of them):
 
-    1. ``"faces_away"``: the motion ``u = -n`` is not a sense direction of the probe
-       (``u . a < 0``, i.e. ``n . a > 0``, with ``a`` the stylus axis; see
-       :mod:`algorithms.probing.pretravel`).
+    1. ``"faces_away"``: ``-n`` is not a sense direction of the probe (``n . a > 0``, ``a``
+       the stylus axis; see :mod:`algorithms.probing.pretravel`).
     2. ``"near_edge"``: the surface within ``edge_margin_m`` of ``p`` is not one smooth
-       patch. The closest points of ``p + rho t_k`` for 8 tangent directions ``t_k``, with
-       ``rho = edge_margin_m / cos(22.5 deg)`` so that any straight edge within the margin
-       is crossed by one of them, must lie within ``0.1 edge_margin_m`` of the tangent plane,
-       on faces whose normals are within ``max_normal_change_deg`` of ``n``, and, where the
-       query is off the surface, in a direction within that angle of ``n`` (off a face's
-       edge the closest point is on the edge, in the tangent plane, on either face; the
-       direction tells it apart from a smooth bend).
-    3. ``"ball_blocked"``: the ball would touch anything before ``ct``: the signed distance
-       of ball centres sampled from ``c0 + search_m n`` to ``ct`` (ct excluded) is below
-       ``r - 1e-6``, or at ``ct`` it differs from ``r`` by more than 1e-6 m (the ball there
-       touches another surface too, e.g. in a groove narrower than the ball).
-    4. ``"stylus_collision"``: at any of those ball-centre samples the stylus (from the ball
-       centre along ``-a``, from ``r`` to ``stylus_length_m``, radius ``stylus_radius_m``)
-       or the probe body (the next ``body_length_m``, radius ``body_radius_m``) comes
-       within ``clearance_m`` of the part. Both are sampled on their axes every
-       ``min(radius, 1 mm)``; a sample collides when its signed distance is below its
-       radius plus the clearance (between samples a cylinder is approximated by spheres).
-
-    Ball-centre samples are ``min(r, stylus_radius_m, body_radius_m, 1 mm) / 2`` apart.
-    Each test runs on the candidates that passed the ones before, with one mesh query for
-    all of their samples (the stylus test in groups of at most ``MAX_QUERY_POINTS``).
+       patch (normals within ``max_normal_change_deg``; see :meth:`_Probe.near_edge`).
+    3. ``"ball_blocked"``: the ball would touch anything before ``ct``, or touches another
+       surface too at ``ct`` (a groove narrower than the ball).
+    4. ``"stylus_collision"``: the stylus (radius ``stylus_radius_m``, from the ball centre
+       along ``-a`` to ``stylus_length_m``) or the probe body (the next ``body_length_m``,
+       radius ``body_radius_m``) comes within ``clearance_m`` of the part at any sampled
+       ball centre.
 
     Args:
         index: :class:`algorithms.geometry.mesh_index.MeshIndex` of the workpiece mesh
@@ -448,25 +443,75 @@ def feasible_candidates(index, points, normals, *, stylus_axis, ball_radius_m: f
     r = float(ball_radius_m)
     step = min(r, stylus_radius_m, body_radius_m, MAX_SAMPLE_STEP_M) / 2.0
     reach = approach_m + search_m
-    offsets = r + np.linspace(reach, 0.0, int(np.ceil(reach / step)) + 1)  # ball centre above p along n, ct last
-    reason = np.zeros(len(p), dtype=np.int64)
-
-    def reject(code: int, pending: np.ndarray, bad: np.ndarray) -> np.ndarray:
-        reason[pending[bad]] = code
-        return pending[~bad]
-
-    pending = np.arange(len(p))
-    pending = reject(1, pending, n @ a > 1e-9)
-    pending = reject(2, pending, _near_edge(index, p[pending], n[pending], edge_margin_m, max_normal_change_deg))
-    pending = reject(3, pending, _ball_blocked(index, p[pending], n[pending], r, offsets))
     axis_s, radius = _probe_samples(r, stylus_radius_m, stylus_length_m, body_radius_m, body_length_m)
-    pending = reject(4, pending, _probe_collides(index, p[pending], n[pending], a, offsets, axis_s,
-                                                 radius + clearance_m))
+    probe = _Probe(index=index, axis=a, ball_radius_m=r,
+                   offsets=r + np.linspace(reach, 0.0, int(np.ceil(reach / step)) + 1),
+                   axis_s=axis_s, threshold=radius + clearance_m, edge_margin_m=edge_margin_m,
+                   max_normal_change_deg=max_normal_change_deg)
+    # in the order of REASONS[1:]
+    reason = _first_failed(p, n, (probe.faces_away, probe.near_edge, probe.ball_blocked, probe.collides))
     counts = {name: int(np.sum(reason == code)) for code, name in enumerate(REASONS)}
     return Feasibility(mask=reason == 0, reason=reason, counts=counts)
 
 
-def _check_feasibility_input(p, n, a, **lengths) -> None:
+def _first_failed(p: FloatArray, n: FloatArray,
+                  tests: tuple[Callable[[FloatArray, FloatArray], BoolArray], ...]) -> IntArray:
+    """(N,) 1 + the index of the first test each point fails, 0 where it passes all; each
+    test sees the points (k, 3) and normals (k, 3) that passed the ones before."""
+    reason = np.zeros(len(p), dtype=np.int64)
+    pending = np.arange(len(p))
+    for code, failed in enumerate(tests, start=1):
+        bad = failed(p[pending], n[pending])
+        reason[pending[bad]] = code
+        pending = pending[~bad]
+    return reason
+
+
+@dataclass(frozen=True)
+class _Probe:
+    """A touch probe's geometry and sweep, workpiece frame, metres.
+
+    Attributes:
+        index: the workpiece mesh.
+        axis: (3,) unit stylus axis ``a``, from the body to the ball.
+        ball_radius_m: ``r``.
+        offsets: (K,) ball-centre heights above ``p`` along ``n``, from ``c0 + search_m n``
+            down to ``ct`` (``r``, last).
+        axis_s: (S,) distances of the stylus and body samples from the ball centre along ``-a``.
+        threshold: (S,) their radii plus the clearance: a sample collides below it.
+        edge_margin_m: radius of the smooth patch required around a point.
+        max_normal_change_deg: largest normal change within the patch [deg].
+    """
+
+    index: MeshIndex
+    axis: FloatArray
+    ball_radius_m: float
+    offsets: FloatArray
+    axis_s: FloatArray
+    threshold: FloatArray
+    edge_margin_m: float
+    max_normal_change_deg: float
+
+    def faces_away(self, p: FloatArray, n: FloatArray) -> BoolArray:
+        """(N,) bool: the motion ``u = -n`` is not a sense direction (``u . a < 0``)."""
+        return n @ self.axis > 1e-9
+
+    def near_edge(self, p: FloatArray, n: FloatArray) -> BoolArray:
+        """(N,) bool: the surface within the margin of p is not one smooth patch (:func:`_near_edge`)."""
+        return _near_edge(self.index, p, n, self.edge_margin_m, self.max_normal_change_deg)
+
+    def ball_blocked(self, p: FloatArray, n: FloatArray) -> BoolArray:
+        """(N,) bool: the ball meets the part on its way in, or at the touch elsewhere than p
+        (:func:`_ball_blocked`)."""
+        return _ball_blocked(self.index, p, n, self.ball_radius_m, self.offsets)
+
+    def collides(self, p: FloatArray, n: FloatArray) -> BoolArray:
+        """(N,) bool: a stylus or body sample comes within the clearance of the part
+        (:func:`_probe_collides`)."""
+        return _probe_collides(self.index, p, n, self.axis, self.offsets, self.axis_s, self.threshold)
+
+
+def _check_feasibility_input(p: FloatArray, n: FloatArray, a: FloatArray, **lengths: float) -> None:
     if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
         raise AlgorithmError(f"points and normals must both be (N, 3), got {p.shape} and {n.shape}")
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n))):
@@ -493,7 +538,7 @@ def _check_feasibility_input(p, n, a, **lengths) -> None:
         raise AlgorithmError(f"max_normal_change_deg must be in (0, 90), got {lengths['max_normal_change_deg']}")
 
 
-def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _tangent_basis(n: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Two unit vectors (N, 3) each, orthogonal to each other and to the unit normals n."""
     # cross with the world axis least aligned with n, so the result never degenerates
     helper = np.eye(3)[np.argmin(np.abs(n), axis=1)]
@@ -502,8 +547,17 @@ def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(n, e1)
 
 
-def _near_edge(index, p, n, margin, max_change_deg) -> np.ndarray:
-    """(N,) bool: the surface within ``margin`` of p is not one smooth patch."""
+def _near_edge(index: MeshIndex, p: FloatArray, n: FloatArray, margin: float, max_change_deg: float) -> BoolArray:
+    """(N,) bool: the surface within ``margin`` [m] of p is not one smooth patch.
+
+    The closest points of ``p + rho t_k`` for 8 tangent directions ``t_k``, with
+    ``rho = margin / cos(22.5 deg)`` so that any straight edge within the margin is crossed
+    by one of them, must lie within ``0.1 margin`` of the tangent plane, on faces whose
+    normals are within ``max_change_deg`` of ``n``, and, where the query is off the surface,
+    in a direction within that angle of ``n`` (off a face's edge the closest point is on the
+    edge, in the tangent plane, on either face; the direction tells it apart from a smooth
+    bend).
+    """
     if len(p) == 0:
         return np.zeros(0, dtype=bool)
     e1, e2 = _tangent_basis(n)
@@ -524,8 +578,13 @@ def _near_edge(index, p, n, margin, max_change_deg) -> np.ndarray:
     return bad.reshape(-1, EDGE_DIRECTIONS).any(axis=1)
 
 
-def _ball_blocked(index, p, n, r, offsets) -> np.ndarray:
-    """(N,) bool: the ball meets the part on its way in, or at the touch elsewhere than p."""
+def _ball_blocked(index: MeshIndex, p: FloatArray, n: FloatArray, r: float, offsets: FloatArray) -> BoolArray:
+    """(N,) bool: the ball meets the part on its way in, or at the touch elsewhere than p.
+
+    The signed distance of the ball centres ``p + offsets n`` is below ``r - BALL_TOL_M``
+    before the touch (the last offset excluded), or differs from ``r`` by more than
+    ``BALL_TOL_M`` at it (the ball touches another surface too).
+    """
     if len(p) == 0:
         return np.zeros(0, dtype=bool)
     centres = p[:, None, :] + offsets[None, :, None] * n[:, None, :]
@@ -533,7 +592,8 @@ def _ball_blocked(index, p, n, r, offsets) -> np.ndarray:
     return np.any(sd[:, :-1] < r - BALL_TOL_M, axis=1) | (np.abs(sd[:, -1] - r) > BALL_TOL_M)
 
 
-def _probe_samples(r, stylus_radius, stylus_length, body_radius, body_length) -> tuple[np.ndarray, np.ndarray]:
+def _probe_samples(r: float, stylus_radius: float, stylus_length: float, body_radius: float,
+                   body_length: float) -> tuple[FloatArray, FloatArray]:
     """Distances (S,) [m] from the ball centre along -a of the stylus and body samples, and their radii (S,)."""
     stylus = np.linspace(r, stylus_length, int(np.ceil((stylus_length - r) / min(stylus_radius,
                                                                                   MAX_SAMPLE_STEP_M))) + 1)
@@ -543,8 +603,15 @@ def _probe_samples(r, stylus_radius, stylus_length, body_radius, body_length) ->
             np.concatenate([np.full(len(stylus), stylus_radius), np.full(len(body), body_radius)]))
 
 
-def _probe_collides(index, p, n, a, offsets, axis_s, threshold) -> np.ndarray:
-    """(N,) bool: a stylus or body sample comes within its threshold of the part."""
+def _probe_collides(index: MeshIndex, p: FloatArray, n: FloatArray, a: FloatArray, offsets: FloatArray,
+                    axis_s: FloatArray, threshold: FloatArray) -> BoolArray:
+    """(N,) bool: a stylus or body sample comes within its threshold of the part.
+
+    At every ball centre ``p + offsets n`` the stylus and body are sampled on their axis
+    (``centre - axis_s a``, every ``min(radius, 1 mm)``); a sample collides when its signed
+    distance is below its threshold (between samples a cylinder is approximated by spheres).
+    The candidates go in groups of at most ``MAX_QUERY_POINTS`` samples.
+    """
     if len(p) == 0:
         return np.zeros(0, dtype=bool)
     out = np.zeros(len(p), dtype=bool)

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.errors import AlgorithmError
 
 __all__ = ["PretravelModel"]
@@ -100,7 +101,7 @@ class PretravelModel:
         """Stylus scale ``stylus_m / reference_stylus_m`` (the assumed linear length law)."""
         return self.stylus_m / self.reference_stylus_m
 
-    def pretravel_m(self, u_probe) -> np.ndarray | float:
+    def pretravel_m(self, u_probe: ArrayLike) -> FloatArray | float:
         """Mean pre-travel [m] for motion directions in the probe frame.
 
         Args:
@@ -123,7 +124,7 @@ class PretravelModel:
         out = self.scale * (lateral * sin2 + self.axial_m * cos2)
         return float(out[0]) if single else out
 
-    def draw_m(self, u_probe, rng: np.random.Generator) -> np.ndarray | float:
+    def draw_m(self, u_probe: ArrayLike, rng: np.random.Generator) -> FloatArray | float:
         """One trigger per direction: pre-travel plus Gaussian repeatability, clipped at 0.
 
         Args:
@@ -139,12 +140,12 @@ class PretravelModel:
         out = np.maximum(mean + rng.normal(0.0, self.repeatability_sigma_m, size=mean.shape), 0.0)
         return float(out[0]) if np.ndim(u_probe) == 1 else out
 
-    def mean_m(self, u_probe) -> float:
+    def mean_m(self, u_probe: ArrayLike) -> float:
         """Mean pre-travel [m] over the given directions ((N, 3) or (3,), probe frame)."""
         return float(np.mean(self.pretravel_m(u_probe)))
 
 
-def _directions(u_probe) -> tuple[np.ndarray, bool]:
+def _directions(u_probe: ArrayLike) -> tuple[FloatArray, bool]:
     """Checked (N, 3) unit directions with u . z >= 0, and whether one (3,) was given."""
     u = np.asarray(u_probe, dtype=np.float64)
     single = u.ndim == 1

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.errors import AlgorithmError
 
 #: A DMIS label: letters, digits and underscores, starting with a letter (at most 20 characters).
@@ -43,14 +44,14 @@ POSITION_DECIMALS_MM = 6
 NORMAL_DECIMALS = 9
 
 
-def _vec3(v, what: str) -> np.ndarray:
+def _vec3(v: ArrayLike, what: str) -> FloatArray:
     a = np.asarray(v, dtype=np.float64).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise AlgorithmError(f"{what} must be three finite numbers, got {v!r}")
     return a
 
 
-def _position(v, what: str) -> tuple[float, float, float]:
+def _position(v: ArrayLike, what: str) -> tuple[float, float, float]:
     """A position [m] snapped to the DMIS grid (1 nm)."""
     a = _vec3(v, what)
     return tuple(round(float(x) * 1e3, POSITION_DECIMALS_MM) / 1e3 for x in a)  # type: ignore[return-value]
@@ -97,7 +98,7 @@ class MeasurePoint:
             n = np.round(n / norm, NORMAL_DECIMALS)
         object.__setattr__(self, "normal", tuple(float(x) for x in n))
 
-    def approach_centre(self, ball_radius_m: float, approach_m: float) -> np.ndarray:
+    def approach_centre(self, ball_radius_m: float, approach_m: float) -> FloatArray:
         """The ball centre at the start of the probing move [m]."""
         return np.asarray(self.point_m) + (ball_radius_m + approach_m) * np.asarray(self.normal)
 
@@ -154,8 +155,10 @@ class Program:
 
     @property
     def measurements(self) -> list[MeasurePoint]:
+        """The program's measured points, in order."""
         return [s for s in self.statements if isinstance(s, MeasurePoint)]
 
     @property
     def gotos(self) -> list[Goto]:
+        """The program's GOTOs, in order."""
         return [s for s in self.statements if isinstance(s, Goto)]

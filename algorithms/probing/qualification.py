@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.errors import AlgorithmError
 
 __all__ = [
@@ -59,10 +60,10 @@ class SphereFit:
         converged: whether the last step was shorter than ``STEP_TOL_M``.
     """
 
-    centre: np.ndarray
+    centre: FloatArray
     radius_m: float
     rms_m: float
-    residuals_m: np.ndarray
+    residuals_m: FloatArray
     iterations: int
     converged: bool
 
@@ -79,12 +80,12 @@ class Qualification:
     """
 
     effective_radius_m: float
-    sphere_centre: np.ndarray
+    sphere_centre: FloatArray
     rms_m: float
     n_points: int
 
 
-def fit_sphere(points) -> SphereFit:
+def fit_sphere(points: ArrayLike) -> SphereFit:
     """Least-squares sphere minimising the geometric distances ``|p_i - c| - radius``.
 
     Starts from the algebraic fit (linear in ``c`` and ``radius^2 - |c|^2``) and refines
@@ -129,7 +130,7 @@ def fit_sphere(points) -> SphereFit:
                      residuals_m=residuals, iterations=iterations, converged=converged)
 
 
-def qualify_ball(centres, sphere_radius_m: float) -> Qualification:
+def qualify_ball(centres: ArrayLike, sphere_radius_m: float) -> Qualification:
     """Effective ball radius from ball centres triggered on the outside of a reference sphere.
 
     Args:
@@ -152,7 +153,7 @@ def qualify_ball(centres, sphere_radius_m: float) -> Qualification:
                          n_points=len(fit.residuals_m))
 
 
-def qualification_directions(n_points: int = 25, min_elevation_deg: float = 0.0) -> np.ndarray:
+def qualification_directions(n_points: int = 25, min_elevation_deg: float = 0.0) -> FloatArray:
     """Outward sphere normals to probe a reference sphere at: a pole point plus rings.
 
     As in a CMM qualification pattern: one touch at the pole, the rest on rings of about
@@ -185,7 +186,7 @@ def qualification_directions(n_points: int = 25, min_elevation_deg: float = 0.0)
     return np.array(out)
 
 
-def compensate(centres, normals, effective_radius_m: float) -> np.ndarray:
+def compensate(centres: ArrayLike, normals: ArrayLike, effective_radius_m: float) -> FloatArray:
     """Surface points from triggered ball centres: ``centres - r_eff * normals``.
 
     Args:
@@ -211,7 +212,7 @@ def compensate(centres, normals, effective_radius_m: float) -> np.ndarray:
     return c - float(effective_radius_m) * n
 
 
-def cosine_error_m(effective_radius_m: float, normal_error_rad) -> np.ndarray | float:
+def cosine_error_m(effective_radius_m: float, normal_error_rad: ArrayLike) -> FloatArray | float:
     """Error along the normal [m] left by compensating along a normal off by ``theta``.
 
     ``r (1 - cos theta)``, evaluated as ``2 r sin^2(theta / 2)``, which keeps its precision

@@ -28,11 +28,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray
 from algorithms.errors import AlgorithmError
 from algorithms.probing.program import MeasurePoint, ProbeSettings, check_label
 
 
-def _unit(v, what: str) -> np.ndarray:
+def _unit(v: ArrayLike, what: str) -> FloatArray:
     a = np.asarray(v, dtype=np.float64).reshape(-1)
     n = float(np.linalg.norm(a)) if a.shape == (3,) else 0.0
     if a.shape != (3,) or not np.isfinite(n) or n == 0.0:
@@ -44,8 +45,8 @@ def _unit(v, what: str) -> np.ndarray:
 class SafetyPlane:
     """A plane through ``point_m`` with unit normal ``normal`` (pointing away from the part)."""
 
-    point_m: np.ndarray
-    normal: np.ndarray
+    point_m: FloatArray
+    normal: FloatArray
 
     def __post_init__(self) -> None:
         p = np.asarray(self.point_m, dtype=np.float64).reshape(-1)
@@ -55,28 +56,28 @@ class SafetyPlane:
         object.__setattr__(self, "normal", _unit(self.normal, "safety plane normal"))
 
     @staticmethod
-    def through_highest_point(vertices, normal=(0.0, 0.0, 1.0)) -> SafetyPlane:
-        """The plane with the given normal through the part's highest vertex along it."""
+    def through_highest_point(vertices: ArrayLike, normal: ArrayLike = (0.0, 0.0, 1.0)) -> SafetyPlane:
+        """The plane with the given normal through the part's highest vertex (of (V, 3) [m]) along it."""
         v = np.asarray(vertices, dtype=np.float64)
         n = _unit(normal, "safety plane normal")
         return SafetyPlane(v[int(np.argmax(v @ n))], n)
 
-    def height(self, p) -> np.ndarray:
-        """Signed height of points above the plane (along its normal) [m]."""
+    def height(self, p: ArrayLike) -> FloatArray | float:
+        """Signed height [m] of points (N, 3) (or one point (3,)) above the plane, along its normal."""
         return (np.asarray(p, dtype=np.float64) - self.point_m) @ self.normal
 
-    def project(self, p) -> np.ndarray:
-        """Projection of points on the plane [m]."""
+    def project(self, p: ArrayLike) -> FloatArray:
+        """Projection of points (N, 3) or (3,) on the plane [m]."""
         q = np.asarray(p, dtype=np.float64)
         return q - np.multiply.outer(self.height(q), self.normal)
 
-    def below(self, p) -> np.ndarray:
+    def below(self, p: ArrayLike) -> BoolArray | np.bool_:
         """Document 002's penetration test: the angle between the tip-to-projection vector and
         the normal is acute (the tip is below the plane). A tip on the plane is not below."""
         return (self.project(p) - np.asarray(p, dtype=np.float64)) @ self.normal > 0.0
 
 
-def safe_position(p, plane: SafetyPlane, safe_distance_m: float) -> np.ndarray:
+def safe_position(p: ArrayLike, plane: SafetyPlane, safe_distance_m: float) -> FloatArray:
     """The safe position point of ``p``: its projection on the plane lifted by the safe distance."""
     if not (np.isfinite(safe_distance_m) and safe_distance_m > 0):
         raise AlgorithmError(f"safe distance must be positive, got {safe_distance_m!r}")
@@ -102,6 +103,7 @@ class TeachTouch:
     normal: tuple[float, float, float]
 
     def measure(self) -> MeasurePoint:
+        """The touch as a program statement."""
         return MeasurePoint(self.label, self.point_m, self.normal)
 
 
@@ -152,6 +154,7 @@ class Teach:
 
     @property
     def touches(self) -> list[TeachTouch]:
+        """The touches, in order."""
         return [s for s in self.steps if isinstance(s, TeachTouch)]
 
 
@@ -164,13 +167,13 @@ class Station:
     stylus's ball with the head standing still).
     """
 
-    position_m: np.ndarray
+    position_m: FloatArray
     stylus: str
     step: int
     touch: TeachTouch | None = None
 
 
-def taught_path(teach: Teach, reach: dict[str, tuple[np.ndarray, float]], ball_radius_m: dict[str, float]
+def taught_path(teach: Teach, reach: dict[str, tuple[FloatArray, float]], ball_radius_m: dict[str, float]
                 ) -> list[Station]:
     """The taught path as stations.
 
@@ -213,9 +216,9 @@ class Penetration:
         stylus: the stylus in use.
     """
 
-    entry_m: np.ndarray
+    entry_m: FloatArray
     entry_after: int
-    exit_m: np.ndarray | None
+    exit_m: FloatArray | None
     exit_after: int | None
     touches: tuple[int, ...]
     stylus: str
@@ -226,7 +229,7 @@ class Penetration:
         return len(self.touches) > 0
 
 
-def _crossing(a: np.ndarray, b: np.ndarray, plane: SafetyPlane) -> np.ndarray:
+def _crossing(a: FloatArray, b: FloatArray, plane: SafetyPlane) -> FloatArray:
     ha, hb = float(plane.height(a)), float(plane.height(b))
     t = ha / (ha - hb) if ha != hb else 0.0
     return a + t * (b - a)

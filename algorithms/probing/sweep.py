@@ -11,13 +11,13 @@ the probe closer than ``clearance``. Nothing between two checked positions is sk
 guarantee is a distance of at least ``clearance - step_floor_m`` along the whole segment.
 
 Distances are exact primitive-to-triangle distances from python-fcl (the Flexible Collision
-Library's BVH of the real triangles, built once; primitives moved with ``setTranslation``).
-fcl was chosen over trimesh's collision manager because the latter rebuilds its query
-object on every call (about 12 ms), and over fcl's own continuous collision because that
-crashed for a sphere against a BVH model; a distance query costs 5-250 us here. A distance
-query cannot see a probe wholly inside the material (no triangle near it), so the start
-of every move is also tested for lying inside the closed mesh (the project's exact signed
-distance, :class:`algorithms.geometry.mesh_index.MeshIndex`).
+Library's BVH of the real triangles, built once; primitives moved with ``setTranslation``),
+not trimesh's collision manager (it rebuilds its query object on every call) nor fcl's own
+continuous collision (it crashed for a sphere against a BVH model); the timings are in
+``benchmarks/results_history_symmetric_paths.md``. A distance query cannot see a probe wholly
+inside the material (no triangle near it), so the start of every move is also tested for
+lying inside the closed mesh (the project's exact signed distance,
+:class:`algorithms.geometry.mesh_index.MeshIndex`).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import fcl
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 
@@ -38,7 +39,7 @@ STEP_FLOOR_M = 1e-5
 RAM_LENGTH_M = 0.6
 
 
-def _unit(v, what: str) -> np.ndarray:
+def _unit(v: ArrayLike, what: str) -> FloatArray:
     a = np.asarray(v, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(a))
     if not np.isfinite(n) or n == 0.0:
@@ -46,7 +47,7 @@ def _unit(v, what: str) -> np.ndarray:
     return a / n
 
 
-def frame_with_z(z: np.ndarray) -> np.ndarray:
+def frame_with_z(z: FloatArray) -> FloatArray:
     """A rotation whose third column is the unit vector ``z``."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     x = np.cross(helper, z)
@@ -70,7 +71,7 @@ class ProbeGeometry:
         up: unit vector of the machine's z axis (the ram's axis).
     """
 
-    direction: np.ndarray
+    direction: FloatArray
     ball_radius_m: float
     stylus_radius_m: float
     stylus_length_m: float
@@ -78,7 +79,7 @@ class ProbeGeometry:
     body_length_m: float
     head_radius_m: float
     ram_half_width_m: float
-    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    up: FloatArray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "direction", _unit(self.direction, "probe direction"))
@@ -96,15 +97,15 @@ class ProbeGeometry:
         """Head centre to ball centre [m]."""
         return self.body_length_m + self.stylus_length_m
 
-    def head_centre(self, ball_centre: np.ndarray) -> np.ndarray:
+    def head_centre(self, ball_centre: ArrayLike) -> FloatArray:
         """The head centre for a ball centre (part frame) [m]."""
         return np.asarray(ball_centre, dtype=np.float64) - self.reach_m * self.direction
 
-    def ball_centre(self, head_centre: np.ndarray) -> np.ndarray:
+    def ball_centre(self, head_centre: ArrayLike) -> FloatArray:
         """The ball centre for a head centre (part frame) [m]."""
         return np.asarray(head_centre, dtype=np.float64) + self.reach_m * self.direction
 
-    def _placements(self) -> list[tuple[str, fcl.CollisionGeometry, np.ndarray, np.ndarray]]:
+    def _placements(self) -> list[tuple[str, fcl.CollisionGeometry, FloatArray, FloatArray]]:
         """(part, fcl shape, offset of its centre from the ball centre, rotation) of each solid."""
         d, up = self.direction, self.up
         R_d, R_up = frame_with_z(d), frame_with_z(up)
@@ -120,7 +121,7 @@ class ProbeGeometry:
         ]
 
 
-def _half_extent(shape: fcl.CollisionGeometry, R: np.ndarray) -> np.ndarray:
+def _half_extent(shape: fcl.CollisionGeometry, R: FloatArray) -> FloatArray:
     """Half extents of the world-aligned box around a solid rotated by ``R``."""
     if isinstance(shape, fcl.Sphere):
         return np.full(3, shape.radius)
@@ -146,7 +147,7 @@ class MoveCheck:
 
     clear: bool
     fraction: float | None = None
-    ball_centre_m: np.ndarray | None = None
+    ball_centre_m: FloatArray | None = None
     part: str | None = None
     distance_m: float | None = None
     queries: int = 0
@@ -161,7 +162,8 @@ class ProbeSweep:
         step_floor_m: smallest advance of the sweep [m].
     """
 
-    def __init__(self, vertices, faces, clearance_m: float, step_floor_m: float = STEP_FLOOR_M):
+    def __init__(self, vertices: ArrayLike, faces: ArrayLike, clearance_m: float,
+                 step_floor_m: float = STEP_FLOOR_M) -> None:
         v = np.ascontiguousarray(vertices, dtype=np.float64)
         f = np.ascontiguousarray(faces, dtype=np.int64)
         if not (np.isfinite(clearance_m) and clearance_m > 0):
@@ -189,7 +191,7 @@ class ProbeSweep:
                                   _half_extent(shape, R)) for name, shape, off, R in probe._placements()]
         return self._solids[key]
 
-    def distance(self, ball_centre, probe: ProbeGeometry) -> tuple[float, str]:
+    def distance(self, ball_centre: ArrayLike, probe: ProbeGeometry) -> tuple[float, str]:
         """The smallest distance of the probe's solids to the part, and which solid [m].
 
         0 when a solid touches or overlaps the part's surface; a probe wholly inside the
@@ -216,7 +218,7 @@ class ProbeSweep:
                     break
         return best, which
 
-    def solid_distances(self, ball_centre, probe: ProbeGeometry) -> dict[str, float]:
+    def solid_distances(self, ball_centre: ArrayLike, probe: ProbeGeometry) -> dict[str, float]:
         """Each solid's distance to the part (0: touching, overlapping or inside), or where the
         gap between its box and the part's is positive, that gap: a lower bound, enough to know
         it cannot touch and how far the probe may travel before it could."""
@@ -237,11 +239,11 @@ class ProbeSweep:
                 out[name] = 0.0
         return out
 
-    def _box_gap(self, centre: np.ndarray, half: np.ndarray) -> float:
+    def _box_gap(self, centre: FloatArray, half: FloatArray) -> float:
         gap = np.maximum(np.maximum(self._part_lo - (centre + half), (centre - half) - self._part_hi), 0.0)
         return float(np.linalg.norm(gap))
 
-    def inside_all(self, ball_centre, probe: ProbeGeometry) -> list[str]:
+    def inside_all(self, ball_centre: ArrayLike, probe: ProbeGeometry) -> list[str]:
         """The solids whose centre lies inside the material."""
         c = np.asarray(ball_centre, dtype=np.float64)
         d = probe.direction
@@ -251,12 +253,12 @@ class ProbeSweep:
         sd = self.index.signed_distance(np.array(list(pts.values())))
         return [name for name, s in zip(pts, sd, strict=True) if s < 0]
 
-    def inside(self, ball_centre, probe: ProbeGeometry) -> str | None:
+    def inside(self, ball_centre: ArrayLike, probe: ProbeGeometry) -> str | None:
         """The first solid whose centre lies inside the material, or None."""
         found = self.inside_all(ball_centre, probe)
         return found[0] if found else None
 
-    def check_position(self, ball_centre, probe: ProbeGeometry) -> MoveCheck:
+    def check_position(self, ball_centre: ArrayLike, probe: ProbeGeometry) -> MoveCheck:
         """Is the probe at rest at ``ball_centre`` at least the clearance away from the part?"""
         c = np.asarray(ball_centre, dtype=np.float64)
         inside = self.inside(c, probe)
@@ -267,7 +269,7 @@ class ProbeSweep:
             return MoveCheck(False, 0.0, c, which, d, 1)
         return MoveCheck(True, queries=1)
 
-    def check_move(self, start, end, probe: ProbeGeometry) -> MoveCheck:
+    def check_move(self, start: ArrayLike, end: ArrayLike, probe: ProbeGeometry) -> MoveCheck:
         """Sweep the probe from ball centre ``start`` to ``end`` (part frame) [m]."""
         a = np.asarray(start, dtype=np.float64)
         b = np.asarray(end, dtype=np.float64)
@@ -286,7 +288,7 @@ class ProbeSweep:
                 return MoveCheck(True, queries=queries)
             s = min(1.0, s + max(d - self.clearance_m, self.step_floor_m) / length)
 
-    def check_path(self, points, probe: ProbeGeometry) -> tuple[int, MoveCheck] | None:
+    def check_path(self, points: ArrayLike, probe: ProbeGeometry) -> tuple[int, MoveCheck] | None:
         """The first move of a polyline of ball centres that is not clear (its index and check)."""
         pts = np.asarray(points, dtype=np.float64)
         for i in range(len(pts) - 1):

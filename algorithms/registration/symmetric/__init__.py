@@ -2,8 +2,9 @@
 
 The feature table and symmetry subgroups ``G_0`` (:mod:`.groups`), features as geometry and
 primitives fitted to mesh faces (:mod:`.features`), the subgroup the data leave free
-(:mod:`.detect`), a model's discrete symmetries and pseudo-normals (:mod:`.discrete`), and
-Algorithm 2 on the quotient ``SE(3)/G_0`` with the whole pipeline (:mod:`.quotient`).
+(:mod:`.detect`), a model's discrete symmetries and pseudo-normals (:mod:`.discrete`),
+Algorithm 2 on the quotient ``SE(3)/G_0`` (:mod:`.quotient`) and the whole pipeline
+(:mod:`.pipeline`).
 """
 
 from algorithms.registration.symmetric.detect import DETECTION_TOL, MATCH_TOL, SymmetryDetection, detect_symmetry
@@ -25,13 +26,8 @@ from algorithms.registration.symmetric.groups import (
     other_group,
     symmetry_group,
 )
-from algorithms.registration.symmetric.quotient import (
-    SAME_SOLUTION_TOL,
-    SYMMETRIC_CHOICES,
-    SymmetricResult,
-    algorithm2,
-    localize_symmetric,
-)
+from algorithms.registration.symmetric.pipeline import SAME_SOLUTION_TOL, SYMMETRIC_CHOICES, localize_symmetric
+from algorithms.registration.symmetric.quotient import SymmetricResult, algorithm2
 
 __all__ = [
     "DETECTION_TOL",

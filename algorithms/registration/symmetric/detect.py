@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.geometry.se3 import hat as _hat
 from algorithms.registration.symmetric.groups import SymmetryGroup, other_group, symmetry_group
 from algorithms.registration.uncertainty import OBSERVABILITY_TOL, Observability, observability
@@ -48,8 +49,7 @@ class SymmetryDetection:
     match_error: float
 
 
-
-def detect_symmetry(feet, normals, tol: float = DETECTION_TOL) -> SymmetryDetection:
+def detect_symmetry(feet: ArrayLike, normals: ArrayLike, tol: float = DETECTION_TOL) -> SymmetryDetection:
     """Find the subgroup ``G_0`` that measured points leave free, and match it to the table.
 
     Args:
@@ -81,7 +81,7 @@ def detect_symmetry(feet, normals, tol: float = DETECTION_TOL) -> SymmetryDetect
     return SymmetryDetection(group, obs, err)
 
 
-def _subspace_error(S, group, c0, L) -> float:
+def _subspace_error(S: FloatArray, group: SymmetryGroup, c0: FloatArray, L: float) -> float:
     G = np.hstack([group.g0[:, :3] * L, group.g0[:, 3:] + np.cross(group.g0[:, :3], c0)])
     G, _ = np.linalg.qr(G.T)
     # sines of the principal angles between span(S) and span(G)
@@ -89,7 +89,7 @@ def _subspace_error(S, group, c0, L) -> float:
     return float(np.linalg.norm(resid, 2)) if resid.size else 0.0
 
 
-def _match(S, c0, L, k) -> SymmetryGroup | None:
+def _match(S: FloatArray, c0: FloatArray, L: float, k: int) -> SymmetryGroup | None:
     """Match an orthonormal free subspace (scaled, about c0) to a table subgroup."""
     Om = S[:, :3]  # L * omega
     U, sv, Vt = np.linalg.svd(Om)

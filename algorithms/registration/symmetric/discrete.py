@@ -15,12 +15,16 @@ whether a foot lies on or beside an edge.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from algorithms.arraytypes import FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import hat as _hat
 from algorithms.geometry.se3 import transform_points
+from algorithms.registration.symmetric.features import TriangleMesh
 
 __all__ = ["SYMMETRY_TOL_REL", "model_symmetries", "pseudo_normals"]
 
@@ -30,7 +34,29 @@ __all__ = ["SYMMETRY_TOL_REL", "model_symmetries", "pseudo_normals"]
 SYMMETRY_TOL_REL = 5e-4
 
 
-def model_symmetries(mesh, tol_rel: float = SYMMETRY_TOL_REL, index: MeshIndex | None = None) -> np.ndarray:
+@dataclass(frozen=True)
+class _Surface:
+    """Area moments of a mesh's surface (workpiece frame).
+
+    Attributes:
+        triangles: (F, 3, 3) [m] the faces' corners.
+        area: (F,) [m^2] face areas.
+        total: [m^2] their sum, > 0.
+        centroid: (3,) [m] the area centroid.
+        moments: (3,) eigenvalues of the second moment about it [m^2], ascending.
+        axes: (3, 3) its principal axes, one per column.
+    """
+
+    triangles: FloatArray
+    area: FloatArray
+    total: float
+    centroid: FloatArray
+    moments: FloatArray
+    axes: FloatArray
+
+
+def model_symmetries(mesh: TriangleMesh, tol_rel: float = SYMMETRY_TOL_REL,
+                     index: MeshIndex | None = None) -> FloatArray:
     """Rigid motions (K, 4, 4) of the workpiece frame that map the model onto itself.
 
     Always holds the identity first. Candidates: rotations about the area centroid of the
@@ -41,13 +67,29 @@ def model_symmetries(mesh, tol_rel: float = SYMMETRY_TOL_REL, index: MeshIndex |
     ``tol_rel`` of the bounding-box diagonal from the surface.
 
     Args:
-        mesh: the model (workpiece frame, metres).
+        mesh: the model (a trimesh; workpiece frame, metres).
         tol_rel: tolerance relative to the model's size.
         index: a prebuilt :class:`MeshIndex` of ``mesh``.
+
+    Raises:
+        AlgorithmError: a model without surface area.
     """
     index = index if index is not None else MeshIndex(mesh)
-    V = index.vertices
-    tri = V[index.faces]
+    surface = _surface(index)
+    candidates = [np.eye(3), *_cluster_rotations(index.face_normals, surface),
+                  *_principal_axis_motions(surface)]
+    kept = _symmetries_among(candidates, index, surface, tol_rel * index.extent)
+    c = surface.centroid
+    out = np.empty((len(kept), 4, 4))
+    for i, R in enumerate(kept):
+        out[i] = np.eye(4)
+        out[i, :3, :3] = R
+        out[i, :3, 3] = c - R @ c
+    return out
+
+
+def _surface(index: MeshIndex) -> _Surface:
+    tri = index.vertices[index.faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area = 0.5 * np.linalg.norm(cross, axis=1)
     total = area.sum()
@@ -58,54 +100,73 @@ def model_symmetries(mesh, tol_rel: float = SYMMETRY_TOL_REL, index: MeshIndex |
     d = cen - c
     M = (d * area[:, None]).T @ d / total
     evals, evecs = np.linalg.eigh(M)
-    cands = [np.eye(3)]
-    # flat-face normal clusters
-    key = np.round(index.face_normals, 4)
+    return _Surface(triangles=tri, area=area, total=total, centroid=c, moments=evals, axes=evecs)
+
+
+def _cluster_rotations(face_normals: FloatArray, surface: _Surface) -> list[FloatArray]:
+    """Rotations (3, 3) mapping the two largest flat-face normal clusters onto clusters of the
+    same area (within 1 %) at the same angle."""
+    area = surface.area
+    key = np.round(face_normals, 4)
     uniq, inv = np.unique(key, axis=0, return_inverse=True)
     inv = inv.reshape(-1)
     c_area = np.bincount(inv, weights=area, minlength=len(uniq))
     normals = np.zeros((len(uniq), 3))
-    np.add.at(normals, inv, index.face_normals * area[:, None])
+    np.add.at(normals, inv, face_normals * area[:, None])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    big = np.nonzero(c_area >= 0.01 * total)[0]
+    big = np.nonzero(c_area >= 0.01 * surface.total)[0]
     big = big[np.argsort(-c_area[big], kind="stable")]
-    if len(big) >= 2:
-        i0 = big[0]
-        others = [j for j in big[1:] if abs(np.dot(normals[i0], normals[j])) < 0.99]
-        if others:
-            j0 = others[0]
-            F0 = _frame(normals[i0], normals[j0])
-            ang0 = np.dot(normals[i0], normals[j0])
-            same_i = [k for k in big if abs(c_area[k] - c_area[i0]) <= 0.01 * c_area[i0]]
-            same_j = [k for k in big if abs(c_area[k] - c_area[j0]) <= 0.01 * c_area[j0]]
-            for a in same_i:
-                for b in same_j:
-                    if a != b and abs(np.dot(normals[a], normals[b]) - ang0) < 1e-3:
-                        cands.append(_frame(normals[a], normals[b]) @ F0.T)
+    if len(big) < 2:
+        return []
+    i0 = big[0]
+    others = [j for j in big[1:] if abs(np.dot(normals[i0], normals[j])) < 0.99]
+    if not others:
+        return []
+    j0 = others[0]
+    F0 = _frame(normals[i0], normals[j0])
+    ang0 = np.dot(normals[i0], normals[j0])
+    same_i = [k for k in big if abs(c_area[k] - c_area[i0]) <= 0.01 * c_area[i0]]
+    same_j = [k for k in big if abs(c_area[k] - c_area[j0]) <= 0.01 * c_area[j0]]
+    return [_frame(normals[a], normals[b]) @ F0.T for a in same_i for b in same_j
+            if a != b and abs(np.dot(normals[a], normals[b]) - ang0) < 1e-3]
+
+
+def _principal_axis_motions(surface: _Surface) -> list[FloatArray]:
+    """Flips (3, 3) about the principal axes and, about an axis whose two other moments agree,
+    the turns by 2 pi m / n (n <= 12); none when all three moments agree."""
+    evals, evecs = surface.moments, surface.axes
     scale = max(evals[-1], 1e-300)
     gaps = np.diff(evals) / scale
     degenerate = gaps < 1e-3
-    if not degenerate.all():
-        # principal axes are defined (up to turns about a unique axis): flips about them
-        for i in range(3):
-            cands.append(2.0 * np.outer(evecs[:, i], evecs[:, i]) - np.eye(3))
-        for j in np.nonzero(degenerate)[0]:
-            # degenerate pair (j, j+1): turns by 2 pi m / n about the unique axis
-            u = evecs[:, 2 if j == 0 else 0]
-            for n in range(2, 13):
-                for m in range(1, n):
-                    cands.append(_axis_angle(u, 2 * np.pi * m / n))
-    # dedupe and validate
-    keep: list[np.ndarray] = []
-    # area-uniform surface samples (fixed seed: the answer must not vary between calls)
+    if degenerate.all():
+        return []
+    out = [2.0 * np.outer(evecs[:, i], evecs[:, i]) - np.eye(3) for i in range(3)]
+    for j in np.nonzero(degenerate)[0]:
+        # degenerate pair (j, j+1): turns about the unique axis
+        u = evecs[:, 2 if j == 0 else 0]
+        out += [_axis_angle(u, 2 * np.pi * m / n) for n in range(2, 13) for m in range(1, n)]
+    return out
+
+
+def _surface_samples(surface: _Surface) -> FloatArray:
+    """(4000, 3) [m] area-uniform surface samples (fixed seed: the answer must not vary between calls)."""
+    tri, area = surface.triangles, surface.area
     rng = np.random.default_rng(20010)
-    f = rng.choice(len(area), size=4000, p=area / total)
+    f = rng.choice(len(area), size=4000, p=area / surface.total)
     u, v = rng.random(4000), rng.random(4000)
     flip = u + v > 1.0
     u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    samples = tri[f, 0] + u[:, None] * (tri[f, 1] - tri[f, 0]) + v[:, None] * (tri[f, 2] - tri[f, 0])
-    tol = tol_rel * index.extent
-    for R in cands:
+    return tri[f, 0] + u[:, None] * (tri[f, 1] - tri[f, 0]) + v[:, None] * (tri[f, 2] - tri[f, 0])
+
+
+def _symmetries_among(candidates: list[FloatArray], index: MeshIndex, surface: _Surface,
+                      tol: float) -> list[FloatArray]:
+    """The distinct candidate rotations (about the centroid) that move no surface sample
+    farther than ``tol`` [m] from the surface."""
+    samples = _surface_samples(surface)
+    c = surface.centroid
+    keep: list[FloatArray] = []
+    for R in candidates:
         # candidates closer than the tolerance to a kept one are the same motion
         if any(np.max(np.abs(R - K)) * index.extent < tol for K in keep):
             continue
@@ -120,20 +181,15 @@ def model_symmetries(mesh, tol_rel: float = SYMMETRY_TOL_REL, index: MeshIndex |
             continue
         if index.query(transform_points(S, samples)).distance.max() <= tol:
             keep.append(R)
-    out = np.empty((len(keep), 4, 4))
-    for i, R in enumerate(keep):
-        out[i] = np.eye(4)
-        out[i, :3, :3] = R
-        out[i, :3, 3] = c - R @ c
-    return out
+    return keep
 
 
-def _axis_angle(u, a):
+def _axis_angle(u: FloatArray, a: float) -> FloatArray:
     K = _hat(u)
     return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
 
 
-def _frame(a, b):
+def _frame(a: FloatArray, b: FloatArray) -> FloatArray:
     e1 = a / np.linalg.norm(a)
     e2 = b - np.dot(b, e1) * e1
     e2 /= np.linalg.norm(e2)
@@ -141,13 +197,13 @@ def _frame(a, b):
 
 
 # ------------------------------------------------------------------ pseudo-normals
-_PSEUDO_CACHE: dict = {}
+_PSEUDO_CACHE: dict[int, tuple[MeshIndex, _PseudoNormalTable]] = {}
 
 
 class _PseudoNormalTable:
     """Angle-weighted pseudo-normals of the faces, edges and vertices of a mesh."""
 
-    def __init__(self, index: MeshIndex):
+    def __init__(self, index: MeshIndex) -> None:
         V, F = index.vertices, index.faces
         fn = index.face_normals
         tri = V[F]
@@ -178,7 +234,9 @@ class _PseudoNormalTable:
         self.faces = F
         self.V = V
 
-    def at(self, face: np.ndarray, foot: np.ndarray) -> np.ndarray:
+    def at(self, face: IntArray, foot: FloatArray) -> FloatArray:
+        """(N, 3) pseudo-normals at feet (N, 3) on faces (N,): the face's inside it, the edge's
+        on an edge, the vertex's at a corner."""
         F = self.faces[face]
         a, b, c = self.V[F[:, 0]], self.V[F[:, 1]], self.V[F[:, 2]]
         ab, ac, ap = b - a, c - a, foot - a
@@ -210,8 +268,7 @@ class _PseudoNormalTable:
             out[v_rows] = self.vertex[F[rows[v_rows], k]]
         return out
 
-
-    def sharp_edge_distance(self, face: np.ndarray, foot: np.ndarray) -> np.ndarray:
+    def sharp_edge_distance(self, face: IntArray, foot: FloatArray) -> FloatArray:
         """(N,) distance [m] from feet to the nearest sharp edge of their face (inf: none)."""
         F = self.faces[face]
         out = np.full(len(face), np.inf)

@@ -11,9 +11,11 @@ extruded and free-form surfaces. Each feature carries its symmetry subgroup ``G_
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.registration.symmetric.groups import (
@@ -31,6 +33,7 @@ __all__ = [
     "FIT_TOL_REL",
     "Feature",
     "FeatureProjection",
+    "TriangleMesh",
     "make_feature",
 ]
 
@@ -45,6 +48,18 @@ FIT_NORMAL_TOL_RAD = float(np.radians(5.0))
 EXTRUDED_TOL_RAD = 1e-4
 
 
+class TriangleMesh(Protocol):
+    """A triangle mesh as the symmetric methods read it (a ``trimesh.Trimesh``, say)."""
+
+    @property
+    def vertices(self) -> ArrayLike:
+        """(V, 3) [m] vertex coordinates, workpiece frame."""
+
+    @property
+    def faces(self) -> ArrayLike:
+        """(F, 3) vertex indices of each triangle."""
+
+
 @dataclass(frozen=True)
 class FeatureProjection:
     """Closest points on a feature.
@@ -57,9 +72,9 @@ class FeatureProjection:
             for surfaces: positive on the side the normal points to; unsigned for curves).
     """
 
-    foot: np.ndarray
-    normals: np.ndarray
-    distance: np.ndarray
+    foot: FloatArray
+    normals: FloatArray
+    distance: FloatArray
 
 
 @dataclass(frozen=True)
@@ -86,11 +101,11 @@ class Feature:
 
     kind: str
     group: SymmetryGroup
-    origin: np.ndarray
-    axis: np.ndarray
+    origin: FloatArray
+    axis: FloatArray
     radius: float = 0.0
     half_angle: float = 0.0
-    profile: np.ndarray | None = None
+    profile: FloatArray | None = None
     closed: bool = False
     fit_rms_m: float = 0.0
     source: str = "explicit"
@@ -98,33 +113,33 @@ class Feature:
 
     # ------------------------------------------------------------ constructors
     @classmethod
-    def plane(cls, point, normal) -> Feature:
+    def plane(cls, point: ArrayLike, normal: ArrayLike) -> Feature:
         """Plane through ``point`` [m] with unit ``normal`` (its outward side)."""
         g = symmetry_group("plane", point, normal)
         return cls("plane", g, g.origin, g.axis)
 
     @classmethod
-    def sphere(cls, center, radius: float) -> Feature:
+    def sphere(cls, center: ArrayLike, radius: float) -> Feature:
         """Sphere of ``radius`` [m] about ``center`` [m]."""
         r = _positive(radius, "radius")
         g = symmetry_group("sphere", center)
         return cls("sphere", g, g.origin, g.axis, radius=r)
 
     @classmethod
-    def cylinder(cls, point, axis, radius: float) -> Feature:
+    def cylinder(cls, point: ArrayLike, axis: ArrayLike, radius: float) -> Feature:
         """Cylinder of ``radius`` [m] about the line through ``point`` along ``axis``."""
         r = _positive(radius, "radius")
         g = symmetry_group("cylinder", point, axis)
         return cls("cylinder", g, g.origin, g.axis, radius=r)
 
     @classmethod
-    def line3d(cls, point, direction) -> Feature:
+    def line3d(cls, point: ArrayLike, direction: ArrayLike) -> Feature:
         """Straight line through ``point`` [m] along ``direction``."""
         g = symmetry_group("line3d", point, direction)
         return cls("line3d", g, g.origin, g.axis)
 
     @classmethod
-    def cone(cls, apex, axis, half_angle: float) -> Feature:
+    def cone(cls, apex: ArrayLike, axis: ArrayLike, half_angle: float) -> Feature:
         """Cone (one nappe) with ``apex`` [m], opening along ``axis``, ``half_angle`` [rad]."""
         ha = float(half_angle)
         if not (np.isfinite(ha) and 0.0 < ha < np.pi / 2):
@@ -133,14 +148,14 @@ class Feature:
         return cls("cone", g, g.origin, g.axis, half_angle=ha)
 
     @classmethod
-    def circle2d(cls, center, radius: float) -> Feature:
+    def circle2d(cls, center: ArrayLike, radius: float) -> Feature:
         """Circle of ``radius`` [m] about ``center`` (x, y) [m] in the plane z = 0."""
         r = _positive(radius, "radius")
         g = symmetry_group("circle2d", center)
         return cls("circle2d", g, g.origin, g.axis, radius=r)
 
     @classmethod
-    def line2d(cls, point, direction) -> Feature:
+    def line2d(cls, point: ArrayLike, direction: ArrayLike) -> Feature:
         """Line through ``point`` (x, y) [m] along ``direction`` (x, y) in the plane z = 0."""
         d = np.asarray(direction, dtype=np.float64).reshape(-1)
         if d.shape == (2,):
@@ -149,8 +164,8 @@ class Feature:
         return cls("line2d", g, g.origin, g.axis)
 
     @classmethod
-    def extruded(cls, direction, profile=None, origin=(0.0, 0.0, 0.0), closed: bool = False,
-                 mesh=None) -> Feature:
+    def extruded(cls, direction: ArrayLike, profile: ArrayLike | None = None, origin: ArrayLike = (0.0, 0.0, 0.0),
+                 closed: bool = False, mesh: TriangleMesh | MeshIndex | None = None) -> Feature:
         """Surface swept along ``direction``: by a 2D ``profile`` polyline or as a mesh.
 
         Args:
@@ -180,7 +195,7 @@ class Feature:
         return cls("extruded", g, g.origin, g.axis, profile=P, closed=bool(closed))
 
     @classmethod
-    def freeform(cls, mesh) -> Feature:
+    def freeform(cls, mesh: TriangleMesh | MeshIndex) -> Feature:
         """A free-form surface given by its triangles (workpiece frame); G_0 = {1}."""
         index = _index(mesh)
         c = index.vertices.mean(axis=0)
@@ -188,8 +203,8 @@ class Feature:
         return cls("freeform", g, g.origin, g.axis, source="mesh", index=index)
 
     @classmethod
-    def from_mesh(cls, mesh, faces=None, kind: str | None = None, surface: str = "primitive",
-                  tol_rel: float = FIT_TOL_REL) -> Feature:
+    def from_mesh(cls, mesh: TriangleMesh, faces: ArrayLike | None = None, kind: str | None = None,
+                  surface: str = "primitive", tol_rel: float = FIT_TOL_REL) -> Feature:
         """A feature from mesh faces: fit the primitive, or classify when ``kind`` is None.
 
         Classification tries plane, sphere, cylinder, cone, extruded in that order and takes
@@ -271,14 +286,16 @@ class Feature:
     # ------------------------------------------------------------ properties
     @property
     def info(self) -> FeatureInfo:
+        """The feature's row of the table."""
         return FEATURE_TABLE[self.kind]
 
     @property
     def planar(self) -> bool:
+        """True for the 2D features (plane z = 0, ambient group SE(2))."""
         return self.group.planar
 
     # ------------------------------------------------------------ geometry
-    def closest(self, points) -> FeatureProjection:
+    def closest(self, points: ArrayLike) -> FeatureProjection:
         """Closest points on the feature to ``points`` (N, 3) [m], workpiece frame.
 
         For the 2D features (N, 2) points are accepted (z = 0 is implied).
@@ -335,18 +352,18 @@ class Feature:
 class _SimpleMesh:
     """Minimal mesh (vertices, faces) for MeshIndex."""
 
-    def __init__(self, vertices, faces):
+    def __init__(self, vertices: FloatArray, faces: IntArray) -> None:
         self.vertices = vertices
         self.faces = faces
 
 
-def _index(mesh) -> MeshIndex:
+def _index(mesh: TriangleMesh | MeshIndex) -> MeshIndex:
     if isinstance(mesh, MeshIndex):
         return mesh
     return MeshIndex(mesh)
 
 
-def _positive(x, name) -> float:
+def _positive(x: float, name: str) -> float:
     try:
         v = float(x)
     except (TypeError, ValueError):
@@ -356,7 +373,7 @@ def _positive(x, name) -> float:
     return v
 
 
-def _points(points, planar: bool) -> np.ndarray:
+def _points(points: ArrayLike, planar: bool) -> FloatArray:
     Y = np.asarray(points, dtype=np.float64)
     if planar and Y.ndim == 2 and Y.shape[1] == 2:
         Y = np.hstack([Y, np.zeros((len(Y), 1))])
@@ -365,7 +382,7 @@ def _points(points, planar: bool) -> np.ndarray:
     return Y
 
 
-def _safe_dirs(w: np.ndarray, r: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+def _safe_dirs(w: FloatArray, r: FloatArray, fallback: FloatArray) -> FloatArray:
     out = np.empty_like(w)
     good = r > 1e-300
     out[good] = w[good] / r[good, None]
@@ -373,7 +390,7 @@ def _safe_dirs(w: np.ndarray, r: np.ndarray, fallback: np.ndarray) -> np.ndarray
     return out
 
 
-def _closest_on_profile(feat: Feature, Y: np.ndarray) -> FeatureProjection:
+def _closest_on_profile(feat: Feature, Y: FloatArray) -> FeatureProjection:
     """Closest points on an extruded polyline profile (exact, all segments)."""
     a = feat.axis
     e1, e2 = perp_basis(a)
@@ -416,7 +433,7 @@ def _closest_on_profile(feat: Feature, Y: np.ndarray) -> FeatureProjection:
     return FeatureProjection(foot, normal[:, None, :], d)
 
 
-def _fit(kind: str, V: np.ndarray, N: np.ndarray, area: np.ndarray, tri: np.ndarray):
+def _fit(kind: str, V: FloatArray, N: FloatArray, area: FloatArray, tri: FloatArray) -> tuple[Feature | None, float]:
     """Fit ``kind`` to vertices V with face normals N (area weights); returns (feature, rms)."""
     w = area / max(area.sum(), 1e-300)
     try:
@@ -492,7 +509,7 @@ def _fit(kind: str, V: np.ndarray, N: np.ndarray, area: np.ndarray, tri: np.ndar
     return None, np.inf  # pragma: no cover
 
 
-def make_feature(kind: str, **params) -> Feature:
+def make_feature(kind: str, **params: object) -> Feature:
     """A feature by name: ``make_feature("cylinder", point=..., axis=..., radius=...)``.
 
     Parameters per kind: circle2d (center, radius), line2d (point, direction), sphere

@@ -49,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.se3 import log_se3
 
@@ -115,7 +116,7 @@ _G0_LOCAL = {
 _PLANAR_AMBIENT = (2, 3, 4)  # se(2) inside se(3): wz, vx, vy
 
 
-def check_feature_type(kind) -> str:
+def check_feature_type(kind: object) -> str:
     """Return ``kind`` if it names a feature of the table, else raise listing the valid ones."""
     if not isinstance(kind, str) or kind not in FEATURE_TABLE:
         raise AlgorithmError(
@@ -124,7 +125,7 @@ def check_feature_type(kind) -> str:
     return kind
 
 
-def _unit(v, name: str) -> np.ndarray:
+def _unit(v: ArrayLike, name: str) -> FloatArray:
     v = np.asarray(v, dtype=np.float64).reshape(-1)
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise AlgorithmError(f"{name} must be a finite 3-vector, got {np.asarray(v).tolist()}")
@@ -134,7 +135,7 @@ def _unit(v, name: str) -> np.ndarray:
     return v / n
 
 
-def _point(p, name: str) -> np.ndarray:
+def _point(p: ArrayLike, name: str) -> FloatArray:
     p = np.asarray(p, dtype=np.float64).reshape(-1)
     if p.shape == (2,):
         p = np.array([p[0], p[1], 0.0])
@@ -143,7 +144,7 @@ def _point(p, name: str) -> np.ndarray:
     return p
 
 
-def perp_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def perp_basis(a: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Two unit vectors completing ``a`` to a right-handed frame (e1, e2, a), deterministic."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = np.cross(helper, a)
@@ -152,7 +153,7 @@ def perp_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, e2
 
 
-def _adjoint_rows(local: np.ndarray, R: np.ndarray, c: np.ndarray) -> np.ndarray:
+def _adjoint_rows(local: FloatArray, R: FloatArray, c: FloatArray) -> FloatArray:
     """Twists (k, 6) given in a frame (R, c) as twists about the workpiece origin."""
     if len(local) == 0:
         return np.zeros((0, 6))
@@ -161,11 +162,11 @@ def _adjoint_rows(local: np.ndarray, R: np.ndarray, c: np.ndarray) -> np.ndarray
     return np.hstack([w, v])
 
 
-def _rotation_angle(R: np.ndarray) -> float:
+def _rotation_angle(R: FloatArray) -> float:
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
-def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
+def _angle_between(a: FloatArray, b: FloatArray) -> float:
     return float(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b)))
 
 
@@ -190,10 +191,10 @@ class SymmetryGroup:
     """
 
     kind: str
-    origin: np.ndarray
-    axis: np.ndarray
-    g0: np.ndarray
-    m0: np.ndarray
+    origin: FloatArray
+    axis: FloatArray
+    g0: FloatArray
+    m0: FloatArray
     planar: bool
     name: str
 
@@ -207,7 +208,7 @@ class SymmetryGroup:
         """dim SE(3)/G_0 (SE(2)/G_0 when planar): the number of fixed pose directions."""
         return int(len(self.m0))
 
-    def distance(self, D) -> tuple[float, float]:
+    def distance(self, D: ArrayLike) -> tuple[float, float]:
         """How far a motion ``D`` (4x4, workpiece frame) is from ``G_0``.
 
         Returns:
@@ -243,7 +244,7 @@ class SymmetryGroup:
             xi = xi - self.g0.T @ coef
         return float(np.linalg.norm(xi[:3])), float(np.linalg.norm(xi[3:]))
 
-    def contains(self, D, tol_rad: float = 1e-6, tol_m: float = 1e-6) -> bool:
+    def contains(self, D: ArrayLike, tol_rad: float = 1e-6, tol_m: float = 1e-6) -> bool:
         """Whether the motion ``D`` (workpiece frame) lies in ``G_0`` within the tolerances."""
         ang, dist = self.distance(D)
         return ang <= tol_rad and dist <= tol_m
@@ -268,7 +269,7 @@ class SymmetryGroup:
                 f"{self.quotient_dim} fixed direction(s)").replace("  ", " ")
 
 
-def symmetry_group(kind: str, origin=(0.0, 0.0, 0.0), axis=None) -> SymmetryGroup:
+def symmetry_group(kind: str, origin: ArrayLike = (0.0, 0.0, 0.0), axis: ArrayLike | None = None) -> SymmetryGroup:
     """The subgroup ``G_0`` of a table feature, with bases of ``g_0`` and ``m_0``.
 
     Args:
@@ -317,7 +318,7 @@ def symmetry_group(kind: str, origin=(0.0, 0.0, 0.0), axis=None) -> SymmetryGrou
     return SymmetryGroup(kind, c, a, g0, m0, info.planar, info.group)
 
 
-def other_group(g0, origin, length: float) -> SymmetryGroup:
+def other_group(g0: ArrayLike, origin: ArrayLike, length: float) -> SymmetryGroup:
     """A subgroup not in the table, from a numerical basis of its Lie algebra.
 
     ``m_0`` is the orthogonal complement for ``L^2 |omega|^2 + |v_c|^2`` about ``origin``.
@@ -334,14 +335,14 @@ def other_group(g0, origin, length: float) -> SymmetryGroup:
     U, s, Vt = np.linalg.svd(S, full_matrices=True)
     r = int(np.sum(s > 1e-9 * max(s.max(initial=0.0), 1e-300)))
 
-    def back(rows):
+    def back(rows: FloatArray) -> FloatArray:
         w = rows[:, :3] / length
         return np.hstack([w, rows[:, 3:] - np.cross(w, c)])
 
     g = back(Vt[:r])
     m = back(Vt[r:])
     # unit: |omega| = 1 when there is rotation, else |v| = 1
-    def norm_rows(X):
+    def norm_rows(X: FloatArray) -> FloatArray:
         out = X.copy()
         for i, x in enumerate(X):
             nw = np.linalg.norm(x[:3])

@@ -1,10 +1,9 @@
-"""Localization on the quotient ``SE(3)/G_0``: document 000's Algorithm 2, and the pipeline
-that finds ``G_0`` from the data and lists every equally good pose (:func:`localize_symmetric`).
+"""Localization on the quotient ``SE(3)/G_0``: document 000's Algorithm 2.
 
-Algorithm 2 (document 000, section 4.2). A feature with symmetry subgroup ``G_0`` (see
-:mod:`.groups`) fixes the pose only on ``SE(3)/G_0``. Its points make the linear systems of the
-Tangent and Hong-Tan updates singular (the ``G_0`` directions carry no information).
-Algorithm 2 never forms them: with a basis ``eta_1..eta_q`` of the complement ``m_0``
+A feature with symmetry subgroup ``G_0`` (see :mod:`.groups`) fixes the pose only on
+``SE(3)/G_0``. Its points make the linear systems of the Tangent and Hong-Tan updates
+singular (the ``G_0`` directions carry no information). Algorithm 2 (document 000, section
+4.2) never forms them: with a basis ``eta_1..eta_q`` of the complement ``m_0``
 (``q = dim SE(3)/G_0``) it
 
 1. starts from ``g^0`` (``k = 0``), feet ``x_i^0`` = closest points of ``(g^0)^-1 y_i``;
@@ -19,18 +18,12 @@ Algorithm 2 never forms them: with a basis ``eta_1..eta_q`` of the complement ``
 The pose along ``G_0`` is never moved: it stays where the initial pose put it (for a real cell,
 the nominal pose), and the result says so: ``free_directions`` (the ``G_0`` basis) and
 ``determined_directions`` (the ``m_0`` basis, with the covariance along it), both in the
-workpiece frame. Outliers are rejected by the rules of :mod:`algorithms.registration.robust`.
+workpiece frame. Outliers are rejected by the rules of :mod:`algorithms.registration.robust`
+(the cut tightened once at convergence; the iteration goes on if that changes the inliers).
 
-The pipeline (:func:`localize_symmetric`): Algorithm 1 from the initial pose, the subgroup the
-data leave free (:mod:`.detect`) or the one asked for, Algorithm 2, then every model symmetry
-``S`` (:mod:`.discrete`) gives the equally good pose ``T S``: every distinct one goes to
-``solutions`` (distinct modulo ``G_0``: two poses differing by a free motion are the same
-solution), the one nearest the initial pose first.
-
-The verdict (``status``): NOT_CONVERGED if Algorithm 2 did not meet its stopping rule; else
-AMBIGUOUS if the model's symmetries give several equally good poses; else UNOBSERVABLE if
-``G_0`` leaves directions free; else POOR_FIT if ``sigma`` is given and the RMS exceeds 3
-sigma; else OK.
+The verdict (``status``): NOT_CONVERGED if the stopping rule was not met; else UNOBSERVABLE if
+``G_0`` leaves directions free; else POOR_FIT if the noise cannot explain the RMS; else OK.
+:mod:`.pipeline` finds ``G_0`` from the data and lists every equally good pose.
 """
 
 from __future__ import annotations
@@ -41,51 +34,41 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray, IntArray, Pose
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
-from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, rotation_error_rad, transform_points
+from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, transform_points
 from algorithms.registration.fit_check import poor_fit_reason, white_noise_sigma_m
 from algorithms.registration.inputs import check_sigma
-from algorithms.registration.local import localize
-from algorithms.registration.result import RegistrationResult, Status, fit_status
-from algorithms.registration.robust import OUTLIER_FLOOR_REL, OutlierStages, count, outlier_config, same_mask
-from algorithms.registration.symmetric.detect import DETECTION_TOL, detect_symmetry
-from algorithms.registration.symmetric.discrete import model_symmetries, pseudo_normals
-from algorithms.registration.symmetric.features import Feature
-from algorithms.registration.symmetric.groups import (
-    FEATURE_TABLE,
-    SymmetryGroup,
-    check_feature_type,
-    other_group,
-    symmetry_group,
+from algorithms.registration.result import RegistrationResult, fit_status
+from algorithms.registration.robust import (
+    OUTLIER_FLOOR_REL,
+    Mask,
+    OutlierConfig,
+    OutlierStages,
+    count,
+    outlier_config,
+    same_mask,
 )
-from algorithms.registration.uncertainty import observability, sym_inverse, unit_twists
+from algorithms.registration.symmetric.detect import DETECTION_TOL
+from algorithms.registration.symmetric.features import Feature, TriangleMesh
+from algorithms.registration.symmetric.groups import SymmetryGroup
 
 __all__ = [
     "MAX_ITERATIONS",
-    "SAME_SOLUTION_TOL",
-    "SYMMETRIC_CHOICES",
     "TOLERANCE",
     "SymmetricResult",
     "algorithm2",
-    "localize_symmetric",
+    "scaled_information",
 ]
 
-#: Detection uses only points whose offset from their foot, and the pseudo-normal there, are
-#: within 10 degrees of the face normal (points on or beside a sharp edge measure the edge).
-EDGE_COS = float(np.cos(np.radians(10.0)))
-#: ... and whose foot is farther than this many noise sigmas from a sharp edge of its face.
-EDGE_BAND_SIGMA = 4.0
-#: Two equally good poses are the same solution when they differ by a motion within this
-#: angle [rad] (and this fraction of the model's size) of G_0: the detected G_0 carries the
-#: measurement's uncertainty (an axis tilted by 1e-4 rad, say), while distinct discrete
-#: symmetries differ by tens of degrees or millimetres.
-SAME_SOLUTION_TOL = 1e-2
-#: ``symmetric=`` choices besides a feature type.
-SYMMETRIC_CHOICES = ("auto", "none")
 #: Stopping rule and iteration cap of Algorithm 2.
 TOLERANCE = 1e-10
 MAX_ITERATIONS = 100
+#: Most halvings of one step before the iteration counts as stalled.
+MAX_HALVINGS = 12
+#: A stalled step that raises the residual by no more than this fraction counts as converged.
+STALL_REL = 1e-6
 #: RMS below this fraction of the data's size is an exact fit.
 FLOOR_REL = 1e-12
 MIN_POINTS = 3
@@ -118,7 +101,7 @@ class SymmetricResult(RegistrationResult):
 
     feature: str
     group: SymmetryGroup
-    solution_rmse_m: np.ndarray
+    solution_rmse_m: FloatArray
     general_system_rank: int
     general_system_condition: float
     detection_tol: float
@@ -126,13 +109,32 @@ class SymmetricResult(RegistrationResult):
 
 
 # ----------------------------------------------------------------------------- models
-# ----------------------------------------------------------------------------- models
-class _Model:
-    """Closest points on a Feature or a mesh, with normals (N, m, 3)."""
+@dataclass(frozen=True)
+class _Feet:
+    """Where the points land on the model at a pose (workpiece frame, metres).
 
-    def __init__(self, model):
-        self.feature = None
-        self.index = None
+    Attributes:
+        points: (n, 3) the points moved into the workpiece frame.
+        foot: (n, 3) their closest points on the model.
+        normals: (n, m, 3) unit normals at the feet (m > 1 where a feature has several).
+        distance: (n,) point-to-model distances >= 0 [m].
+        smooth_normals: (n, m, 3) normals of the ideal surface at the feet (a mesh's
+            interpolated ones; a feature's own).
+    """
+
+    points: FloatArray
+    foot: FloatArray
+    normals: FloatArray
+    distance: FloatArray
+    smooth_normals: FloatArray
+
+
+class _Model:
+    """Closest points on a Feature or a mesh (workpiece frame)."""
+
+    def __init__(self, model: object) -> None:
+        self.feature: Feature | None = None
+        self.index: MeshIndex | None = None
         if isinstance(model, Feature):
             self.feature = model
             if model.index is not None:
@@ -147,17 +149,19 @@ class _Model:
             )
         self.planar = bool(self.feature is not None and self.feature.planar)
 
-    def closest(self, Ym):
-        """(foot, normals (N, m, 3), distance >= 0, smooth normals (N, m, 3))."""
+    def feet(self, T_world_workpiece: Pose, points_world: FloatArray) -> _Feet:
+        """The feet of world points ``(n, 3)`` with the model at ``T_world_workpiece``."""
+        Ym = transform_points(inv_pose(T_world_workpiece), points_world)
         if self.feature is not None and self.feature.index is None:
             p = self.feature.closest(Ym)
-            return p.foot, p.normals, np.abs(p.distance), p.normals, None
+            return _Feet(Ym, p.foot, p.normals, np.abs(p.distance), p.normals)
+        assert self.index is not None
         cp = self.index.query(Ym)
         smooth = self.index.smooth_normals(cp.face, cp.foot)
-        return cp.foot, cp.normal[:, None, :], cp.distance, smooth[:, None, :], cp.face
+        return _Feet(Ym, cp.foot, cp.normal[:, None, :], cp.distance, smooth[:, None, :])
 
 
-def _rows(Ym, foot, normals):
+def _rows(Ym: FloatArray, foot: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Point-to-plane rows J (N*m, 6) about the origin and residuals s (N*m,)."""
     m = normals.shape[1]
     Y = np.repeat(Ym, m, axis=0)
@@ -168,7 +172,7 @@ def _rows(Ym, foot, normals):
     return J, s
 
 
-def _lstsq_scaled(A, b):
+def _lstsq_scaled(A: FloatArray, b: FloatArray) -> tuple[FloatArray, int, float]:
     """Least squares with column scaling; returns (x, rank, smallest relative sv)."""
     d = np.linalg.norm(A, axis=0)
     d[d == 0] = 1.0
@@ -177,8 +181,21 @@ def _lstsq_scaled(A, b):
     return x / d, int(rank), rel
 
 
-def _scaled_information(feet, normals, planar: bool):
-    """Eigenvalues (ascending, relative) of the scaled information (see uncertainty)."""
+def scaled_information(feet: FloatArray, normals: FloatArray, planar: bool) -> FloatArray:
+    """Eigenvalues of the point-to-plane information, ascending, relative to the largest.
+
+    Rotations are scaled by the RMS distance of the feet from their centroid and taken about
+    it (as in :func:`algorithms.registration.uncertainty.observability`), so the eigenvalues
+    compare rotations and translations in one unit.
+
+    Args:
+        feet: (n, 3) [m] points on the model, workpiece frame.
+        normals: (n, m, 3) unit normals there (m per point).
+        planar: keep the se(2) part only (rotation about z, translation in x and y).
+
+    Returns:
+        (6,) or, planar, (3,) relative eigenvalues in [0, 1].
+    """
     m = normals.shape[1]
     P = np.repeat(feet, m, axis=0)
     n = normals.reshape(-1, 3)
@@ -192,7 +209,7 @@ def _scaled_information(feet, normals, planar: bool):
     return w / (w[-1] if w[-1] > 0 else 1.0)
 
 
-def _check_points(points, planar):
+def _check_points(points: ArrayLike, planar: bool) -> tuple[FloatArray, BoolArray]:
     P = np.asarray(points, dtype=np.float64)
     if planar and P.ndim == 2 and P.shape[1] == 2:
         P = np.hstack([P, np.zeros((len(P), 1))])
@@ -202,16 +219,323 @@ def _check_points(points, planar):
     return P, finite
 
 
+def _check_planar_pose(T: Pose) -> None:
+    R = T[:3, :3]
+    if abs(R[2, 2] - 1.0) > 1e-9 or abs(T[2, 3]) > 1e-12:
+        raise AlgorithmError("a 2D feature needs a planar init (rotation about z, no z translation)")
+
+
+def _mse(distance: FloatArray, mask: Mask) -> float:
+    """Mean squared distance of the inliers [m^2]: Algorithm 2's ``e_k``."""
+    return float(np.mean(distance[mask] ** 2))
+
+
 # ----------------------------------------------------------------------- Algorithm 2
+@dataclass(frozen=True)
+class _Problem:
+    """Algorithm 2's checked input.
+
+    Attributes:
+        model: closest points on the model (workpiece frame).
+        group: ``G_0``; its ``m0`` (q, 6) is the basis ``B`` the updates move along.
+        points: (N, 3) [m] every input row, world frame (NaN rows included).
+        finite: (N,) the rows with finite coordinates.
+        rows: (n,) their indices.
+        Y: (n, 3) [m] the finite points, world frame.
+        T_init: the initial ``T_world_workpiece`` (``g^0``).
+        sigma: the given noise sigma [m], or None (estimated).
+        outlier: the checked outlier rule.
+        size_m: the points' bounding-box diagonal [m] (1 when they coincide).
+        max_iterations: cap on pose updates.
+        tolerance: ``delta`` of the stopping rule.
+    """
+
+    model: _Model
+    group: SymmetryGroup
+    points: FloatArray
+    finite: BoolArray
+    rows: IntArray
+    Y: FloatArray
+    T_init: Pose
+    sigma: float | None
+    outlier: OutlierConfig
+    size_m: float
+    max_iterations: int
+    tolerance: float
+
+    @property
+    def floor2(self) -> float:
+        """``e_k`` at or below this is an exact fit [m^2]."""
+        return (FLOOR_REL * self.size_m) ** 2
+
+
+@dataclass
+class _State:
+    """Algorithm 2's iterate ``g^k`` with its feet, inliers and ``e_k``, and the verdict."""
+
+    T: Pose
+    feet: _Feet
+    stages: OutlierStages
+    mask: Mask
+    e: float
+    history: list[float]
+    poses: list[Pose]
+    iterations: int = 0
+    converged: bool = False
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class _Trial:
+    """A candidate update ``g^(k-1) exp(xi)`` with its feet and ``e`` on the current inliers."""
+
+    T: Pose
+    feet: _Feet
+    e: float
+
+
+@dataclass(frozen=True)
+class _Stop:
+    """Why the iteration stopped."""
+
+    converged: bool
+    message: str
+
+
+def _check_group(group: SymmetryGroup | None, model: _Model) -> SymmetryGroup:
+    if group is None:
+        if model.feature is None:
+            raise AlgorithmError("give the symmetry group G_0 (a SymmetryGroup) for a mesh model")
+        group = model.feature.group
+    if not isinstance(group, SymmetryGroup):
+        raise AlgorithmError(f"group must be a SymmetryGroup, got {type(group).__name__}")
+    if model.feature is not None and model.feature.planar != group.planar:
+        raise AlgorithmError("a 2D (planar) feature needs a planar group and vice versa")
+    return group
+
+
+def _problem(points: ArrayLike, model: object, group: SymmetryGroup | None, init: ArrayLike | None,
+             sigma: float | None, max_iterations: int, tolerance: float, outlier: str | float | None) -> _Problem:
+    """Check Algorithm 2's input (the order of the checks decides which error is raised)."""
+    mdl = _Model(model)
+    group = _check_group(group, mdl)
+    P, finite = _check_points(points, group.planar)
+    q = group.quotient_dim
+    if finite.sum() < max(MIN_POINTS, q):
+        raise AlgorithmError(
+            f"points must have at least {max(MIN_POINTS, q)} finite rows to fix {q} directions, "
+            f"got {int(finite.sum())}"
+        )
+    if int(max_iterations) < 1:
+        raise AlgorithmError(f"max_iterations must be >= 1, got {max_iterations}")
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise AlgorithmError(f"tolerance must be a finite number >= 0, got {tolerance}")
+    sigma = check_sigma(sigma)
+    mode = outlier_config(outlier)
+    T = np.eye(4) if init is None else as_pose(init, name="init")
+    if group.planar:
+        _check_planar_pose(T)
+    rows = np.nonzero(finite)[0]
+    Y = P[rows]
+    size = float(np.linalg.norm(np.ptp(Y, axis=0))) or 1.0
+    return _Problem(model=mdl, group=group, points=P, finite=finite, rows=rows, Y=Y, T_init=T, sigma=sigma,
+                    outlier=mode, size_m=size, max_iterations=max_iterations, tolerance=tolerance)
+
+
+def _start(pb: _Problem) -> _State:
+    """Steps 1-2: the feet at ``g^0`` (k = 0), the inliers and ``e_0``."""
+    stages = OutlierStages(pb.outlier, OUTLIER_FLOOR_REL * pb.size_m, OUTLIER_FLOOR_REL * pb.size_m, MIN_POINTS)
+    feet = pb.model.feet(pb.T_init, pb.Y)
+    mask = stages.mask(feet.distance)
+    e0 = _mse(feet.distance, mask)
+    return _State(T=pb.T_init, feet=feet, stages=stages, mask=mask, e=e0, history=[float(np.sqrt(e0))],
+                  poses=[pb.T_init])
+
+
+def _m0_step(pb: _Problem, st: _State) -> FloatArray:
+    """Step 3: the point-to-plane least squares in ``m_0`` only; the twist ``B^T m`` (6,)."""
+    f, mask = st.feet, st.mask
+    J, s = _rows(f.points[mask], f.foot[mask], f.normals[mask])
+    B = pb.group.m0
+    mu, _, _ = _lstsq_scaled(J @ B.T, s)
+    return B.T @ mu
+
+
+def _trial(pb: _Problem, st: _State, xi: FloatArray) -> _Trial:
+    T = st.T @ exp_se3(xi)
+    feet = pb.model.feet(T, pb.Y)
+    return _Trial(T=T, feet=feet, e=_mse(feet.distance, st.mask))
+
+
+def _halved_step(pb: _Problem, st: _State) -> _Trial:
+    """Steps 3-4: the update along ``m_0``, halved while it would raise the residual."""
+    xi = _m0_step(pb, st)
+    trial = _trial(pb, st, xi)
+    halvings = 0
+    while trial.e > st.e and halvings < MAX_HALVINGS:
+        # overshoot far from the minimum: halve the motion
+        xi = 0.5 * xi
+        trial = _trial(pb, st, xi)
+        halvings += 1
+    return trial
+
+
+def _stop_before_step(pb: _Problem, st: _State) -> _Stop | None:
+    if st.e <= pb.floor2:
+        return _Stop(True, f"converged: residual at the numerical floor (RMS {np.sqrt(st.e):.3g} m)")
+    if st.iterations >= pb.max_iterations:
+        return _Stop(False, f"not converged: reached max_iterations = {pb.max_iterations}")
+    return None
+
+
+def _stalled(st: _State, trial: _Trial) -> _Stop:
+    """No halving of the step lowers the residual: converged when it stays within rounding."""
+    converged = trial.e <= st.e * (1.0 + STALL_REL)
+    return _Stop(converged, "converged: no further decrease" if converged else
+                 "not converged: stalled, no step along m_0 lowers the residual")
+
+
+def _accept(pb: _Problem, st: _State, trial: _Trial) -> _Stop | None:
+    """Steps 4-5: ``g^k``, new feet and inliers, ``e_k``; stop when ``1 - e_k / e_(k-1) < delta``
+    with the inliers unchanged."""
+    st.iterations += 1
+    st.T = trial.T
+    st.feet = trial.feet
+    st.history.append(float(np.sqrt(trial.e)))
+    st.poses.append(st.T)
+    rel = 1.0 - trial.e / st.e if st.e > 0 else 0.0
+    new_mask = st.stages.mask(trial.feet.distance)
+    changed = not same_mask(new_mask, st.mask)
+    st.mask = new_mask
+    st.e = _mse(trial.feet.distance, new_mask)
+    if not changed and rel < pb.tolerance:
+        return _Stop(True, f"converged: relative decrease 1 - e_k/e_(k-1) = {rel:.3g} < delta = {pb.tolerance:g}")
+    return None
+
+
+def _descend(pb: _Problem, st: _State) -> None:
+    """Steps 3-5 repeated until a stopping rule holds; sets ``converged`` and ``message``."""
+    while True:
+        stop = _stop_before_step(pb, st)
+        if stop is None:
+            trial = _halved_step(pb, st)
+            stop = _stalled(st, trial) if trial.e > st.e else _accept(pb, st, trial)
+        if stop is not None:
+            st.converged, st.message = stop.converged, stop.message
+            return
+
+
+def _tighten_outliers(st: _State) -> bool:
+    """Move the outlier cut to its final stage; True when that changed the inliers."""
+    if not st.stages.tighten():
+        return False
+    new_mask = st.stages.mask(st.feet.distance)
+    if same_mask(new_mask, st.mask):
+        return False
+    st.mask = new_mask
+    st.e = _mse(st.feet.distance, new_mask)
+    st.converged = False
+    return True
+
+
+@dataclass(frozen=True)
+class _Information:
+    """The point-to-plane information at Algorithm 2's result.
+
+    Attributes:
+        rows: (n*m, q) rows ``J B^T`` of the inliers along ``m_0``.
+        residuals: (n*m,) their point-to-plane residuals [m].
+        sigma_m: the given sigma, or the one the residuals give [m].
+        covariance: (q, q) of the pose along ``m_0``, None when singular.
+        relative_eigenvalues: the scaled 6x6 (3x3 planar) information's, ascending.
+        rank: of that matrix at ``DETECTION_TOL``.
+        condition: its condition number (inf when rank deficient).
+    """
+
+    rows: FloatArray
+    residuals: FloatArray
+    sigma_m: float
+    covariance: np.ndarray | None
+    relative_eigenvalues: FloatArray
+    rank: int
+    condition: float
+
+
+def _information(pb: _Problem, st: _State) -> _Information:
+    f, mask, q = st.feet, st.mask, pb.group.quotient_dim
+    J, s = _rows(f.points[mask], f.foot[mask], f.normals[mask])
+    A = J @ pb.group.m0.T
+    dof = max(len(s) - q, 1)
+    sigma_used = float(pb.sigma) if pb.sigma is not None else float(np.sqrt(np.sum(s * s) / dof))
+    cov = None
+    N = A.T @ A
+    if q and np.linalg.matrix_rank(N / np.max(np.abs(N)) if np.max(np.abs(N)) > 0 else N) == q:
+        cov = np.linalg.inv(N) * sigma_used**2
+        cov = 0.5 * (cov + cov.T)
+    rel_eig = scaled_information(f.foot[mask], f.smooth_normals[mask], pb.group.planar)
+    rank6 = int(np.sum(rel_eig >= DETECTION_TOL))
+    cond = float(1.0 / rel_eig[0]) if rel_eig[0] > 0 and rank6 == len(rel_eig) else float("inf")
+    return _Information(rows=A, residuals=s, sigma_m=sigma_used, covariance=cov, relative_eigenvalues=rel_eig,
+                        rank=rank6, condition=cond)
+
+
+def _result(pb: _Problem, st: _State, info: _Information, t0: float) -> SymmetricResult:
+    """The SymmetricResult of Algorithm 2 and its verdict."""
+    group, mask, dist = pb.group, st.mask, st.feet.distance
+    n_used = count(mask, len(pb.Y))
+    message = st.message
+    deficient = max(0, (len(info.relative_eigenvalues) - info.rank) - group.dim)
+    if deficient:
+        message += (f"; WARNING: the points leave {deficient} direction(s) of m_0 unfixed as well "
+                    "(more symmetric than the group given): minimum-norm steps were taken")
+    inliers = np.zeros(len(pb.points), dtype=bool)
+    inliers[pb.rows[mask]] = True
+    rmse = float(np.sqrt(np.mean(dist[mask] ** 2)))
+    extent = float(np.linalg.norm(np.ptp(pb.points[pb.finite], axis=0)))
+    white = (white_noise_sigma_m(st.feet.points[mask], info.residuals.reshape(n_used, -1))
+             if pb.sigma is None else math.nan)
+    poor = poor_fit_reason(rmse, n_used, int(pb.finite.sum()), extent, pb.sigma, white)
+    return SymmetricResult(
+        T_world_workpiece=st.T,
+        method="algorithm2",
+        converged=st.converged,
+        status=fit_status(st.converged, group.dim + deficient, poor),
+        message=message + (f"; poor fit: {poor}" if poor else ""),
+        rmse_m=rmse,
+        iterations=st.iterations,
+        history=tuple(st.history),
+        pose_history=tuple(st.poses),
+        inliers=inliers,
+        n_points_used=n_used,
+        n_outliers=int(len(pb.Y) - n_used),
+        n_dropped_nonfinite=int(len(pb.points) - len(pb.Y)),
+        sigma_m=info.sigma_m,
+        determined_directions=group.m0.copy(),
+        covariance=info.covariance,
+        free_directions=group.g0.copy(),
+        solutions=(st.T,),
+        relative_eigenvalues=info.relative_eigenvalues,
+        time_s=time.perf_counter() - t0,
+        poor_fit_reason=poor,
+        feature=group.kind,
+        group=group,
+        solution_rmse_m=np.array([rmse]),
+        general_system_rank=info.rank,
+        general_system_condition=info.condition,
+        detection_tol=DETECTION_TOL,
+        algorithm="2",
+    )
+
+
 def algorithm2(
-    points,
-    model,
+    points: ArrayLike,
+    model: Feature | TriangleMesh | MeshIndex,
     group: SymmetryGroup | None = None,
-    init=None,
+    init: ArrayLike | None = None,
     sigma: float | None = None,
     max_iterations: int = MAX_ITERATIONS,
     tolerance: float = TOLERANCE,
-    outlier="mad",
+    outlier: str | float | None = "mad",
 ) -> SymmetricResult:
     """Document 000's Algorithm 2: localize on ``SE(3)/G_0``, updating only along ``m_0``.
 
@@ -237,375 +561,10 @@ def algorithm2(
         AlgorithmError: bad points, model, group, init or options.
     """
     t0 = time.perf_counter()
-    mdl = _Model(model)
-    if group is None:
-        if mdl.feature is None:
-            raise AlgorithmError("give the symmetry group G_0 (a SymmetryGroup) for a mesh model")
-        group = mdl.feature.group
-    if not isinstance(group, SymmetryGroup):
-        raise AlgorithmError(f"group must be a SymmetryGroup, got {type(group).__name__}")
-    if mdl.feature is not None and mdl.feature.planar != group.planar:
-        raise AlgorithmError("a 2D (planar) feature needs a planar group and vice versa")
-    P, finite = _check_points(points, group.planar)
-    q = group.quotient_dim
-    if finite.sum() < max(MIN_POINTS, q):
-        raise AlgorithmError(
-            f"points must have at least {max(MIN_POINTS, q)} finite rows to fix {q} directions, "
-            f"got {int(finite.sum())}"
-        )
-    if int(max_iterations) < 1:
-        raise AlgorithmError(f"max_iterations must be >= 1, got {max_iterations}")
-    if not (np.isfinite(tolerance) and tolerance >= 0):
-        raise AlgorithmError(f"tolerance must be a finite number >= 0, got {tolerance}")
-    sigma = check_sigma(sigma)
-    mode = outlier_config(outlier)
-    T = np.eye(4) if init is None else as_pose(init, name="init")
-    if group.planar:
-        _check_planar_pose(T)
-    rows = np.nonzero(finite)[0]
-    Y = P[rows]
-    size = float(np.linalg.norm(np.ptp(Y, axis=0))) or 1.0
-    floor2 = (FLOOR_REL * size) ** 2
-    stages = OutlierStages(mode, OUTLIER_FLOOR_REL * size, OUTLIER_FLOOR_REL * size, MIN_POINTS)
-    B = group.m0
-
-    def evaluate(T_):
-        Ym_ = transform_points(inv_pose(T_), Y)
-        return (Ym_,) + tuple(mdl.closest(Ym_))
-
-    Ym, foot, normals, dist, smooth, _ = evaluate(T)
-    mask = stages.mask(dist)
-
-    def mse(d, mk):
-        return float(np.mean(d[mk] ** 2))
-
-    e_prev = mse(dist, mask)
-    history = [float(np.sqrt(e_prev))]
-    poses = [T]
-    converged, message = False, f"not converged: reached max_iterations = {max_iterations}"
-    it = 0
-    while True:
-        while True:
-            if e_prev <= floor2:
-                converged = True
-                message = f"converged: residual at the numerical floor (RMS {np.sqrt(e_prev):.3g} m)"
-                break
-            if it >= max_iterations:
-                converged = False
-                message = f"not converged: reached max_iterations = {max_iterations}"
-                break
-            J, s = _rows(Ym[mask], foot[mask], normals[mask])
-            mu, _, _ = _lstsq_scaled(J @ B.T, s)
-            xi = B.T @ mu
-            cand = evaluate(T @ exp_se3(xi))
-            e_new = mse(cand[3], mask)
-            halvings = 0
-            while e_new > e_prev and halvings < 12:
-                # overshoot far from the minimum: halve the motion
-                xi = 0.5 * xi
-                cand = evaluate(T @ exp_se3(xi))
-                e_new = mse(cand[3], mask)
-                halvings += 1
-            if e_new > e_prev:
-                converged = e_new <= e_prev * (1.0 + 1e-6)
-                message = ("converged: no further decrease" if converged else
-                           "not converged: stalled, no step along m_0 lowers the residual")
-                break
-            it += 1
-            T = T @ exp_se3(xi)
-            Ym, foot, normals, dist, smooth, _ = cand
-            history.append(float(np.sqrt(e_new)))
-            poses.append(T)
-            rel = 1.0 - e_new / e_prev if e_prev > 0 else 0.0
-            new_mask = stages.mask(dist)
-            changed = not same_mask(new_mask, mask)
-            mask = new_mask
-            e_prev = mse(dist, mask)
-            if not changed and rel < tolerance:
-                converged = True
-                message = f"converged: relative decrease 1 - e_k/e_(k-1) = {rel:.3g} < delta = {tolerance:g}"
-                break
-        # converged: tighten the outlier cut once; go on if that changes the inliers
-        if converged and stages.tighten():
-            new_mask = stages.mask(dist)
-            if not same_mask(new_mask, mask):
-                mask = new_mask
-                e_prev = mse(dist, mask)
-                converged = False
-                continue
-        break
-
-    n_used = count(mask, len(Y))
-    J, s = _rows(Ym[mask], foot[mask], normals[mask])
-    A = J @ B.T
-    dof = max(len(s) - q, 1)
-    sigma_used = float(sigma) if sigma is not None else float(np.sqrt(np.sum(s * s) / dof))
-    cov = None
-    N = A.T @ A
-    if q and np.linalg.matrix_rank(N / np.max(np.abs(N)) if np.max(np.abs(N)) > 0 else N) == q:
-        cov = np.linalg.inv(N) * sigma_used**2
-        cov = 0.5 * (cov + cov.T)
-    rel_eig = _scaled_information(foot[mask], smooth[mask], group.planar)
-    rank6 = int(np.sum(rel_eig >= DETECTION_TOL))
-    cond = float(1.0 / rel_eig[0]) if rel_eig[0] > 0 and rank6 == len(rel_eig) else float("inf")
-    deficient = max(0, (len(rel_eig) - rank6) - group.dim)
-    if deficient:
-        message += (f"; WARNING: the points leave {deficient} direction(s) of m_0 unfixed as well "
-                    "(more symmetric than the group given): minimum-norm steps were taken")
-    inliers = np.zeros(len(P), dtype=bool)
-    inliers[rows[mask]] = True
-    rmse = float(np.sqrt(np.mean(dist[mask] ** 2)))
-    extent = float(np.linalg.norm(np.ptp(P[finite], axis=0)))
-    poor = poor_fit_reason(rmse, n_used, int(finite.sum()), extent, sigma,
-                           white_noise_sigma_m(Ym[mask], s.reshape(n_used, -1)) if sigma is None else math.nan)
-    status = fit_status(converged, group.dim + deficient, poor)
-    return SymmetricResult(
-        T_world_workpiece=T,
-        method="algorithm2",
-        converged=converged,
-        status=status,
-        message=message + (f"; poor fit: {poor}" if poor else ""),
-        rmse_m=rmse,
-        iterations=it,
-        history=tuple(history),
-        pose_history=tuple(poses),
-        inliers=inliers,
-        n_points_used=n_used,
-        n_outliers=int(len(Y) - n_used),
-        n_dropped_nonfinite=int(len(P) - len(Y)),
-        sigma_m=sigma_used,
-        determined_directions=group.m0.copy(),
-        covariance=cov,
-        free_directions=group.g0.copy(),
-        solutions=(T,),
-        relative_eigenvalues=rel_eig,
-        time_s=time.perf_counter() - t0,
-        poor_fit_reason=poor,
-        feature=group.kind,
-        group=group,
-        solution_rmse_m=np.array([rmse]),
-        general_system_rank=rank6,
-        general_system_condition=cond,
-        detection_tol=DETECTION_TOL,
-        algorithm="2",
-    )
-
-
-def _check_planar_pose(T):
-    R = T[:3, :3]
-    if abs(R[2, 2] - 1.0) > 1e-9 or abs(T[2, 3]) > 1e-12:
-        raise AlgorithmError("a 2D feature needs a planar init (rotation about z, no z translation)")
-
-
-
-# ---------------------------------------------------------------------- the pipeline
-def localize_symmetric(
-    points,
-    mesh,
-    symmetric="auto",
-    init=None,
-    sigma: float | None = None,
-    outlier="mad",
-    tol: float = DETECTION_TOL,
-    index: MeshIndex | None = None,
-    discrete: bool = True,
-    method: str = "hong_tan",
-) -> SymmetricResult:
-    """Localize with the symmetry the data leave free: Algorithm 1, detection, Algorithm 2.
-
-    1. Algorithm 1 (Hong-Tan by default; its minimum-norm solve tolerates the singular
-       systems) from ``init`` gives a pose and the feet.
-    2. ``symmetric="auto"``: :func:`detect_symmetry` on the feet and smooth normals picks
-       ``G_0``; a feature type (``"cylinder"``, ...): the primitive of that type is fitted to
-       the model faces the points landed on and its ``G_0`` used (an error when they are not
-       such a surface); a :class:`Feature` or :class:`SymmetryGroup`: used as given;
-       ``"none"``: Algorithm 1's result is returned as it is (its weak directions reported).
-    3. Algorithm 2 along ``m_0`` from Algorithm 1's pose.
-    4. ``discrete``: every model symmetry ``S`` (:func:`model_symmetries`) gives the equally
-       good pose ``T S``; distinct ones (modulo ``G_0``) go to ``solutions``, the one
-       nearest ``init`` first.
-
-    Args:
-        points: (N, 3) [m] measured points, world frame.
-        mesh: the CAD model (workpiece frame, metres).
-        symmetric: "auto", "none", a feature type, a Feature or a SymmetryGroup.
-        init: initial pose (4x4) or None (identity). An unknown pose is found first by
-            :func:`algorithms.registration.global_search.global_localize`.
-        sigma: noise sigma along the normals [m] (estimated when None).
-        outlier: as for :func:`algorithms.registration.local.localize`.
-        tol: detection tolerance (relative eigenvalue).
-        index: prebuilt MeshIndex of ``mesh``.
-        discrete: look for discrete model symmetries.
-        method: the pose update of the Algorithm 1 stage (default Hong-Tan).
-
-    Raises:
-        AlgorithmError: bad input, an unknown ``symmetric`` (the valid choices are listed),
-            a 2D feature type (planar problems go through :func:`algorithm2`), or measured
-            faces that are not the requested feature.
-    """
-    t0 = time.perf_counter()
-    if isinstance(symmetric, str) and symmetric not in SYMMETRIC_CHOICES:
-        if symmetric not in FEATURE_TABLE:
-            raise AlgorithmError(
-                f"symmetric must be one of {', '.join(SYMMETRIC_CHOICES)} or a feature type "
-                f"({', '.join(FEATURE_TABLE)}); got {symmetric!r}"
-            )
-        check_feature_type(symmetric)
-        if FEATURE_TABLE[symmetric].planar:
-            raise AlgorithmError(
-                f"{symmetric} is a 2D feature (planar problem in SE(2)); localize 2D points "
-                f"with algorithms.registration.symmetric.algorithm2 and Feature.{symmetric}(...)"
-            )
-    if not (np.isfinite(tol) and 0 < tol < 1):
-        raise AlgorithmError(f"tol must be in (0, 1), got {tol}")
-    index = index if index is not None else (mesh if isinstance(mesh, MeshIndex) else MeshIndex(mesh))
-    res1 = localize(points, index=index, method=method, init=init, sigma=sigma, outlier=outlier)
-    T1 = res1.T_world_workpiece
-    P = np.asarray(points, dtype=np.float64)
-    finite = np.all(np.isfinite(P), axis=1)
-    det_foot, det_normal, det_face = _surface_points(index, P[res1.inliers], T1, res1.sigma_m)
-    T_ref = np.eye(4) if init is None else as_pose(init, name="init")
-
-    if isinstance(symmetric, str) and symmetric == "none":
-        obs = observability(det_foot, det_normal, tol)
-        weak = unit_twists(obs.weak_directions)
-        rel = obs.relative_eigenvalues
-        if len(weak):
-            determined = unit_twists(obs.determined_directions)
-            cov = _covariance(index, P[res1.inliers], T1, determined, res1.sigma_m)
-        else:
-            determined, cov = np.eye(6), res1.covariance
-        return SymmetricResult(
-            T_world_workpiece=T1, method=res1.method, converged=res1.converged,
-            status=fit_status(res1.converged, len(weak), res1.poor_fit_reason),
-            message=res1.message, rmse_m=res1.rmse_m, iterations=res1.iterations, history=res1.history,
-            pose_history=res1.pose_history,
-            inliers=res1.inliers, n_points_used=res1.n_points_used, n_outliers=res1.n_outliers,
-            n_dropped_nonfinite=res1.n_dropped_nonfinite, sigma_m=res1.sigma_m,
-            determined_directions=determined, covariance=cov, free_directions=weak, solutions=(T1,),
-            relative_eigenvalues=rel, time_s=time.perf_counter() - t0, poor_fit_reason=res1.poor_fit_reason,
-            feature="none", group=other_group(weak, obs.centroid, obs.characteristic_length_m),
-            solution_rmse_m=np.array([res1.rmse_m]),
-            general_system_rank=int(np.sum(rel >= tol)),
-            general_system_condition=float(1 / rel[0]) if rel[0] >= tol else float("inf"),
-            detection_tol=tol, algorithm="1",
-        )
-    if isinstance(symmetric, SymmetryGroup):
-        group = symmetric
-    elif isinstance(symmetric, Feature):
-        group = symmetric.group
-    elif symmetric == "auto":
-        group = detect_symmetry(det_foot, det_normal, tol).group
-    else:
-        feat = Feature.from_mesh(index.mesh, np.unique(det_face), kind=symmetric)
-        group = feat.group
-    res2 = algorithm2(P, index, group, init=T1, sigma=sigma, outlier=outlier)
-    T2 = res2.T_world_workpiece
-    sols = [T2]
-    if discrete:
-        syms = model_symmetries(index.mesh, index=index)
-        reps = [np.eye(4)]
-        for S in syms[1:]:
-            # T S equals T S' modulo G_0 when S' S^-1 is in G_0
-            if any(group.contains(S @ inv_pose(R), SAME_SOLUTION_TOL, SAME_SOLUTION_TOL * index.extent)
-                   for R in reps):
-                continue
-            reps.append(S)
-        sols = [T2 @ S for S in reps]
-    sols = sorted(sols, key=lambda T: _pose_gap(T, T_ref, index.extent))
-    rms = []
-    Yi = P[res2.inliers]
-    for T in sols:
-        d = index.query(transform_points(inv_pose(T), Yi)).distance
-        rms.append(float(np.sqrt(np.mean(d**2))))
-    inliers = res2.inliers
-    status, message = res2.status, res2.message
-    # the information at the result, on the surface points (as for the detection)
-    f2, n2, _ = _surface_points(index, P[inliers], T2, res2.sigma_m)
-    rel = _scaled_information(f2, n2[:, None, :], False) if len(f2) >= 6 else res2.relative_eigenvalues
-    rank6 = int(np.sum(rel >= tol))
-    cond = float(1.0 / rel[0]) if rank6 == 6 else float("inf")
-    if len(sols) > 1:
-        message += f"; {len(sols)} equally good poses (discrete symmetry of the model)"
-        if status not in (Status.NOT_CONVERGED, Status.POOR_FIT):
-            status = Status.AMBIGUOUS
-    return SymmetricResult(
-        T_world_workpiece=sols[0], method=res2.method, converged=res2.converged, status=status,
-        message=message, rmse_m=res2.rmse_m, iterations=res1.iterations + res2.iterations,
-        history=res1.history + res2.history[1:], pose_history=res1.pose_history + res2.pose_history[1:],
-        inliers=inliers, n_points_used=res2.n_points_used,
-        n_outliers=int(finite.sum() - res2.n_points_used), n_dropped_nonfinite=int(len(P) - finite.sum()),
-        sigma_m=res2.sigma_m,
-        determined_directions=_move_twists(res2.determined_directions, T2, sols[0]),
-        covariance=res2.covariance,
-        free_directions=_move_twists(res2.free_directions, T2, sols[0]),
-        solutions=tuple(sols), relative_eigenvalues=rel, time_s=time.perf_counter() - t0,
-        poor_fit_reason=res2.poor_fit_reason,
-        feature=res2.feature, group=_move_group(group, T2, sols[0]), solution_rmse_m=np.asarray(rms),
-        general_system_rank=rank6, general_system_condition=cond, detection_tol=tol, algorithm="2",
-    )
-
-
-def _covariance(index, Y, T, B, sigma) -> np.ndarray | None:
-    """sigma^2 (A^T A)^-1 with A the point-to-plane rows of the points Y at T along the
-    directions B (q, 6): the covariance of the pose along them, or None if singular."""
-    cp = index.query(transform_points(inv_pose(T), Y))
-    A = np.hstack([np.cross(cp.foot, cp.normal), cp.normal]) @ B.T
-    try:
-        C = sym_inverse(A.T @ A) * sigma**2
-    except np.linalg.LinAlgError:
-        return None
-    return C if np.all(np.isfinite(C)) else None
-
-
-def _surface_points(index, Y, T, sigma):
-    """Feet, smooth normals and faces of the points that measure a surface, not an edge.
-
-    Points on, beyond or within the noise of a sharp edge (their foot on the edge, the offset
-    not along the normal, or the foot closer to a sharp edge than EDGE_BAND_SIGMA noise
-    sigmas) measure the edge: they would fake information along a free direction (a plane
-    whose points hang over its border). The information analyses leave them out; Algorithm
-    2 still uses every inlier. Falls back to all points when fewer than 6 remain.
-    """
-    Ym = transform_points(inv_pose(T), Y)
-    cp = index.query(Ym)
-    smooth = index.smooth_normals(cp.face, cp.foot)
-    along = np.abs(np.einsum("ij,ij->i", Ym - cp.foot, cp.normal))
-    table = pseudo_normals(index)
-    pn = table.at(cp.face, cp.foot)
-    band = max(EDGE_BAND_SIGMA * sigma, 1e-9 * index.extent)
-    keep = ((along >= EDGE_COS * cp.distance) | (cp.distance <= 1e-12 * index.extent)) & (
-        np.einsum("ij,ij->i", pn, cp.normal) >= EDGE_COS) & (
-        table.sharp_edge_distance(cp.face, cp.foot) > band)
-    if keep.sum() < 6:
-        keep[:] = True
-    return cp.foot[keep], smooth[keep], cp.face[keep]
-
-
-def _pose_gap(T, T_ref, size):
-    return rotation_error_rad(T, T_ref) * size + float(np.linalg.norm(T[:3, 3] - T_ref[:3, 3]))
-
-
-def _move_twists(X, T_from, T_to):
-    """Twists about the workpiece origin at T_from, expressed for the pose T_to (same world
-    motions): T_to = T_from S, so the workpiece frames differ by S."""
-    S = inv_pose(T_from) @ T_to
-    if np.allclose(S, np.eye(4), atol=1e-12):
-        return X.copy()
-    Si = inv_pose(S)
-    R, p = Si[:3, :3], Si[:3, 3]
-    w = X[:, :3] @ R.T
-    v = X[:, 3:] @ R.T + np.cross(p, w)
-    return np.hstack([w, v])
-
-
-def _move_group(group, T_from, T_to):
-    S = inv_pose(T_from) @ T_to
-    if np.allclose(S, np.eye(4), atol=1e-12) or group.kind == "other":
-        return group
-    Si = inv_pose(S)
-    origin = transform_points(Si, group.origin[None])[0]
-    axis = Si[:3, :3] @ group.axis
-    if group.kind == "freeform":
-        return symmetry_group("freeform", origin)
-    return symmetry_group(group.kind, origin, axis)
+    pb = _problem(points, model, group, init, sigma, max_iterations, tolerance, outlier)
+    st = _start(pb)
+    _descend(pb, st)
+    # converged: tighten the outlier cut once; go on if that changes the inliers
+    while st.converged and _tighten_outliers(st):
+        _descend(pb, st)
+    return _result(pb, st, _information(pb, st), t0)
