@@ -136,7 +136,10 @@ def scan_path(scan: Scan, T_base_workpiece_estimate: np.ndarray, index: MeshInde
     t0 = time.perf_counter()
     params = cloud_params(sc)
     link_m = 3.0 * _max_line_spacing_m(sc)
-    lines, normals, tool_normals, left_out = [], [], [], []
+    lines: list[np.ndarray] = []
+    normals: list[np.ndarray] = []
+    tool_normals: list[np.ndarray] = []
+    left_out: list[str] = []
     removed: dict = {}
     n_lines = n_points = patches = 0
     sq = n_fit = 0.0

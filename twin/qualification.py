@@ -14,6 +14,7 @@ from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.probing.qualification import qualify_ball
 from twin.probing import ProbeHit, ProbeTarget
 from twin.realize import Realized
+from twin.sensors.touch_probe import probe_spec
 
 # Equator points of the qualification pattern start at this azimuth (world), then evenly spaced.
 QUALIFICATION_ELEVATION_DEG = 0.0
@@ -49,7 +50,7 @@ def qualification_targets(realized: Realized) -> list[ProbeTarget]:
     radius is that of the equator (sideways) touches, and the pole's axial excess goes to
     the centre (the ball-centre offset), so the effective radius is the nominal radius minus
     the mean sideways pre-travel."""
-    p = realized.scenario.probe
+    p = probe_spec(realized.scenario)
     T_bw = inv_pose(realized.scenario.T_world_base)
     az = 2 * np.pi * np.arange(p.qualification_points) / p.qualification_points
     el = np.radians(QUALIFICATION_ELEVATION_DEG)
@@ -63,7 +64,7 @@ def qualification_targets(realized: Realized) -> list[ProbeTarget]:
 
 def qualify(hits: tuple[ProbeHit, ...], realized: Realized) -> Qualification:
     """The effective ball radius and ball-centre offset from the sphere's hits."""
-    p = realized.scenario.probe
+    p = probe_spec(realized.scenario)
     centres = np.array([h.centre for h in hits])
     q = qualify_ball(centres, p.sphere_radius_m)
     known = transform_points(inv_pose(realized.scenario.T_world_base), p.sphere_xyz_m[None])[0]
@@ -87,7 +88,7 @@ def probe_sigma_m(realized: Realized) -> float:
     """Combined random standard uncertainty of one compensated probe point along its normal
     [m]: the unidirectional repeatability and the pre-travel variation left after
     qualification (Type B, uniform within the model's 3D pre-travel variation)."""
-    p = realized.scenario.probe
+    p = probe_spec(realized.scenario)
     s = p.stylus_length_m / p.reference_stylus_m
     ptv_half = 0.5 * s * (max(p.axial_pretravel_m, p.lateral_pretravel_m + p.lobe_m)
                           - min(p.axial_pretravel_m, p.lateral_pretravel_m - p.lobe_m))

@@ -165,7 +165,7 @@ def locate_figures(result, sigma_m: float, folder: Path) -> list[Path]:
     if result.scan is not None:
         out += scan_figures(result.scan, realized, sigma_m, folder)
     truth = evaluate.Evaluation(realized)
-    errs = {}
+    errs: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
     if result.T_coarse is not None:
         xi = truth.full_pose_errors(result.T_coarse)["twist"]
         errs["coarse"] = (xi[3:5] * 1e6, None)

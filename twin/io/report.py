@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -230,7 +231,7 @@ def write_json(path: Path, data: dict) -> None:
 
 def _pose_error_block(T_est, T_true, covariance=None) -> dict:
     e = evaluate.full_pose_errors(T_est, T_true, covariance)
-    out = {"rotation_error_deg": float(np.degrees(e["rotation_rad"])),
+    out: dict[str, Any] = {"rotation_error_deg": float(np.degrees(e["rotation_rad"])),
            "translation_error_mm": float(e["translation_m"] * MM)}
     if covariance is not None:
         out["std_rotation_deg"] = [float(np.degrees(v)) for v in e["std"][:3]]

@@ -30,8 +30,9 @@ import mujoco
 import numpy as np
 
 from algorithms.probing.pretravel import PretravelModel
+from twin.errors import TwinError
 from twin.robot import GROUP_ARM
-from twin.scenario import NoiseSpec, ProbeSpec
+from twin.scenario import NoiseSpec, ProbeSpec, Scenario
 from twin.sensors.base import Sensor
 
 BALL_SITE = "probe_ball"
@@ -40,6 +41,17 @@ MODULE_SITE = "probe_module"
 # surface is not linear in time; three steps take it to machine precision at probing speeds).
 TOUCH_REFINEMENTS = 3
 
+
+
+def probe_spec(scenario: Scenario) -> ProbeSpec:
+    """The scenario's ``[probe]`` table.
+
+    Raises:
+        TwinError: the scenario has no touch probe.
+    """
+    if scenario.probe is None:
+        raise TwinError(f"scenario {scenario.name!r} has no [probe] table: the touch probe is not mounted")
+    return scenario.probe
 
 @dataclass(frozen=True)
 class Trigger:

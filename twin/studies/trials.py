@@ -40,7 +40,9 @@ import hashlib
 import json
 import time
 from dataclasses import dataclass
+from typing import Any
 
+import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -56,7 +58,7 @@ from twin.realize import Realized, realize
 from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
 from twin.scenario import Scenario, load_scenario, merge_tables
-from twin.sensors.base import RawRays
+from twin.sensors.base import RawRays, RaySensor
 from twin.sensors.laser import sensor_sigma_m
 from twin.sim import simulate
 from twin.studies.methods import Outcome, run_method
@@ -87,8 +89,8 @@ class NoiseFreeScan:
     rays: RawRays
     q_enc: np.ndarray
     plan: ScanPlan
-    model: object
-    sensor: object
+    model: mujoco.MjModel
+    sensor: RaySensor
 
 
 _CACHE: dict[str, NoiseFreeScan] = {}
@@ -162,7 +164,7 @@ def bound(points: np.ndarray, T_true: np.ndarray, index, sigma_m: float | None) 
 def _metrics(out: Outcome, T_true: np.ndarray, n_points: int, C: np.ndarray | None) -> dict:
     T_est = out.T_world_workpiece
     xi = pose_error_twist(T_est, T_true)
-    m = {name: float(v * 1e6) for name, v in zip(TWIST_COLUMNS, xi, strict=True)}
+    m: dict[str, Any] = {name: float(v * 1e6) for name, v in zip(TWIST_COLUMNS, xi, strict=True)}
     m.update(rotation_error_deg=float(np.degrees(rotation_error_rad(T_est, T_true))),
              translation_error_um=float(translation_error_m(T_est, T_true) * 1e6), rmse_um=float(out.rmse_m * 1e6),
              iterations=int(out.iterations), status=out.status, time_s=float(out.time_s), n_points=int(n_points),
@@ -179,7 +181,7 @@ def _bound_columns(C: np.ndarray | None, xi: np.ndarray | None) -> dict:
 
 
 def _failed(status: str, n_points: int = 0, time_s: float = 0.0, C: np.ndarray | None = None) -> dict:
-    out = {name: float("nan") for name in TWIST_COLUMNS}
+    out: dict[str, Any] = {name: float("nan") for name in TWIST_COLUMNS}
     out.update(rotation_error_deg=float("nan"), translation_error_um=float("nan"), rmse_um=float("nan"),
                iterations=0, status=status, time_s=float(time_s), n_points=int(n_points),
                path_error_max_um=float("nan"), **_bound_columns(C, None))

@@ -89,6 +89,8 @@ class LiveRecording:
                 self.evaluation = evaluate.Evaluation(realized)
                 names = (["scan_path"] if realized.scenario.sensor.kind == "point" else []) + ["cad_path"]
                 begin(self.cell, names, True)
+            elif self.cell is None or self.evaluation is None:
+                raise ValueError(f"recording event {event!r} before the cells")
             elif event == "scan":
                 log_scan(self.cell, value, self.cell.T_world_base, self.evaluation)
                 self.t_scan_end_s = float(value.t[-1])

@@ -52,7 +52,9 @@ from algorithms.probing.point_planning import (
 )
 from algorithms.probing.qualification import compensate
 from algorithms.registration import global_localize
+from algorithms.registration.global_search.search import GlobalLocalizationResult
 from algorithms.registration.local import localize
+from algorithms.registration.result import RegistrationResult
 from algorithms.registration.uncertainty import information_rows, sym_inverse, systematic_covariance
 from twin.cell import Cell, build_cell
 from twin.errors import TwinError
@@ -71,6 +73,7 @@ from twin.realize import Realized
 from twin.robot import UR5E_DH
 from twin.scan import Scan, run_scan
 from twin.sensors.laser import sensor_sigma_m
+from twin.sensors.touch_probe import probe_spec
 from twin.stages import StageFailed, StageRunner
 
 TABLE_BAND_M = 0.002
@@ -168,7 +171,7 @@ class CoarseScan:
 class CoarsePose:
     """Stage 2's record: the coarse search's result and its pose ``T_coarse`` (T_base_workpiece)."""
 
-    result: object
+    result: GlobalLocalizationResult
     T_coarse: np.ndarray
 
 
@@ -184,8 +187,8 @@ class Probed:
 class FineFit:
     """Stage 6's record: document 001's fine stage, the final fit and its covariance."""
 
-    fine_001: object
-    fine: object
+    fine_001: RegistrationResult
+    fine: RegistrationResult
     compensation_rounds: int
     T_final: np.ndarray
     T_fine: np.ndarray
@@ -290,7 +293,7 @@ def _coarse_pose(st: _Locate, cs: CoarseScan, coarse: str) -> CoarsePose:
     with st.runner.stage("coarse"):
         T_coarse, result = coarse_pose(cs.points, st.realized, coarse)
     cp = st.coarse = CoarsePose(result, T_coarse)
-    st.say(f"coarse pose ({coarse}): {getattr(result, 'status', None) and result.status.value}, "
+    st.say(f"coarse pose ({coarse}): {result.status.value}, "
            f"{st.runner.timings_s['coarse_s']:.1f} s")
     return cp
 
@@ -322,9 +325,10 @@ def _probe(st: _Locate, prog: ProbingProgram, plan: FinePlan, qual_hits: tuple[P
     st.stage_t_s["probe_s"] = float(log.t[-1] - t_before)
     got = [h for h in hits if h.hit]
     if len(got) < MIN_FINE_POINTS:
+        search_mm = probe_spec(st.realized.scenario).search_m * 1e3
         raise StageFailed("fine", f"only {len(got)} of {len(hits)} planned points were hit (the others found no "
-                                  f"surface within the search distance of {st.realized.scenario.probe.search_m * 1e3:g}"
-                                  " mm): the coarse pose is too far off for its planned points")
+                                  f"surface within the search distance of {search_mm:g} mm): the coarse pose is "
+                                  "too far off for its planned points")
     return got
 
 
@@ -340,7 +344,7 @@ def _fine(st: _Locate, got: list[ProbeHit], qual: Qualification, T_coarse: np.nd
            f"round(s): {fine.status.value}, rms {fine.rmse_m * 1e6:.2f} um over {len(got)} points")
 
 
-def coarse_pose(points: np.ndarray, realized: Realized, method: str) -> tuple[np.ndarray, object]:
+def coarse_pose(points: np.ndarray, realized: Realized, method: str) -> tuple[np.ndarray, GlobalLocalizationResult]:
     """The coarse pose (T_base_workpiece) from the coarse points, and the search's result.
 
     The searches work on ``COARSE_POINTS`` farthest-point samples of the coarse cloud (150, the
@@ -355,7 +359,10 @@ def coarse_pose(points: np.ndarray, realized: Realized, method: str) -> tuple[np
     if method == "ga":
         r = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma, ga_restarts=1,
                             polish=None, n_coarse=COARSE_POINTS)
-        return r.diagnostics.genetic.T_coarse, r
+        genetic = r.diagnostics.genetic
+        if genetic is None:
+            raise StageFailed("coarse", f"the genetic search returned no run: {r.message}")
+        return genetic.T_coarse, r
     if method == "multistart":
         r = global_localize(points, index=index, method="multistart", rng=rng, noise_sigma_m=sigma,
                             n_coarse=COARSE_POINTS)
@@ -373,7 +380,7 @@ def plan_fine_points(realized: Realized, nominal: Cell, T_coarse: np.ndarray, m:
                      rng: np.random.Generator) -> FinePlan:
     """Fine probe points on the CAD model at ``T_coarse`` (module docstring, step 4)."""
     sc = realized.scenario
-    p = sc.probe
+    p = probe_spec(sc)
     index = realized.workpiece.index
     cand = sample_candidates(realized.workpiece.mesh, p.candidate_spacing_m, rng)
     R_world_wp = sc.T_world_base[:3, :3] @ T_coarse[:3, :3]
@@ -417,7 +424,8 @@ def plan_fine_points(realized: Realized, nominal: Cell, T_coarse: np.ndarray, m:
     T = T_coarse
     pts_b = transform_points(T, cand.points[chosen])
     nrm_b = cand.normals[chosen] @ T[:3, :3].T
-    targets = tuple(ProbeTarget(pts_b[i], nrm_b[i], f"point {i + 1}", spins[int(j)]) for i, j in enumerate(chosen))
+    targets = tuple(ProbeTarget(pts_b[i], nrm_b[i], f"point {i + 1}", float(spins[int(j)] or 0.0))
+                    for i, j in enumerate(chosen))
     sigma = probe_sigma_m(realized)
     return FinePlan(targets, cand.points[chosen], cand.normals[chosen], len(cand.points), int(feas.mask.sum()),
                     rejected, planner, predicted_pose_std(cand.points[chosen], cand.normals[chosen], sigma))
@@ -497,7 +505,7 @@ def _encoder_variance(hits, normals_wp, realized: Realized) -> np.ndarray:
     """Variance along each point's normal of the ball centre from the encoders' noise [m^2]
     (the arm's position Jacobian at the latched joints, by central differences)."""
     sc = realized.scenario
-    p = sc.probe
+    p = probe_spec(sc)
     out = np.empty(len(hits))
     eps = 1e-6
 

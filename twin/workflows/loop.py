@@ -48,6 +48,7 @@ from algorithms.registration.result import RegistrationResult
 from algorithms.registration.symmetric import localize_symmetric
 from algorithms.registration.uncertainty import nearest_along_free
 from twin.cell import Cell, build_cell
+from twin.errors import TwinError
 from twin.process_paths import (
     ScanPath,
     cad_path_lines,
@@ -128,6 +129,8 @@ class RunResult:
 
     @property
     def T_base_workpiece_estimate(self) -> np.ndarray:
+        if self.localization is None:
+            raise TwinError("the run has no estimate: its localization stage did not finish")
         return self.localization.T_world_workpiece
 
     def run(self, name: str) -> PathRun | None:

@@ -246,8 +246,9 @@ def _plan_for_reach(realized, center: np.ndarray):
     from twin.plan import plan_scan
 
     scenario = realized.scenario
+    error: TwinError | None = None
     try:
-        plan, error = plan_scan(build_cell(realized, "nominal")), None
+        plan = plan_scan(build_cell(realized, "nominal"))
     except TwinError as exc:
         plan, error = None, exc
     if plan is not None and not plan.notes:
@@ -265,6 +266,7 @@ def _plan_for_reach(realized, center: np.ndarray):
     if other is not None and (plan is None or len(other.passes) > len(plan.passes)):
         return other
     if plan is None:
+        assert error is not None  # the first plan failed
         raise error
     return plan
 
@@ -341,8 +343,8 @@ def suggest_base(scenario: Scenario, targets: ReachTargets | None = None) -> Bas
     if not best:
         return None
 
-    fine = [T_from[:2, 3]] + [p + d for p in best for d in _grid(np.zeros(2), 2 * FINE_STEP_M, FINE_STEP_M)]
-    fine = np.unique(np.round(np.array(fine), 9), axis=0)
+    candidates = [T_from[:2, 3]] + [p + d for p in best for d in _grid(np.zeros(2), 2 * FINE_STEP_M, FINE_STEP_M)]
+    fine = np.unique(np.round(np.array(candidates), 9), axis=0)
     fine = fine[_distance_to_polygon(fine, targets.footprint_world_m) >= BASE_CLEARANCE_M]
     n_tested += len(fine)
     scored = [s for s in _evaluate(fine, targets.subset(FINE_POSES), T_from, center) if np.isfinite(s[0])]
