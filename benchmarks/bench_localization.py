@@ -282,20 +282,7 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
             for T_true, T0, y in cases:
                 c0 = time.thread_time()
                 t0 = time.perf_counter()
-                try:
-                    if method == "ours_hong_tan":
-                        T = localize(y, index=index, method="hong_tan", init=T0, sigma=sigma).T_world_workpiece
-                    elif method == "open3d_icp_plane":
-                        T = peers.o3d_icp(y, T0, 3 * START_TRANS_M)
-                    elif method == "small_gicp_plane":
-                        T = peers.small_gicp(y, T0, 3 * START_TRANS_M, "PLANE_ICP")
-                    elif method == "small_gicp_gicp":
-                        T = peers.small_gicp(y, T0, 3 * START_TRANS_M, "GICP")
-                    else:
-                        raise ValueError(method)
-                except Exception as exc:  # a peer failing counts as a failure
-                    T = None
-                    log(f"    {method} raised {type(exc).__name__}: {exc}")
+                T = _run_local(method, peers, index, y, T0, sigma, log)
                 times.append(time.perf_counter() - t0)
                 cpu.append(time.thread_time() - c0)
                 errs.append(err(T, T_true))
@@ -311,22 +298,7 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
         errs, times, notes = [], [], []
         for k, (T_true, y) in enumerate(cases):
             t0 = time.perf_counter()
-            note = ""
-            try:
-                if method.startswith("ours_"):
-                    r = global_localize(
-                        y, index=index, method=method[5:], noise_sigma_m=sigma, rng=np.random.default_rng(seed + k)
-                    )
-                    T = r.T_world_workpiece
-                    note = r.status.value
-                elif method == "open3d_fpfh_ransac":
-                    voxel = max(0.0025, 1.5 * spacing if n < 2000 else 0.0025)
-                    T = peers.fpfh_ransac(y, voxel, seed + k)
-                else:
-                    raise ValueError(method)
-            except Exception as exc:
-                T = None
-                log(f"    {method} raised {type(exc).__name__}: {exc}")
+            T, note = _run_global(method, peers, index, y, sigma, spacing, n, seed + k, log)
             times.append(time.perf_counter() - t0)
             errs.append(err(T, T_true))
             notes.append(note)
@@ -336,6 +308,39 @@ def run_config(name, mesh, index, peers, sigma, n, trials, seed, methods_local, 
             summary = "status " + ", ".join(f"{v} {c}" for v, c in zip(vals, counts, strict=True))
         record(method, "any", errs, times, summary)
     return rows, obs
+
+
+def _run_local(method, peers, index, y, T0, sigma, log):
+    """One local fit from ``T0``: ours or a peer's pose, None when the method raised (a failure)."""
+    try:
+        if method == "ours_hong_tan":
+            return localize(y, index=index, method="hong_tan", init=T0, sigma=sigma).T_world_workpiece
+        if method == "open3d_icp_plane":
+            return peers.o3d_icp(y, T0, 3 * START_TRANS_M)
+        if method == "small_gicp_plane":
+            return peers.small_gicp(y, T0, 3 * START_TRANS_M, "PLANE_ICP")
+        if method == "small_gicp_gicp":
+            return peers.small_gicp(y, T0, 3 * START_TRANS_M, "GICP")
+        raise ValueError(method)
+    except Exception as exc:  # a peer failing counts as a failure
+        log(f"    {method} raised {type(exc).__name__}: {exc}")
+        return None
+
+
+def _run_global(method, peers, index, y, sigma, spacing, n, seed, log):
+    """One global search: (pose or None when the method raised, our status or "")."""
+    try:
+        if method.startswith("ours_"):
+            r = global_localize(y, index=index, method=method[5:], noise_sigma_m=sigma,
+                                rng=np.random.default_rng(seed))
+            return r.T_world_workpiece, r.status.value
+        if method == "open3d_fpfh_ransac":
+            voxel = max(0.0025, 1.5 * spacing if n < 2000 else 0.0025)
+            return peers.fpfh_ransac(y, voxel, seed), ""
+        raise ValueError(method)
+    except Exception as exc:
+        log(f"    {method} raised {type(exc).__name__}: {exc}")
+        return None, ""
 
 
 PEER = "small_gicp_gicp"
