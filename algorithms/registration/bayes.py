@@ -10,8 +10,8 @@ is information too.
 A laser displacement sensor's error is not only white noise. Its linearity error is a
 systematic curve of the reading ``d``: the same offset along the beam for every point read
 at the same distance, whichever line it is on. Ignoring it makes the Cramer-Rao bound of the
-points far too optimistic (a bracket measured with four 30 mm lines: bound 0.35 um, error
-7 um). So the points are grouped by reading (the caller bins ``d``), each group ``g``
+points far too optimistic: the curve does not average out over the points read at one
+distance. So the points are grouped by reading (the caller bins ``d``), each group ``g``
 carries an unknown offset ``b_g ~ N(0, bias_sigma^2)`` along each point's own beam ``u_i``,
 estimated with the pose (the sensor's curve calibrated in passing); and with
 ``incidence_noise`` a point's noise grows as ``sigma / cos(theta)`` with its angle of
@@ -22,8 +22,8 @@ incidence. The objective:
 
 (point-to-plane residuals at the closest points ``f_i`` with normals ``n_i``). It is
 minimised by damped Gauss-Newton (Levenberg-Marquardt: a step is taken only if it lowers the
-objective, else the damping grows; undamped steps were seen to propose a rotation of 1.7 rad
-on the first line of an active scan), the biases eliminated by their Schur complement. The
+objective, else the damping grows: undamped, the first steps from a few weakly constraining
+points can propose a large rotation), the biases eliminated by their Schur complement. The
 posterior covariance of the pose is the inverse of that complement: where the points say
 nothing it is the prior's, where they fix the pose it is their Cramer-Rao bound with the
 biases unknown.
@@ -38,12 +38,14 @@ traps the fit in minima that shed the points they cannot fit), then
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray, IntArray, Pose
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.edges import SharpEdges
-from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.mesh_index import MeshIndex, NearFaces
 from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, log_se3
 from algorithms.registration.robust import OUTLIER_COARSE_FLOOR_REL, OUTLIER_K_COARSE, inlier_mask
 
@@ -64,6 +66,9 @@ LM_LAMBDA0 = 1e-9
 LM_LAMBDA_MAX = 1e9
 #: Smallest cosine of incidence used to scale the noise (a grazing point weighs ~nothing).
 MIN_COS_INCIDENCE = 1e-3
+
+#: Points (biases removed, workpiece frame), normals, residuals [m], dr/db and weights [m^-2].
+_Residuals = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 
 
 @dataclass(frozen=True)
@@ -89,42 +94,43 @@ class MapResult:
             several starts compare: a wrong minimum that sheds points pays for them).
     """
 
-    T_world_workpiece: np.ndarray
-    covariance: np.ndarray
-    information: np.ndarray
-    biases_m: np.ndarray
+    T_world_workpiece: Pose
+    covariance: FloatArray
+    information: FloatArray
+    biases_m: FloatArray
     converged: bool
     iterations: int
     rmse_m: float
-    inliers: np.ndarray = field(repr=False)
-    near_edge: np.ndarray = field(repr=False)
+    inliers: BoolArray = field(repr=False)
+    near_edge: BoolArray = field(repr=False)
     prior_mahalanobis: float
     objective: float
 
 
 @dataclass(frozen=True)
 class _Problem:
-    Y: np.ndarray            # (N, 3) finite points, world
-    groups: np.ndarray       # (N,) bias group of each point
-    beams: np.ndarray        # (N, 3) unit beam direction of each point, world
+    Y: FloatArray            # (N, 3) finite points [m], world
+    groups: IntArray         # (N,) bias group of each point
+    beams: FloatArray        # (N, 3) unit beam direction of each point, world
     n_groups: int
     index: MeshIndex
-    T_prior_inv: np.ndarray
-    P: np.ndarray
+    T_prior_inv: Pose        # T_workpiece_world of the prior mean
+    P: FloatArray            # (6, 6) prior information
     sigma_m: float
     bias_sigma_m: float
     incidence_noise: bool
     offset_m: float = 0.0
     # each point's nearest faces, kept between the queries of one fit (MeshIndex.query_near)
-    near: list = field(default_factory=lambda: [None])
+    near: list[NearFaces | None] = field(default_factory=lambda: [None])
     # the residuals of the last (T, b) asked for: an accepted trial step is linearised next
-    last: dict = field(default_factory=dict)
+    last: dict[str, Any] = field(default_factory=dict)
     # (N,) points the fit may use (False: near a sharp edge at the start, see localize_map)
-    usable: np.ndarray = field(default_factory=lambda: np.ones(0, dtype=bool))
+    usable: BoolArray = field(default_factory=lambda: np.ones(0, dtype=bool))
 
 
-def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: float, init=None,
-                 groups=None, beams=None, bias_sigma_m: float = 0.0, incidence_noise: bool = False,
+def localize_map(points: ArrayLike, index: MeshIndex, T_prior: ArrayLike, prior_information: ArrayLike,
+                 sigma_m: float, init: ArrayLike | None = None, groups: ArrayLike | None = None,
+                 beams: ArrayLike | None = None, bias_sigma_m: float = 0.0, incidence_noise: bool = False,
                  edges: SharpEdges | None = None, edge_band_m: float = 0.0, offset_m: float = 0.0,
                  max_iterations: int = MAX_ITERATIONS) -> MapResult:
     """The maximum a posteriori ``T_world_workpiece`` (module docstring).
@@ -203,8 +209,9 @@ def localize_map(points, index: MeshIndex, T_prior, prior_information, sigma_m: 
                      _objective(prob, T, b, OBJECTIVE_CUT_SIGMAS * prob.sigma_m))
 
 
-def _check(points, index, T_prior, prior_information, sigma_m, groups, beams, bias_sigma_m,
-           incidence_noise, offset_m) -> tuple[_Problem, np.ndarray]:
+def _check(points: ArrayLike, index: MeshIndex, T_prior: ArrayLike, prior_information: ArrayLike, sigma_m: float,
+           groups: ArrayLike | None, beams: ArrayLike | None, bias_sigma_m: float, incidence_noise: bool,
+           offset_m: float) -> tuple[_Problem, IntArray]:
     Y = np.asarray(points, dtype=np.float64)
     if Y.size == 0:
         Y = Y.reshape(0, 3)
@@ -239,7 +246,8 @@ def _check(points, index, T_prior, prior_information, sigma_m, groups, beams, bi
 class _Linear:
     """The problem linearised at (T, b): residuals, Jacobians, weights, the inlier set."""
 
-    def __init__(self, prob: _Problem, T, b, M, n, r, c, w, mask, cut, xi):
+    def __init__(self, prob: _Problem, T: Pose, b: FloatArray, M: FloatArray, n: FloatArray, r: FloatArray,
+                 c: FloatArray, w: FloatArray, mask: BoolArray, cut: float, xi: FloatArray) -> None:
         self.prob, self.T, self.b = prob, T, b
         self.r, self.mask, self.cut = r, mask, cut
         m, nn = M[mask], n[mask]
@@ -261,7 +269,7 @@ class _Linear:
         self.cost = float(np.sum(self.w * self.ri**2)) + float(np.sum(w[~mask])) * cut**2 + float(xi @ prob.P @ xi) \
             + (float(b @ b) / prob.bias_sigma_m**2 if prob.bias_sigma_m > 0 else 0.0)
 
-    def schur(self, lam: float = 0.0) -> np.ndarray:
+    def schur(self, lam: float = 0.0) -> FloatArray:
         """The pose block of the normal matrix with the biases eliminated (damped by ``lam``)."""
         S = self.A.copy()
         if self.prob.bias_sigma_m > 0:
@@ -269,6 +277,7 @@ class _Linear:
         return S + lam * np.diag(np.diag(S))
 
     def step(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """The damped update (pose twist, group biases [m]) from the current linearisation."""
         S = self.schur(lam)
         if self.prob.bias_sigma_m > 0:
             rhs = self.grad - self.Hxb @ (self.gb / self.Hbb)
@@ -278,7 +287,7 @@ class _Linear:
         return -np.linalg.solve(S, self.grad), np.zeros_like(self.b)
 
 
-def _residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
+def _residuals(prob: _Problem, T: Pose, b: FloatArray) -> _Residuals:
     """Points (biases removed) in the workpiece frame, normals, residuals, dr/db and weights."""
     key = (T.tobytes(), b.tobytes())
     if prob.last.get("key") != key:
@@ -287,7 +296,7 @@ def _residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
     return prob.last["value"]
 
 
-def _compute_residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
+def _compute_residuals(prob: _Problem, T: Pose, b: FloatArray) -> _Residuals:
     T_inv = inv_pose(T)
     U = prob.beams
     M = (prob.Y - b[prob.groups][:, None] * U) @ T_inv[:3, :3].T + T_inv[:3, 3]
@@ -304,7 +313,8 @@ def _compute_residuals(prob: _Problem, T: np.ndarray, b: np.ndarray):
     return M, n, r, c, sigma**-2
 
 
-def _offset_residuals(e: np.ndarray, face_normal: np.ndarray, offset_m: float):
+def _offset_residuals(e: FloatArray, face_normal: FloatArray,
+                      offset_m: float) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Signed distances of points to the surface offset by ``offset_m``, from their offsets
     ``e`` to their closest points on the model and those points' face normals: (normals, residuals
     [m], usable). With no offset a point must lie over its face (``OFF_FACE_M``); with one (ball
@@ -320,7 +330,7 @@ def _offset_residuals(e: np.ndarray, face_normal: np.ndarray, offset_m: float):
     return n, np.where(beyond, dist, r) - offset_m, np.ones(len(e), dtype=bool)
 
 
-def _linearise(prob: _Problem, T: np.ndarray, b: np.ndarray, coarse: bool) -> _Linear:
+def _linearise(prob: _Problem, T: Pose, b: FloatArray, coarse: bool) -> _Linear:
     xi = log_se3(prob.T_prior_inv @ T)
     if len(prob.Y) == 0:
         z = np.zeros((0, 3))
@@ -341,7 +351,7 @@ def _linearise(prob: _Problem, T: np.ndarray, b: np.ndarray, coarse: bool) -> _L
     return _Linear(prob, T, b, M, n, r, c, w, mask, cut, xi)
 
 
-def _objective(prob: _Problem, T: np.ndarray, b: np.ndarray, cut: float) -> float:
+def _objective(prob: _Problem, T: Pose, b: FloatArray, cut: float) -> float:
     """The objective at (T, b) with each residual truncated at ``cut`` [m]."""
     xi = log_se3(prob.T_prior_inv @ T)
     out = float(xi @ prob.P @ xi)
@@ -353,9 +363,9 @@ def _objective(prob: _Problem, T: np.ndarray, b: np.ndarray, cut: float) -> floa
     return out + float(np.sum(w * np.minimum(r * r, cut * cut)))
 
 
-def normalized_innovations(points, beams, index: MeshIndex, T_world_workpiece, covariance, sigma_m: float,
-                           bias_sigma_m: float = 0.0, incidence_noise: bool = False,
-                           offset_m: float = 0.0) -> np.ndarray:
+def normalized_innovations(points: ArrayLike, beams: ArrayLike, index: MeshIndex, T_world_workpiece: ArrayLike,
+                           covariance: ArrayLike, sigma_m: float, bias_sigma_m: float = 0.0,
+                           incidence_noise: bool = False, offset_m: float = 0.0) -> FloatArray:
     """How well an estimate predicts points it has not seen: each point's point-to-plane
     residual at ``T_world_workpiece`` divided by its predicted spread (noise, the reading's
     unknown linearity offset and the pose's ``covariance`` carried to the point). About 1 in
@@ -364,6 +374,8 @@ def normalized_innovations(points, beams, index: MeshIndex, T_world_workpiece, c
 
     Args:
         points: (N, 3) [m] world frame; beams: (N, 3) unit beam directions, world frame.
+        index: the model's :class:`MeshIndex` (workpiece frame).
+        T_world_workpiece: (4, 4) the estimate to test.
         covariance: (6, 6) of the twist ``[omega, v]`` (workpiece frame), e.g.
             :attr:`MapResult.covariance`.
         sigma_m, bias_sigma_m, incidence_noise: as for :func:`localize_map`.

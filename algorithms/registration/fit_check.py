@@ -11,13 +11,9 @@ times that noise (or ``POOR_FIT_SIGMAS`` times the given sigma) is a poor fit. A
 only part of what was measured (a cube's points on a larger block with a hole fit its faces
 exactly, but the points over the hole are lost).
 
-Measured (``python -m benchmarks.bench_fit_check``, ``benchmarks/results_fit_check.md``; the
-10 parts sampled at 2,000 points with 5 um noise, and the 9 scenario scans of the twin): the
-ratio RMS / point-to-point noise is 1.0-2.5 for every part fitted to its own model (2.5: the
-inner sphere's cavity scan), with at most 1 % outliers; fitted to another part's model it is
-8.9 or more, except for three pairs whose points lie on the other model's faces (a cube on the
-larger block with a hole, the cast blank on the bottle punch) where 40-49 % of the points are
-outliers.
+The thresholds sit between what each part fitted to its own model and to the other parts'
+models gives (``python -m benchmarks.bench_fit_check``, ``benchmarks/results_fit_check.md``;
+the figures are in ``benchmarks/results_history_registration.md``).
 
 Sparse points (tens of millimetres apart) carry less of this evidence: their neighbours'
 residuals are no longer correlated, so without a sigma a wrong model can pass there; give
@@ -31,6 +27,8 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from algorithms.arraytypes import ArrayLike, FloatArray
+
 __all__ = [
     "MAX_OUTLIER_FRACTION",
     "POOR_FIT_SIGMAS",
@@ -43,8 +41,8 @@ __all__ = [
 #: With a given sigma, a fit is poor when its RMS residual exceeds this many sigmas.
 POOR_FIT_SIGMAS = 3.0
 #: Without one, a fit is poor when its RMS residual exceeds this many point-to-point noise
-#: sigmas: a correct model reaches 2.5 (the inner sphere's scan, structured sensor errors),
-#: a wrong one 9 or more (module docstring).
+#: sigmas: above a correct model's ratio (2.5 at most: the inner sphere's scan, structured
+#: sensor errors), below a wrong one's (9 or more).
 POOR_FIT_WHITE_SIGMAS = 5.0
 #: A fit is poor when more than this fraction of the points are outliers of the model.
 MAX_OUTLIER_FRACTION = 0.2
@@ -54,7 +52,7 @@ RESIDUAL_FLOOR_REL = 1e-6
 _MAD_TO_SIGMA = 1.4826
 
 
-def white_noise_sigma_m(points_m: np.ndarray, residuals_m: np.ndarray) -> float:
+def white_noise_sigma_m(points_m: FloatArray, residuals_m: ArrayLike) -> float:
     """The point-to-point (white) part of the residual's spread [m].
 
     Args:
@@ -80,11 +78,11 @@ def poor_fit_reason(rmse_m: float, n_inliers: int, n_points: int, extent_m: floa
     """Why the fit is poor (one phrase), or None if the noise explains it.
 
     Args:
-        rmse_m: RMS residual of the inliers.
+        rmse_m: RMS residual of the inliers [m].
         n_inliers, n_points: inliers kept and finite points given.
-        extent_m: the model's size (bounding-box diagonal).
-        sigma_m: the given noise sigma, or None.
-        white_sigma_m: :func:`white_noise_sigma_m` of the inliers' residuals.
+        extent_m: the model's size (bounding-box diagonal) [m].
+        sigma_m: the given noise sigma [m], or None.
+        white_sigma_m: :func:`white_noise_sigma_m` of the inliers' residuals [m].
     """
     outlier_fraction = 1.0 - n_inliers / max(n_points, 1)
     if outlier_fraction > MAX_OUTLIER_FRACTION:

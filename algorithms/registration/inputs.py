@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 
@@ -22,8 +23,9 @@ UNITS_MAX_RATIO = 20.0
 UNITS_MIN_RATIO = 1e-3
 
 
-def finite_rows(points, min_points: int = MIN_POINTS) -> tuple[np.ndarray, np.ndarray]:
-    """The points as float64 (N, 3) and the indices of their finite rows.
+def finite_rows(points: ArrayLike, min_points: int = MIN_POINTS) -> tuple[FloatArray, IntArray]:
+    """The points as float64 (N, 3) (frame and unit as given) and the indices (M,) of their
+    finite rows.
 
     Raises:
         AlgorithmError: not (N, 3), or fewer than ``min_points`` finite rows.
@@ -40,8 +42,8 @@ def finite_rows(points, min_points: int = MIN_POINTS) -> tuple[np.ndarray, np.nd
     return P, np.nonzero(finite)[0]
 
 
-def mesh_index(mesh, index: MeshIndex | None) -> MeshIndex:
-    """A prebuilt index, or one built for ``mesh``."""
+def mesh_index(mesh: object, index: MeshIndex | None) -> MeshIndex:
+    """A prebuilt index, or one built for ``mesh`` (a trimesh or what :class:`MeshIndex` takes)."""
     if index is None:
         if mesh is None:
             raise AlgorithmError("give a mesh (or a prebuilt index)")
@@ -51,7 +53,7 @@ def mesh_index(mesh, index: MeshIndex | None) -> MeshIndex:
     return index
 
 
-def check_sigma(sigma, name: str = "sigma") -> float | None:
+def check_sigma(sigma: float | None, name: str = "sigma") -> float | None:
     """A positive finite noise sigma [m], or None."""
     if sigma is None:
         return None
@@ -60,8 +62,13 @@ def check_sigma(sigma, name: str = "sigma") -> float | None:
     return float(sigma)
 
 
-def check_units(Y: np.ndarray, index: MeshIndex) -> None:
-    """Refuse point sets whose size no rigid pose of the model can explain."""
+def check_units(Y: FloatArray, index: MeshIndex) -> None:
+    """Refuse point sets whose size no rigid pose of the model can explain.
+
+    Args:
+        Y: (N, 3) finite points [m], any frame (only their spread matters).
+        index: the model's index, in the same unit.
+    """
     size = index.extent
     if not size > 0:
         raise AlgorithmError("the model has zero size (all vertices coincide)")
@@ -80,10 +87,10 @@ def check_units(Y: np.ndarray, index: MeshIndex) -> None:
         )
 
 
-def _radius_90(Y: np.ndarray) -> float:
+def _radius_90(Y: FloatArray) -> float:
     """The 90th percentile (linear interpolation) of the points' distances from their
-    coordinate-wise median, by partition (np.median and np.percentile cost 5x as much at a few
-    hundred points, with the same result)."""
+    coordinate-wise median [m], by partition: np.median's and np.percentile's result without
+    their sorting cost (the check runs on every call of localize and global_localize)."""
     n = len(Y)
     k = n // 2
     if n % 2:

@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from algorithms.arraytypes import BoolArray, FloatArray, Pose
+
 __all__ = ["Status", "RegistrationResult", "fit_status"]
 
 
@@ -94,27 +96,27 @@ class RegistrationResult:
             (:func:`algorithms.registration.fit_check.poor_fit_reason`), or None.
     """
 
-    T_world_workpiece: np.ndarray
+    T_world_workpiece: Pose
     method: str
     converged: bool
     status: Status
     message: str
     rmse_m: float
     iterations: int
-    history: tuple
-    inliers: np.ndarray = field(repr=False)
+    history: tuple[float, ...]
+    inliers: BoolArray = field(repr=False)
     n_points_used: int
     n_outliers: int
     n_dropped_nonfinite: int
     sigma_m: float
-    determined_directions: np.ndarray
-    covariance: np.ndarray | None
-    free_directions: np.ndarray
-    solutions: tuple = field(repr=False)
-    relative_eigenvalues: np.ndarray
+    determined_directions: FloatArray
+    covariance: FloatArray | None
+    free_directions: FloatArray
+    solutions: tuple[Pose, ...] = field(repr=False)
+    relative_eigenvalues: FloatArray
     time_s: float
     poor_fit_reason: str | None = None
-    pose_history: tuple = field(default=(), repr=False)
+    pose_history: tuple[Pose, ...] = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.status, Status):
@@ -144,7 +146,7 @@ class RegistrationResult:
         return self.status is Status.OK
 
     @property
-    def covariance_twist(self) -> np.ndarray | None:
+    def covariance_twist(self) -> FloatArray | None:
         """(6, 6) covariance of the error twist ``[omega, v]``: ``B^T C B`` with ``B`` the
         determined directions (rank q; the full covariance when observable), or None."""
         if self.covariance is None:

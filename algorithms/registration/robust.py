@@ -9,9 +9,9 @@ model. The ``outlier`` option of the methods chooses the rule:
   exact data lose nothing. The rule has two stages. Until the iteration first converges the
   cut is looser, ``max(8 * 1.4826 * median(distance), coarse floor)``: only gross outliers
   go. Far from the minimum the residuals are systematic misfit, not noise, and the far points
-  are the ones that carry the correction; cutting them early was seen to trap the iteration in
-  wrong minima and to slow the point-to-point methods considerably. Once converged the cut
-  is tightened to 5 sigmas; if that changes the inlier set the iteration goes on.
+  are the ones that carry the correction: cutting them early traps the iteration in wrong
+  minima and slows the point-to-point methods. Once converged the cut is tightened to
+  5 sigmas; if that changes the inlier set the iteration goes on.
 * a number: a fixed maximum distance [m];
 * ``None`` (or ``"none"``): every point is kept.
 
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from algorithms.arraytypes import BoolArray, FloatArray
 from algorithms.errors import AlgorithmError
 
 __all__ = [
@@ -54,11 +55,13 @@ OUTLIER_COARSE_FLOOR_REL = 1e-2
 #: A mask that selects every row (indexing with it gives views, not copies).
 ALL = slice(None)
 
-Mask = np.ndarray | slice
+#: Inliers: a (N,) bool mask, or :data:`ALL`.
+Mask = BoolArray | slice
+#: The checked ``outlier`` option: ``None``, ``"mad"`` or a distance [m].
 OutlierConfig = str | float | None
 
 
-def outlier_config(outlier) -> OutlierConfig:
+def outlier_config(outlier: OutlierConfig) -> OutlierConfig:
     """Check the ``outlier`` option: returns ``None``, ``"mad"`` or a distance [m].
 
     Raises:
@@ -79,13 +82,13 @@ def outlier_config(outlier) -> OutlierConfig:
     return value
 
 
-def upper_median(d: np.ndarray) -> float:
+def upper_median(d: FloatArray) -> float:
     """The median of d (the upper one of an even count), by partition."""
     k = len(d) // 2
     return float(np.partition(d, k)[k])
 
 
-def inlier_mask(d: np.ndarray, cfg: OutlierConfig, floor: float, k: float = OUTLIER_K,
+def inlier_mask(d: FloatArray, cfg: OutlierConfig, floor: float, k: float = OUTLIER_K,
                 min_points: int = 6) -> Mask:
     """Inliers among distances ``d`` (N,) [m]: a bool mask, or :data:`ALL` when every point is.
 
@@ -133,14 +136,14 @@ class OutlierStages:
         min_points: at least this many points are kept.
     """
 
-    def __init__(self, cfg: OutlierConfig, coarse_floor: float, floor: float, min_points: int):
+    def __init__(self, cfg: OutlierConfig, coarse_floor: float, floor: float, min_points: int) -> None:
         self.cfg = cfg
         self.k = OUTLIER_K_COARSE
         self.floor = coarse_floor
         self._final_floor = floor
         self.min_points = min_points
 
-    def mask(self, d: np.ndarray) -> Mask:
+    def mask(self, d: FloatArray) -> Mask:
         """Inliers of distances ``d`` under the current stage."""
         return inlier_mask(d, self.cfg, self.floor, self.k, self.min_points)
 

@@ -48,8 +48,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, BoolArray, IntArray
 from algorithms.errors import AlgorithmError
 
+#: The choices of ``on_duplicate`` (module docstring).
 ON_DUPLICATE = ("next_free", "drop", "keep")
 
 
@@ -66,19 +68,20 @@ class GridSubsample:
             before ``on_duplicate`` was applied (0 for the other methods).
     """
 
-    rows: np.ndarray
-    cols: np.ndarray
+    rows: IntArray
+    cols: IntArray
     shape: tuple[int, int]
     method: str
     duplicates_in_formula: int = 0
 
     @property
-    def flat(self) -> np.ndarray:
+    def flat(self) -> IntArray:
         """(K,) row-major flat indices ``row * N + col`` into the grid."""
         return self.rows * self.shape[1] + self.cols
 
     @property
     def count(self) -> int:
+        """K: the number of kept nodes."""
         return int(self.rows.size)
 
     @property
@@ -86,14 +89,14 @@ class GridSubsample:
         """Kept fraction of the grid."""
         return self.count / float(self.shape[0] * self.shape[1])
 
-    def mask(self) -> np.ndarray:
+    def mask(self) -> BoolArray:
         """(M, N) bool mask of the kept grid nodes."""
         m = np.zeros(self.shape, dtype=bool)
         m[self.rows, self.cols] = True
         return m
 
-    def take(self, grid_values) -> np.ndarray:
-        """Pick the kept nodes from an ``(M, N, ...)`` array -> ``(K, ...)``."""
+    def take(self, grid_values: ArrayLike) -> np.ndarray:
+        """Pick the kept nodes from an ``(M, N, ...)`` array -> ``(K, ...)``, of its dtype."""
         grid_values = np.asarray(grid_values)
         if grid_values.shape[:2] != self.shape:
             raise AlgorithmError(
@@ -103,7 +106,7 @@ class GridSubsample:
         return grid_values[self.rows, self.cols]
 
 
-def _check_grid(M, N, *, need_m_le_n: bool) -> tuple[int, int]:
+def _check_grid(M: int, N: int, *, need_m_le_n: bool) -> tuple[int, int]:
     for name, v in (("M", M), ("N", N)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
             raise AlgorithmError(f"{name} must be an integer, got {v!r}")
@@ -131,7 +134,7 @@ def bit_reverse(x: int, k: int) -> int:
     return out
 
 
-def pseudo_hammersley_columns(M: int, N: int) -> np.ndarray:
+def pseudo_hammersley_columns(M: int, N: int) -> IntArray:
     """Document 000's ``t_sj`` exactly as written: (M, n) int array of 1-based columns.
 
     ``t_sj = 0`` is left as 0 here (the literal value); see the module docstring for how

@@ -34,11 +34,16 @@ models so facets do not fake information).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray, Pose
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.se3 import exp_se3, inv_pose, log_se3, rotation_error_rad, translation_error_m
+
+if TYPE_CHECKING:  # for the annotations only: this module needs no mesh index at run time
+    from algorithms.geometry.mesh_index import MeshIndex
 
 __all__ = [
     "OBSERVABILITY_TOL",
@@ -83,16 +88,16 @@ class Observability:
     """
 
     observable: bool
-    relative_eigenvalues: np.ndarray
-    eigenvalues: np.ndarray
-    weak_directions: np.ndarray
-    determined_directions: np.ndarray
+    relative_eigenvalues: FloatArray
+    eigenvalues: FloatArray
+    weak_directions: FloatArray
+    determined_directions: FloatArray
     characteristic_length_m: float
-    centroid: np.ndarray
+    centroid: FloatArray
     tol: float
 
 
-def _check(points, normals):
+def _check(points: ArrayLike, normals: ArrayLike) -> tuple[FloatArray, FloatArray]:
     p = np.asarray(points, dtype=np.float64)
     n = np.asarray(normals, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
@@ -104,7 +109,7 @@ def _check(points, normals):
     return p, n
 
 
-def information_rows(points, normals) -> np.ndarray:
+def information_rows(points: ArrayLike, normals: ArrayLike) -> FloatArray:
     """Rows ``[p_i x n_i, n_i]`` (N, 6) of the point-to-plane Jacobian (workpiece frame).
 
     Args:
@@ -115,7 +120,7 @@ def information_rows(points, normals) -> np.ndarray:
     return np.hstack([np.cross(p, n), n])
 
 
-def fisher_information(points, normals, sigma: float) -> np.ndarray:
+def fisher_information(points: ArrayLike, normals: ArrayLike, sigma: float) -> FloatArray:
     """Fisher information (6, 6) of the twist ``[omega, v]`` for normal noise ``sigma`` [m]."""
     if not (np.isfinite(sigma) and sigma > 0):
         raise AlgorithmError(f"sigma must be a positive finite length [m], got {sigma}")
@@ -123,7 +128,7 @@ def fisher_information(points, normals, sigma: float) -> np.ndarray:
     return np.einsum("ij,ik->jk", J, J) / sigma**2
 
 
-def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observability:
+def observability(points: ArrayLike, normals: ArrayLike, tol: float = OBSERVABILITY_TOL) -> Observability:
     """Eigen-analysis of the information in consistent units (see the module docstring).
 
     Args:
@@ -148,7 +153,7 @@ def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observabil
     rel = w / wmax
     weak = rel < tol
 
-    def twists(S):
+    def twists(S: FloatArray) -> FloatArray:
         """(k, 6) scaled twists about the centroid [L omega, v_c] -> about the origin."""
         out = np.empty_like(S)
         out[:, :3] = S[:, :3] / L
@@ -169,9 +174,9 @@ def observability(points, normals, tol: float = OBSERVABILITY_TOL) -> Observabil
     )
 
 
-def cross_into(a, b, out):
-    """``out[:, :3] = a x b`` row-wise for (N, 3) rows: np.cross's arithmetic, without its
-    overhead (a third of the time at a few hundred rows)."""
+def cross_into(a: FloatArray, b: FloatArray, out: FloatArray) -> None:
+    """``out[:, :3] = a x b`` row-wise for (N, 3) rows, written in place: np.cross's arithmetic,
+    without its per-call overhead (the local fit's point-to-plane rows use it at every iteration)."""
     ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
     bx, by, bz = b[:, 0], b[:, 1], b[:, 2]
     out[:, 0] = ay * bz - az * by
@@ -179,7 +184,7 @@ def cross_into(a, b, out):
     out[:, 2] = ax * by - ay * bx
 
 
-def crlb(points, normals, sigma: float, tol: float = OBSERVABILITY_TOL) -> np.ndarray:
+def crlb(points: ArrayLike, normals: ArrayLike, sigma: float, tol: float = OBSERVABILITY_TOL) -> FloatArray:
     """Cramer-Rao lower bound (6, 6) on the covariance of the pose twist ``[omega, v]``.
 
     ``sigma^2 (sum g_i g_i^T)^-1`` with ``g_i = [p_i x n_i, n_i]``, for Gaussian noise of
@@ -200,7 +205,7 @@ def crlb(points, normals, sigma: float, tol: float = OBSERVABILITY_TOL) -> np.nd
     return sym_inverse(np.einsum("ij,ik->jk", J, J)) * sigma**2
 
 
-def sym_inverse(A: np.ndarray) -> np.ndarray:
+def sym_inverse(A: FloatArray) -> FloatArray:
     """Inverse of a symmetric positive-definite matrix, scaled for conditioning."""
     s = 1.0 / np.sqrt(np.diag(A))
     B = A * s[:, None] * s[None, :]
@@ -209,7 +214,7 @@ def sym_inverse(A: np.ndarray) -> np.ndarray:
     return 0.5 * (out + out.T)
 
 
-def estimate_sigma(residuals, n_params: int = 6) -> float:
+def estimate_sigma(residuals: ArrayLike, n_params: int = 6) -> float:
     """Noise estimate [m] from point-to-surface residuals: ``sqrt(sum r^2 / (N - n_params))``."""
     r = np.asarray(residuals, dtype=np.float64).reshape(-1)
     dof = len(r) - n_params
@@ -218,12 +223,12 @@ def estimate_sigma(residuals, n_params: int = 6) -> float:
     return float(np.sqrt(np.sum(r * r) / dof))
 
 
-def pose_error_twist(T_est, T_true) -> np.ndarray:
+def pose_error_twist(T_est: ArrayLike, T_true: ArrayLike) -> FloatArray:
     """The error twist ``[omega, v]`` (workpiece frame) with ``T_est = T_true exp(xi)``."""
     return log_se3(inv_pose(np.asarray(T_true, dtype=np.float64)) @ np.asarray(T_est, dtype=np.float64))
 
 
-def whitened_error(xi, covariance) -> np.ndarray:
+def whitened_error(xi: ArrayLike, covariance: ArrayLike) -> FloatArray:
     """Squared Mahalanobis norms ``xi^T C^-1 xi`` of error twists (M, 6) (or one (6,)).
 
     For an efficient estimator with covariance ``C`` their mean is 6 (chi-square, 6 DOF), so
@@ -234,7 +239,7 @@ def whitened_error(xi, covariance) -> np.ndarray:
     return np.einsum("ij,jk,ik->i", X, Cinv, X)
 
 
-def unit_twists(W) -> np.ndarray:
+def unit_twists(W: ArrayLike) -> FloatArray:
     """Twists (k, 6) scaled to ``|omega| = 1`` (rotations, screws) or ``|v| = 1`` (pure
     translations): the unit rows the results report."""
     W = np.asarray(W, dtype=np.float64).reshape(-1, 6)
@@ -246,8 +251,8 @@ def unit_twists(W) -> np.ndarray:
     return out
 
 
-def invariant_points(index, points, twists, step_rad: float = 0.05, step_m: float = 0.005,
-                     tol_fraction: float = 0.1) -> np.ndarray:
+def invariant_points(index: MeshIndex, points: ArrayLike, twists: ArrayLike, step_rad: float = 0.05,
+                     step_m: float = 0.005, tol_fraction: float = 0.1) -> BoolArray:
     """(N,) bool: the model points that stay on the model when moved along every twist.
 
     Each point is moved by a finite step both ways along each twist (``step_rad`` about a
@@ -272,7 +277,7 @@ def invariant_points(index, points, twists, step_rad: float = 0.05, step_m: floa
     return keep
 
 
-def part_symmetry_directions(index, twists, **kw) -> np.ndarray:
+def part_symmetry_directions(index: MeshIndex, twists: ArrayLike, **kw: float) -> BoolArray:
     """(k,) bool: whether each free direction is a symmetry of the whole CAD model.
 
     The points leave a direction free either because the part is symmetric that way (a
@@ -286,7 +291,8 @@ def part_symmetry_directions(index, twists, **kw) -> np.ndarray:
                      for w in np.asarray(twists, dtype=np.float64).reshape(-1, 6)], dtype=bool)
 
 
-def systematic_covariance(points, normals, directions, bias_basis, bias_std) -> np.ndarray:
+def systematic_covariance(points: ArrayLike, normals: ArrayLike, directions: ArrayLike, bias_basis: ArrayLike,
+                          bias_std: ArrayLike) -> FloatArray:
     """Covariance of the pose error that a smooth systematic error of the points causes.
 
     The error of point ``i`` along its normal is ``e_i = sum_k c_k phi_k(i)`` with independent
@@ -311,7 +317,8 @@ def systematic_covariance(points, normals, directions, bias_basis, bias_std) -> 
     return (G * s**2) @ G.T
 
 
-def nearest_along_free(T_world_workpiece, free_directions, T_reference, iterations: int = 3) -> np.ndarray:
+def nearest_along_free(T_world_workpiece: ArrayLike, free_directions: ArrayLike, T_reference: ArrayLike,
+                       iterations: int = 3) -> Pose:
     """The pose reached from ``T_world_workpiece`` along its free directions that is nearest
     ``T_reference`` (e.g. the nominal pose).
 
