@@ -17,7 +17,6 @@ import trimesh
 
 from twin.parts.kernel import (
     CHORD_TOL_M,
-    PLANAR_MAX_EDGE_M,
     assemble,
     box_features,
     box_patches,
@@ -31,6 +30,7 @@ from twin.parts.kernel import (
     revolve,
     sample_profile,
 )
+from twin.parts.planar import PLANAR_MAX_EDGE_M
 
 __all__ = ["hemisphere_punch", "bottle_punch", "bottle_profile_bezier"]
 

@@ -15,8 +15,6 @@ import numpy as np
 import trimesh
 
 from twin.parts.kernel import (
-    PLANAR_GRADING,
-    PLANAR_MAX_EDGE_M,
     assemble,
     check_finite,
     check_nonnegative,
@@ -24,9 +22,9 @@ from twin.parts.kernel import (
     check_resolution,
     edge_points,
     format_mm,
-    planar_patch,
     require,
 )
+from twin.parts.planar import PLANAR_GRADING, PLANAR_MAX_EDGE_M, planar_patch
 
 __all__ = ["s_surface", "s_surface_height", "s_surface_normal"]
 

@@ -32,7 +32,6 @@ import trimesh
 from twin.errors import TwinError
 from twin.parts.kernel import (
     CHORD_TOL_M,
-    PLANAR_MAX_EDGE_M,
     assemble,
     box_features,
     box_patches,
@@ -46,6 +45,7 @@ from twin.parts.kernel import (
     revolve,
     sample_profile,
 )
+from twin.parts.planar import PLANAR_MAX_EDGE_M
 
 __all__ = [
     "bore_and_face",
