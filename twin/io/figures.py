@@ -8,7 +8,9 @@ Every figure states its units on its axes. The deviation colour scale is fixed
 from __future__ import annotations
 
 import html
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -16,6 +18,11 @@ from matplotlib.patches import Ellipse
 
 from algorithms.geometry.se3 import inv_pose, transform_points
 from twin import evaluate
+
+if TYPE_CHECKING:
+    from twin.realize import Realized
+    from twin.replay import ReplayLog
+    from twin.scan import Scan
 
 DEVIATION_SCALE_UM = 10.0
 DPI = 110
@@ -123,7 +130,59 @@ def _twist_covariance(localization, covariance) -> np.ndarray | None:
     return D.T @ np.asarray(covariance, dtype=np.float64) @ D
 
 
-def scan_figures(scan, realized, sigma_m: float, folder: Path) -> list[Path]:
+class PathReplay(Protocol):
+    """A replayed process path as the figures read it (:class:`twin.pipeline.PathRun`)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def log(self) -> ReplayLog: ...
+
+    @property
+    def t_offset_s(self) -> float: ...
+
+
+class RunOutcome(Protocol):
+    """A run as the figures read it (:class:`twin.pipeline.RunResult`: io sits beside the
+    pipeline in the layers and does not import it)."""
+
+    @property
+    def realized(self) -> Realized: ...
+
+    @property
+    def scan(self) -> Scan | None: ...
+
+    @property
+    def runs(self) -> Sequence[PathReplay]: ...
+
+    @property
+    def localization(self) -> Any: ...  # a RegistrationResult, or None (RunResult types it as object)
+
+    @property
+    def pose_covariance(self) -> np.ndarray | None: ...
+
+
+class LocateOutcome(Protocol):
+    """A locate run as the figures read it (:class:`twin.locate.LocateResult`, a layer above io)."""
+
+    @property
+    def realized(self) -> Realized: ...
+
+    @property
+    def scan(self) -> Scan | None: ...
+
+    @property
+    def T_coarse(self) -> np.ndarray | None: ...
+
+    @property
+    def T_final(self) -> np.ndarray | None: ...
+
+    @property
+    def covariance(self) -> np.ndarray | None: ...
+
+
+def scan_figures(scan: Scan, realized: Realized, sigma_m: float, folder: Path) -> list[Path]:
     """Residual histogram and deviation map of a scan."""
     pts = scan.valid_points_base
     T_true = realized.T_base_workpiece_true
@@ -136,7 +195,7 @@ def scan_figures(scan, realized, sigma_m: float, folder: Path) -> list[Path]:
     return out
 
 
-def run_figures(result, sigma_m: float, folder: Path) -> list[Path]:
+def run_figures(result: RunOutcome, sigma_m: float, folder: Path) -> list[Path]:
     """The figures of ``twin run``: the scan's, the paths' deviation and tracking, the error ellipse."""
     out: list[Path] = []
     if result.scan is not None:
@@ -158,7 +217,7 @@ def run_figures(result, sigma_m: float, folder: Path) -> list[Path]:
     return out
 
 
-def locate_figures(result, sigma_m: float, folder: Path) -> list[Path]:
+def locate_figures(result: LocateOutcome, sigma_m: float, folder: Path) -> list[Path]:
     """The figures of ``twin locate``: the coarse pass's residuals and map, and the error
     ellipses of the coarse and final poses."""
     out: list[Path] = []
@@ -166,7 +225,7 @@ def locate_figures(result, sigma_m: float, folder: Path) -> list[Path]:
     if result.scan is not None:
         out += scan_figures(result.scan, realized, sigma_m, folder)
     T_true = realized.T_base_workpiece_true
-    errs = {}
+    errs: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
     if result.T_coarse is not None:
         xi = evaluate.full_pose_errors(result.T_coarse, T_true, None)["twist"]
         errs["coarse"] = (xi[3:5] * 1e6, None)

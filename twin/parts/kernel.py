@@ -35,7 +35,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from algorithms.arraytypes import FloatArray
+from algorithms.arraytypes import FloatArray, IntArray
 from twin.errors import TwinError
 from twin.parts.planar import PLANAR_GRADING, planar_patch
 
@@ -155,7 +155,7 @@ def check_resolution(resolution_m: object, chord_tolerance_m: object | None = No
 # --------------------------------------------------------------------------------------------
 
 
-def _graded(values: np.ndarray, arc: np.ndarray, grading: float) -> np.ndarray:
+def _graded(values: FloatArray, arc: FloatArray, grading: float) -> FloatArray:
     """Smallest ``values[j] + grading * |arc[i] - arc[j]|`` over j, for samples along a curve."""
     out = values.copy()
     for i in range(1, len(out)):
@@ -240,8 +240,8 @@ def _station_ring_edge(arc_stations: FloatArray, arc_all: FloatArray, edge_all: 
 
 
 def sample_profile(
-    segments: Sequence[Callable[[np.ndarray], np.ndarray]], resolution: float, chord_tol: float
-) -> tuple[np.ndarray, np.ndarray]:
+    segments: Sequence[Callable[[FloatArray], FloatArray]], resolution: float, chord_tol: float
+) -> tuple[FloatArray, FloatArray]:
     """Stations along a profile to be revolved, and the ring edge length at each.
 
     The segments map t in [0, 1] to (K, 2) points (r, a): radius and axial coordinate; they
@@ -290,7 +290,7 @@ def sample_profile(
     return profile, _station_ring_edge(arc_stations, arc_all, edge_all, ends)
 
 
-def line_segment(p: Sequence[float], q: Sequence[float]) -> Callable[[np.ndarray], np.ndarray]:
+def line_segment(p: Sequence[float], q: Sequence[float]) -> Callable[[FloatArray], FloatArray]:
     """Straight profile segment from p to q, for :func:`sample_profile`.
 
     Args:
@@ -301,7 +301,7 @@ def line_segment(p: Sequence[float], q: Sequence[float]) -> Callable[[np.ndarray
     """
     p_arr, q_arr = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
 
-    def f(t: np.ndarray) -> np.ndarray:
+    def f(t: FloatArray) -> FloatArray:
         t = np.asarray(t, dtype=np.float64)[:, None]
         out = p_arr + t * (q_arr - p_arr)
         out[t[:, 0] == 1.0] = q_arr
@@ -310,7 +310,7 @@ def line_segment(p: Sequence[float], q: Sequence[float]) -> Callable[[np.ndarray
     return f
 
 
-def cubic_bezier(control: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+def cubic_bezier(control: FloatArray) -> Callable[[FloatArray], FloatArray]:
     """Cubic Bezier profile segment, for :func:`sample_profile`.
 
     Args:
@@ -321,7 +321,7 @@ def cubic_bezier(control: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """
     c = np.asarray(control, dtype=np.float64)
 
-    def f(t: np.ndarray) -> np.ndarray:
+    def f(t: FloatArray) -> FloatArray:
         t = np.asarray(t, dtype=np.float64)[:, None]
         s = 1.0 - t
         return s**3 * c[0] + 3 * s**2 * t * c[1] + 3 * s * t**2 * c[2] + t**3 * c[3]
@@ -329,7 +329,7 @@ def cubic_bezier(control: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     return f
 
 
-def _zip_rings(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray, closed: bool):
+def _zip_rings(a: IntArray, b: IntArray, pa: FloatArray, pb: FloatArray, closed: bool) -> IntArray:
     """Triangulate the strip between two rings of vertex indices (a earlier on the profile).
 
     Triangles are oriented along d(angle) x d(profile). Advancing along the shorter diagonal
@@ -377,12 +377,12 @@ def _zip_rings(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray, clo
 
 
 def revolve(
-    profile: np.ndarray,
-    ring_edge: np.ndarray,
+    profile: FloatArray,
+    ring_edge: FloatArray,
     half: bool = False,
-    rotation: np.ndarray | None = None,
+    rotation: FloatArray | None = None,
     origin: Sequence[float] = (0.0, 0.0, 0.0),
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+) -> tuple[FloatArray, IntArray, list[IntArray]]:
     """Revolve a sampled profile about the local z axis.
 
     Local point = (r cos(phi), r sin(phi), a); world = origin + rotation @ local. A full
@@ -412,6 +412,7 @@ def revolve(
             local = np.array([[0.0, 0.0, a]])
         else:
             edge = float(ring_edge[k])
+            phi: np.ndarray
             if half:
                 m = max(2, int(math.ceil(span * r / edge)))
                 phi = np.linspace(0.0, math.pi, m + 1)
@@ -451,13 +452,13 @@ class _SizeField:
         max_edge: cap [m].
     """
 
-    def __init__(self, points: np.ndarray, spacing: np.ndarray, max_edge: float) -> None:
+    def __init__(self, points: FloatArray, spacing: FloatArray, max_edge: float) -> None:
         self.max_edge = max_edge
         self.points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         self.spacing = np.asarray(spacing, dtype=np.float64).reshape(-1)
         self.tree = cKDTree(self.points) if len(self.points) else None
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
+    def __call__(self, x: FloatArray) -> FloatArray:
         x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
         if self.tree is None:
             return np.full(len(x), self.max_edge)
@@ -469,14 +470,14 @@ class _SizeField:
         return np.minimum(self.max_edge, size.min(axis=1))
 
 
-def _loop_spacing(loop: np.ndarray) -> np.ndarray:
+def _loop_spacing(loop: FloatArray) -> FloatArray:
     """(n,) mean length of the two edges at each vertex of a closed loop (n, 3)."""
     lengths = np.linalg.norm(np.roll(loop, -1, axis=0) - loop, axis=1)
     return 0.5 * (lengths + np.roll(lengths, 1))
 
 
-def edge_points(p: np.ndarray, q: np.ndarray, size: Callable[[np.ndarray], np.ndarray] | float
-                 ) -> np.ndarray:
+def edge_points(p: FloatArray, q: FloatArray, size: Callable[[FloatArray], FloatArray] | float
+                 ) -> FloatArray:
     """Points from p to q (both included) spaced by a size field, identical either way.
 
     Sampling p -> q and q -> p gives the same points (reversed), so two patches that share
@@ -508,8 +509,8 @@ def edge_points(p: np.ndarray, q: np.ndarray, size: Callable[[np.ndarray], np.nd
 
 
 def _polygon_loop(
-    corners: Sequence[np.ndarray], size: Callable[[np.ndarray], np.ndarray] | float
-) -> np.ndarray:
+    corners: Sequence[FloatArray], size: Callable[[FloatArray], FloatArray] | float
+) -> FloatArray:
     """Closed loop through the corners, each side sampled by :func:`edge_points`."""
     parts = []
     n = len(corners)
@@ -522,9 +523,9 @@ def box_patches(
     lo: Sequence[float],
     hi: Sequence[float],
     max_edge: float,
-    top_holes: Sequence[np.ndarray] = (),
-    end_holes: dict[int, Sequence[np.ndarray]] | None = None,
-) -> list[tuple[np.ndarray, np.ndarray]]:
+    top_holes: Sequence[FloatArray] = (),
+    end_holes: dict[int, Sequence[FloatArray]] | None = None,
+) -> list[tuple[FloatArray, IntArray]]:
     """The six faces of an axis-aligned box, with optional holes in the top and x-end faces.
 
     The box edges are graded toward the holes so that the faces meet them with short edges
@@ -554,7 +555,7 @@ def box_patches(
     else:
         size = _SizeField(np.zeros((0, 3)), np.zeros(0), max_edge)
 
-    def corner(x: float, y: float, z: float) -> np.ndarray:
+    def corner(x: float, y: float, z: float) -> FloatArray:
         return np.array([x, y, z])
 
     ex, ey, ez = np.eye(3)
@@ -589,7 +590,7 @@ def box_features(prefix: str) -> list[str]:
     return [f"{prefix}_{face}" for face in BOX_FACES]
 
 
-def assemble(patches: Sequence[tuple[np.ndarray, np.ndarray]], name: str,
+def assemble(patches: Sequence[tuple[FloatArray, IntArray]], name: str,
              features: Sequence[str] | None = None) -> trimesh.Trimesh:
     """Stitch patches into one mesh by merging coincident vertices, and check the solid.
 

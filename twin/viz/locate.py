@@ -4,20 +4,56 @@ probing moves, the planned and measured points, and the coarse, final and true p
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import rerun as rr
 
 from algorithms.geometry.se3 import transform_points
+from twin.cell import Cell
 from twin.viz.blueprint import REPORT_ENTITY, send_blueprint
 from twin.viz.cell import body_poses, log_cell, log_pose_with_outline
 from twin.viz.scan import POSE_EVERY, log_scan
+
+if TYPE_CHECKING:
+    from twin.probing import ProbingLog
+    from twin.realize import Realized
+    from twin.scan import Scan
 
 COARSE_COLOUR = [255, 150, 40]
 FINAL_COLOUR = [40, 200, 255]
 
 
-def save_locate_recording(path: str | Path, result, cell, report: dict | None = None,
+class FinePlanView(Protocol):
+    """The planned fine points as the recording reads them (:class:`twin.locate.FinePlan`)."""
+
+    @property
+    def targets(self) -> tuple[Any, ...]: ...  # twin.probing.ProbeTarget, in probing order
+
+
+class LocateView(Protocol):
+    """A locate run as the recording reads it (:class:`twin.locate.LocateResult`, a layer above viz)."""
+
+    @property
+    def realized(self) -> Realized: ...
+
+    @property
+    def scan(self) -> Scan | None: ...
+
+    @property
+    def T_coarse(self) -> np.ndarray | None: ...
+
+    @property
+    def T_final(self) -> np.ndarray | None: ...
+
+    @property
+    def plan(self) -> FinePlanView | None: ...
+
+    @property
+    def probing(self) -> ProbingLog | None: ...
+
+
+def save_locate_recording(path: str | Path, result: LocateView, cell: Cell, report: dict | None = None,
                           app_id: str = "scan_twin_locate") -> Path:
     """Write the ``.rrd`` of a locate run (:class:`twin.locate.LocateResult`); ``cell`` is the
     probe cell (the true cell with the probe, the laser and the reference sphere)."""
@@ -48,7 +84,7 @@ def save_locate_recording(path: str | Path, result, cell, report: dict | None = 
     return path
 
 
-def _log_probing(cell, log, T_wb) -> None:
+def _log_probing(cell: Cell, log: ProbingLog, T_wb: np.ndarray) -> None:
     idx = np.arange(0, len(log.t), POSE_EVERY)
     times = rr.TimeColumn("sim_time", duration=log.t[idx])
     for name, T in body_poses(cell, log.q[idx]).items():

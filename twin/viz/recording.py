@@ -3,8 +3,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import rerun as rr
@@ -17,38 +18,97 @@ from twin.viz.cell import log_cell, log_pose_with_outline, mesh_outline
 from twin.viz.paths import log_normals, log_path_lines, log_replay, log_tool_frames
 from twin.viz.scan import DEVIATION_SCALE_M, STATUS_LEGEND, log_scan
 
+if TYPE_CHECKING:
+    from algorithms.geometry.mesh_index import MeshIndex
+    from algorithms.paths.toolpath import ProcessPath
+    from algorithms.registration.result import RegistrationResult
+    from twin.realize import Realized
+    from twin.replay import ReplayLog
+    from twin.scan import Scan
+
 PATH_TITLES = {"scan_path": "scan path", "cad_path": "CAD path"}
 #: The localization's iterations are shown on ``sim_time`` over this span after the scan [s]
 #: (less than the gap before the first replay).
 ITERATION_SPAN_S = 0.8
 
 
-def save_scan_recording(path: str | Path, cell: Cell, scan, app_id: str = "scan_twin") -> Path:
+class PathRunView(Protocol):
+    """A replayed process path as the recordings read it (:class:`twin.pipeline.PathRun`: viz sits
+    beside the pipeline in the layers and does not import it)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def path(self) -> ProcessPath: ...
+
+    @property
+    def log(self) -> ReplayLog: ...
+
+    @property
+    def t_offset_s(self) -> float: ...
+
+    @property
+    def normals_points(self) -> np.ndarray: ...
+
+    @property
+    def normals(self) -> np.ndarray: ...
+
+    @property
+    def dropped(self) -> tuple[Any, ...]: ...
+
+
+class RunView(Protocol):
+    """A run as the recordings read it (:class:`twin.pipeline.RunResult`)."""
+
+    @property
+    def realized(self) -> Realized: ...
+
+    @property
+    def scan(self) -> Scan | None: ...
+
+    @property
+    def runs(self) -> Sequence[PathRunView]: ...
+
+    @property
+    def replay_cell(self) -> Cell: ...
+
+    @property
+    def localization(self) -> Any: ...  # a RegistrationResult, or None (RunResult types it as object)
+
+    @property
+    def failure(self) -> tuple[str, str] | None: ...
+
+    @property
+    def pose_covariance(self) -> np.ndarray | None: ...
+
+
+def save_scan_recording(path: str | Path, cell: Cell, scan: Scan, app_id: str = "scan_twin") -> Path:
     """Write a ``.rrd`` file with the cell that scanned, the moving arm, the beam, points and distances."""
     return _save(path, cell, scan, None, app_id)
 
 
-def save_run_recording(path: str | Path, result, app_id: str = "scan_twin_run") -> Path:
+def save_run_recording(path: str | Path, result: RunView, app_id: str = "scan_twin_run") -> Path:
     """Write a ``.rrd`` of ``twin run``: the scan, the estimate, then each process path planned
     and replayed (:class:`twin.pipeline.RunResult`; the cell shown is the replay cell, the true
     cell with the tool)."""
     return _save(path, result.replay_cell, result.scan, result, app_id)
 
 
-def _save(path: str | Path, cell: Cell, scan, result, app_id: str) -> Path:
+def _save(path: str | Path, cell: Cell, scan: Scan | None, result: RunView | None, app_id: str) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(app_id)
-    runs = result.runs if result is not None else ()
+    runs: Sequence[PathRunView] = result.runs if result is not None else ()
     with rec:
         rec.save(str(path))
         begin(cell, [r.name for r in runs], getattr(result, "localization", None) is not None)
         index = result.realized.workpiece.index if result is not None else None
         if scan is not None:
             log_scan(cell, scan, cell.T_world_base, index)
-        loc = getattr(result, "localization", None)
+        loc = result.localization if result is not None else None
         if loc is not None:
-            log_estimate(cell, loc, float(scan.t[-1]))
+            log_estimate(cell, loc, _scan_end_s(scan))
         for run in runs:
             log_path_run(cell, run)
         log_summary(scan, result, runs)
@@ -66,7 +126,8 @@ class LiveRecording:
             viewer or server (``rerun+http://HOST:PORT/proxy``).
     """
 
-    def __init__(self, sink: str, app_id: str = "scan_twin_run", say: Callable[[str], None] = lambda msg: None):
+    def __init__(self, sink: str, app_id: str = "scan_twin_run",
+                 say: Callable[[str], None] = lambda msg: None) -> None:
         self.rec = rr.RecordingStream(app_id)
         if sink == "spawn":
             self.rec.spawn()
@@ -75,10 +136,10 @@ class LiveRecording:
         self.say = say
         self.lost = False
         self.cell: Cell | None = None
-        self.index = None
+        self.index: MeshIndex | None = None
         self.t_scan_end_s = 0.0
 
-    def __call__(self, event: str, value) -> None:
+    def __call__(self, event: str, value: Any) -> None:
         """One stage's result: ``cells`` (replay cell, realized scenario), ``scan``,
         ``localization`` or ``run`` (a :class:`twin.pipeline.PathRun`)."""
         if self.lost:
@@ -90,15 +151,22 @@ class LiveRecording:
                 names = (["scan_path"] if realized.scenario.sensor.kind == "point" else []) + ["cad_path"]
                 begin(self.cell, names, True)
             elif event == "scan":
-                log_scan(self.cell, value, self.cell.T_world_base, self.index)
+                cell = self._cell(event)
+                log_scan(cell, value, cell.T_world_base, self.index)
                 self.t_scan_end_s = float(value.t[-1])
             elif event == "localization":
-                log_estimate(self.cell, value, self.t_scan_end_s)
+                log_estimate(self._cell(event), value, self.t_scan_end_s)
             elif event == "run":
-                log_path_run(self.cell, value)
+                log_path_run(self._cell(event), value)
             self._flush()
 
-    def finish(self, result) -> None:
+    def _cell(self, event: str) -> Cell:
+        """The replay cell the ``cells`` event gave (it comes first)."""
+        if self.cell is None:
+            raise RuntimeError(f"live recording: the {event!r} event came before 'cells'")
+        return self.cell
+
+    def finish(self, result: RunView) -> None:
         """The report's text panel, then the stream is closed."""
         if not self.lost:
             with self.rec:
@@ -126,7 +194,7 @@ def begin(cell: Cell, path_names: list[str], localized: bool) -> None:
     log_cell(cell)
 
 
-def log_estimate(cell: Cell, loc, t_scan_end_s: float) -> None:
+def log_estimate(cell: Cell, loc: RegistrationResult, t_scan_end_s: float) -> None:
     """The estimated pose (static, full precision), the residual falling over the iterations,
     and the estimate moving (``world/workpiece/iterations``): on the ``localization_iteration``
     timeline, and on ``sim_time`` from the nominal pose during the scan to the estimate, the
@@ -149,7 +217,7 @@ def log_estimate(cell: Cell, loc, t_scan_end_s: float) -> None:
                                                               radii=0.0002), static=True)
 
 
-def log_path_run(cell: Cell, run) -> None:
+def log_path_run(cell: Cell, run: PathRunView) -> None:
     """One process path: planned lines, tool frames, normals, the replay, contacts and drops."""
     ent = f"world/path/{run.name}"
     planned, actual = PATH_COLOURS.get(run.name, ([90, 90, 90], [255, 200, 0]))
@@ -171,8 +239,15 @@ def log_path_run(cell: Cell, run) -> None:
                                              labels=[d.reason.split(":")[0] for d in run.dropped]), static=True)
 
 
-def log_summary(scan, result, runs) -> None:
+def log_summary(scan: Scan | None, result: RunView | None, runs: Sequence[PathRunView]) -> None:
     rr.log(REPORT_ENTITY, rr.TextDocument(_summary(scan, result, runs), media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def _scan_end_s(scan: Scan | None) -> float:
+    """The scan's last sample time [s]: where the localization's iterations start on ``sim_time``."""
+    if scan is None:
+        raise RuntimeError("a run with a localization has a scan")
+    return float(scan.t[-1])
 
 
 def _focus(cell: Cell) -> np.ndarray:
@@ -180,7 +255,7 @@ def _focus(cell: Cell) -> np.ndarray:
     return transform_points(cell.T_world_workpiece, cell.mesh.bounds.mean(axis=0)[None])[0]
 
 
-def _summary(scan, result, runs) -> str:
+def _summary(scan: Scan | None, result: RunView | None, runs: Sequence[PathRunView]) -> str:
     """The headline figures, in Markdown (times are recording times, ``sim_time``)."""
     out = ["# " + ("twin run" if result is not None else "twin scan"), ""]
     if scan is not None:
@@ -191,16 +266,17 @@ def _summary(scan, result, runs) -> str:
                    f"that met the part, by sensor status: {STATUS_LEGEND})")
     if result is not None and result.failure is not None:
         out.append(f"- **stopped at {result.failure[0]}**: {result.failure[1]}")
-    loc = getattr(result, "localization", None)
-    if loc is not None:
+    loc = result.localization if result is not None else None
+    if result is not None and loc is not None:
+        t_end = _scan_end_s(scan)
         e = evaluate.pose_errors(loc.T_world_workpiece, result.realized)
         free = len(loc.free_directions)
         err = (f"{np.degrees(e.rotation_rad):.4f} deg, {e.translation_m * 1e6:.1f} um from the truth" if not free
                else f"{free} free direction(s)")
         out.append(f"- estimate (`world/workpiece/estimate`, cyan): {loc.status.value}, {err}; its "
                    f"{len(loc.history) - 1} iteration(s) (`world/workpiece/iterations`, yellow) on the "
-                   f"`localization_iteration` timeline and from t = {scan.t[-1]:.2f} s to "
-                   f"{scan.t[-1] + ITERATION_SPAN_S:.2f} s")
+                   f"`localization_iteration` timeline and from t = {t_end:.2f} s to "
+                   f"{t_end + ITERATION_SPAN_S:.2f} s")
         d = evaluate.determined_errors(loc, result.realized, result.pose_covariance)
         if d["std"]:
             out.append(f"- errors along the determined directions: max {d['max_sigmas']} standard deviations "

@@ -11,6 +11,8 @@ scaled to the measured distance, and hidden when the scan ends.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import rerun as rr
 
@@ -20,6 +22,10 @@ from twin.robot import UR5E_DH
 from twin.sensors.base import INCIDENCE, OCCLUDED, OUT_OF_WINDOW, STATUS_NAMES, VALID
 from twin.viz.blueprint import deviation_colours
 from twin.viz.cell import body_poses, sensor_poses
+
+if TYPE_CHECKING:
+    from algorithms.geometry.mesh_index import MeshIndex
+    from twin.scan import Scan
 
 POSE_EVERY = 10      # arm and beam logged every 10 ms (points and distances every 1 ms)
 POINT_CHUNK = 100    # points logged 100 ms at a time
@@ -34,7 +40,7 @@ STATUS_COLOURS = {VALID: (40, 180, 70), OUT_OF_WINDOW: (150, 60, 200), INCIDENCE
 STATUS_LEGEND = ", ".join(f"{STATUS_NAMES[k]} rgb{v}" for k, v in STATUS_COLOURS.items())
 
 
-def log_scan(cell: Cell, scan, T_world_base: np.ndarray, index=None) -> None:
+def log_scan(cell: Cell, scan: Scan, T_world_base: np.ndarray, index: MeshIndex | None = None) -> None:
     """The arm moving, the beam, the points appearing and the distance, on ``sim_time``.
     ``index``: the part's MeshIndex for the deviation colours (built from the cell's mesh if None)."""
     idx = np.arange(0, len(scan.t), POSE_EVERY)
