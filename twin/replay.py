@@ -6,13 +6,12 @@ The replay cell is the scenario's true cell (same kinematic perturbations as the
   ball end whose lowest point on the tool axis is the TCP (site ``tcp``);
 * the workpiece's collision shape replaced by a MuJoCo height field sampled from the exact
   mesh by vertical ray casts every ``HFIELD_RES_M`` (MuJoCo collides a mesh as its convex
-  hull, which on the S-surface stands up to 17 mm above the valley the tool works in, so
-  every tool pose there would "collide"). The height field collides as prisms under the
-  linearly interpolated samples: for parts that are height fields over their footprint
-  (the S-surface, the punches) it is exact up to the interpolation error (about 3 um at
-  1 mm on the S-surface's tightest curvature); holes and undercuts are filled
-  (conservative: a contact may be reported where the real part has a cavity). The exact
-  mesh stays in the model for rays and display, without collisions.
+  hull, which stands well above the concave valleys the tool works in, so every tool pose
+  there would "collide"). The height field collides as prisms under the linearly
+  interpolated samples: for parts that are height fields over their footprint (the
+  S-surface, the punches) it is exact up to the interpolation error of the samples; holes
+  and undercuts are filled (conservative: a contact may be reported where the real part has
+  a cavity). The exact mesh stays in the model for rays and display, without collisions.
 
 Contacts. The process is a contact process: the ball end is meant to touch the part along
 the process lines. The ball geom therefore takes no part in MuJoCo's collisions (a process

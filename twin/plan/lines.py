@@ -219,7 +219,8 @@ def scan_region(cell: Cell) -> tuple[tuple[float, float], tuple[float, float]]:
     return (float(lo[0] + m), float(lo[1] + m)), (float(hi[0] - m), float(hi[1] - m))
 
 
-def _cast_wp(cell: Cell, batch, start_wp: np.ndarray, direction_wp: np.ndarray):
+def _cast_wp(cell: Cell, batch: mujoco.batch.Batch, start_wp: FloatArray,
+             direction_wp: FloatArray) -> tuple[BoolArray, FloatArray, FloatArray]:
     """Cast rays from ``start_wp`` along ``direction_wp`` (workpiece frame) at the nominal CAD
     model; returns hit mask, points and face normals (workpiece frame)."""
     T = cell.T_world_workpiece
@@ -233,7 +234,8 @@ def _cast_wp(cell: Cell, batch, start_wp: np.ndarray, direction_wp: np.ndarray):
     return hit, (p_w - T[:3, 3]) @ R, normal @ R
 
 
-def _cast_line(cell: Cell, batch, u: np.ndarray, v: float, axis: str, direction_wp: np.ndarray):
+def _cast_line(cell: Cell, batch: mujoco.batch.Batch, u: FloatArray, v: float, axis: str,
+               direction_wp: FloatArray) -> tuple[BoolArray, FloatArray, FloatArray]:
     """Planning rays of one single-pass line; returns hit mask, points and normals (workpiece frame)."""
     top = cell.mesh.bounds[1, 2]
     if axis == "x":
@@ -419,7 +421,7 @@ def _smooth_normals(index: MeshIndex, points_wp: np.ndarray) -> np.ndarray:
     return index.smooth_normals(cp.face, cp.foot)
 
 
-def pass_runs(cell: Cell, batch, p: PassSpec, index: MeshIndex) -> list[_Run]:
+def pass_runs(cell: Cell, batch: mujoco.batch.Batch, p: PassSpec, index: MeshIndex) -> list[_Run]:
     """The lines of one pass on the nominal CAD model, in raster order (before direction
     alternation), each with its planning points, face normals and smooth-surface normals
     (workpiece frame)."""
