@@ -10,11 +10,13 @@ with the velocity limit no step moves a joint more than ``v_max * dt``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import overload
 
 import mink
 import mujoco
 import numpy as np
 
+from algorithms.arraytypes import ArrayLike, BoolArray, FloatArray
 from twin.robot import JOINT_NAMES, VELOCITY_LIMIT_RAD_S
 
 # A pose still this far off after the iteration cap is unreachable (or singular).
@@ -48,8 +50,17 @@ class IKTrack:
     reachable: np.ndarray
 
 
-def reachable(position_error_m, orientation_error_rad):
-    """Whether the remaining errors are within the unreachable thresholds (element-wise)."""
+@overload
+def reachable(position_error_m: float, orientation_error_rad: float) -> np.bool_: ...
+
+
+@overload
+def reachable(position_error_m: FloatArray, orientation_error_rad: FloatArray) -> BoolArray: ...
+
+
+def reachable(position_error_m: ArrayLike, orientation_error_rad: ArrayLike) -> BoolArray | np.bool_:
+    """Whether the remaining errors [m], [rad] are within the unreachable thresholds (element-wise;
+    a numpy bool for scalar errors)."""
     return (np.asarray(position_error_m) < UNREACHABLE_POSITION_M) & \
         (np.asarray(orientation_error_rad) < UNREACHABLE_ORIENTATION_RAD)
 
@@ -65,7 +76,7 @@ class IKSolver:
 
     def __init__(self, model: mujoco.MjModel, site: str, position_tol_m: float, orientation_tol_rad: float,
                  posture_cost: float = POSTURE_COST, velocity_limit_rad_s: np.ndarray = VELOCITY_LIMIT_RAD_S,
-                 free_spin: bool = False, avoid_table: bool = False):
+                 free_spin: bool = False, avoid_table: bool = False) -> None:
         self.model = model
         self.free_spin = free_spin
         self.position_tol_m = position_tol_m
@@ -84,7 +95,7 @@ class IKSolver:
         self.velocity_limit = mink.VelocityLimit(
             model, {name: float(v) for name, v in zip(JOINT_NAMES, velocity_limit_rad_s, strict=True)})
         self.tasks = [self.frame_task, self.posture_task]
-        self.extra_limits = []
+        self.extra_limits: list[mink.Limit] = []
         if avoid_table:
             # The links (not the base and shoulder turret, which stand on it) keep off the table.
             standing = ("base", "shoulder_pan_link")
@@ -124,6 +135,8 @@ class IKSolver:
         spin: the angle between the site's z and the target's z)."""
         e = self.frame_task.compute_error(self.configuration)
         if self.free_spin:
+            if self._target is None:
+                raise RuntimeError("IKSolver.errors with a free spin needs a target: call solve first")
             z = self.site_pose()[:3, 2]
             tilt = float(np.arctan2(np.linalg.norm(np.cross(z, self._target[:3, 2])), z @ self._target[:3, 2]))
             return float(np.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)), tilt
@@ -143,7 +156,8 @@ class IKSolver:
         self._target = np.asarray(T_world_target, dtype=np.float64)
         self.frame_task.set_target(mink.SE3.from_matrix(self._target))
         self.posture_task.set_target(self.configuration.q)
-        limits = [self.config_limit, self.velocity_limit] if velocity_limited else [self.config_limit]
+        limits: list[mink.Limit] = [self.config_limit, self.velocity_limit] if velocity_limited \
+            else [self.config_limit]
         limits = limits + self.extra_limits
         pe, oe = self.errors()
         it = 0

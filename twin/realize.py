@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose
+from twin.errors import TwinError
 from twin.parts import load_mesh, make_workpiece
 from twin.robot import LINK_BODIES
 from twin.scenario import Scenario
@@ -98,6 +99,8 @@ def load_workpiece_mesh(scenario: Scenario) -> trimesh.Trimesh:
     wp = scenario.workpiece
     if wp.shape is not None:
         return make_workpiece(wp.shape, **wp.params)
+    if wp.mesh is None:
+        raise TwinError("workpiece needs a shape or a mesh file")
     return load_mesh(wp.mesh, wp.units)
 
 

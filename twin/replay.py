@@ -6,13 +6,12 @@ The replay cell is the scenario's true cell (same kinematic perturbations as the
   ball end whose lowest point on the tool axis is the TCP (site ``tcp``);
 * the workpiece's collision shape replaced by a MuJoCo height field sampled from the exact
   mesh by vertical ray casts every ``HFIELD_RES_M`` (MuJoCo collides a mesh as its convex
-  hull, which on the S-surface stands up to 17 mm above the valley the tool works in, so
-  every tool pose there would "collide"). The height field collides as prisms under the
-  linearly interpolated samples: for parts that are height fields over their footprint
-  (the S-surface, the punches) it is exact up to the interpolation error (about 3 um at
-  1 mm on the S-surface's tightest curvature); holes and undercuts are filled
-  (conservative: a contact may be reported where the real part has a cavity). The exact
-  mesh stays in the model for rays and display, without collisions.
+  hull, which stands well above the concave valleys the tool works in, so every tool pose
+  there would "collide"). The height field collides as prisms under the linearly
+  interpolated samples: for parts that are height fields over their footprint (the
+  S-surface, the punches) it is exact up to the interpolation error of the samples; holes
+  and undercuts are filled (conservative: a contact may be reported where the real part has
+  a cavity). The exact mesh stays in the model for rays and display, without collisions.
 
 Contacts. The process is a contact process: the ball end is meant to touch the part along
 the process lines. The ball geom therefore takes no part in MuJoCo's collisions (a process
@@ -74,8 +73,8 @@ def _add_tool(spec: mujoco.MjSpec, scenario: Scenario) -> None:
     tool = spec.body(FLANGE_BODY).add_body(name="tool", pos=T_WRIST3_FLANGE[:3, 3], gravcomp=1)
     tip = T_ft[:3, 3]
     centre = tip + p.tip_radius_m * T_ft[:3, 2]
-    axis = centre / max(np.linalg.norm(centre), 1e-12)
-    holder_end = axis * min(p.holder_length_m, 0.8 * np.linalg.norm(centre))
+    axis = centre / max(float(np.linalg.norm(centre)), 1e-12)
+    holder_end = axis * min(p.holder_length_m, 0.8 * float(np.linalg.norm(centre)))
     common = dict(contype=1, conaffinity=0, group=GROUP_ARM)
     if p.holder_radius_m > 0 and np.linalg.norm(holder_end) > 0:
         tool.add_geom(name="tool_holder", type=mujoco.mjtGeom.mjGEOM_CYLINDER,
@@ -337,80 +336,81 @@ def _polyline_distance(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
 
 
 
-def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshIndex,
-           tip_tolerance_m: float = 1e-4) -> ReplayLog:
-    """Run ``trajectory`` in the replay cell (:func:`build_replay_cell`) and verify it.
+class _ReplaySensors:
+    """The replay's sensor readings, filled chunk by chunk by :func:`twin.sim.simulate` (world frame).
 
-    Args:
-        cell: the replay cell (true cell with the tool).
-        trajectory: joint references every 1 ms.
-        path: the process path the trajectory was planned from (robot base frame).
-        index: the MeshIndex of the workpiece mesh (``Realized.workpiece.index``).
-        tip_tolerance_m: on a process line the ball counts as touching within this distance.
+    Attributes:
+        tcp: (n, 3) TCP positions [m]; zax: (n, 3) tool z axes.
+        qd: (n, 6) joint velocities [rad/s]; q_true: (n, 6) the joints the sensors saw [rad].
+        contact_names: the contact sensors' names; cdata: (n, len(contact_names), 5) their readings.
     """
-    model = cell.model
+
+    def __init__(self, model: mujoco.MjModel, n: int) -> None:
+        self.columns = {}
+        for i in range(model.nsensor):
+            s = model.sensor(i)
+            self.columns[s.name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
+        self.contact_names, self.contact_cols = contact_columns(model)
+        self.tcp = np.empty((n, 3))
+        self.zax = np.empty((n, 3))
+        self.qd = np.empty((n, 6))
+        self.q_true = np.empty((n, 6))
+        self.cdata = np.empty((n, len(self.contact_names), 5))
+        self.vel_cols = [self.columns[f"vel_{j}"].start for j in JOINT_NAMES]
+
+    def on_chunk(self, i0: int, sens: np.ndarray, q_before: np.ndarray) -> None:
+        i1 = i0 + len(sens)
+        self.tcp[i0:i1] = sens[:, self.columns["tcp_pos"]]
+        self.zax[i0:i1] = sens[:, self.columns["tcp_zaxis"]]
+        self.qd[i0:i1] = sens[:, self.vel_cols]
+        self.q_true[i0:i1] = q_before
+        self.cdata[i0:i1] = sens[:, self.contact_cols].reshape(len(sens), len(self.contact_names), 5)
+
+
+def _check_replay_inputs(model: mujoco.MjModel, trajectory: Trajectory) -> None:
+    """Refuse a cell without the tool or a trajectory at another time step."""
     if "tcp" not in [model.site(i).name for i in range(model.nsite)]:
         raise TwinError("replay needs the replay cell (build_replay_cell): the model has no tool")
     if abs(model.opt.timestep - trajectory.dt) > 1e-12:
         raise TwinError(f"trajectory step {trajectory.dt} s differs from the cell's {model.opt.timestep} s")
-    n = len(trajectory.t)
-    sl = {}
-    for i in range(model.nsensor):
-        s = model.sensor(i)
-        sl[s.name] = slice(int(s.adr[0]), int(s.adr[0] + s.dim[0]))
-    contact_names, contact_cols = contact_columns(model)
-    tcp = np.empty((n, 3))
-    zax = np.empty((n, 3))
-    qd = np.empty((n, 6))
-    q_true = np.empty((n, 6))
-    cdata = np.empty((n, len(contact_names), 5))
-    vel_cols = [sl[f"vel_{j}"].start for j in JOINT_NAMES]
 
-    def on_chunk(i0, sens, q_before):
-        i1 = i0 + len(sens)
-        tcp[i0:i1] = sens[:, sl["tcp_pos"]]
-        zax[i0:i1] = sens[:, sl["tcp_zaxis"]]
-        qd[i0:i1] = sens[:, vel_cols]
-        q_true[i0:i1] = q_before
-        cdata[i0:i1] = sens[:, contact_cols].reshape(len(sens), len(contact_names), 5)
 
-    t0 = time.perf_counter()
-    simulate(cell, trajectory.q, trajectory.qd, on_chunk)
-    wall = time.perf_counter() - t0
-
-    T_bw = inv_pose(cell.T_world_base)
-    tcp_b = transform_points(T_bw, tcp)
-    zax_b = zax @ T_bw[:3, :3].T
-    T_plan = dh_forward(trajectory.q, UR5E_DH) @ cell.scenario.path.T_flange_tool
-    tcp_plan = T_plan[:, :3, 3]
-    tracking = np.linalg.norm(tcp_b - tcp_plan, axis=1)
-
+def _path_deviation(path: ProcessPath, trajectory: Trajectory,
+                    tcp_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Segment kind (N,), process line (N,) of each sample, and the distance (N,) [m] of the
+    actual TCP from the planned tool path on the process segments (NaN elsewhere)."""
     segs = path.segments
     kind = np.array([segs[s][2] for s in trajectory.segment])
     line = np.array([segs[s][3] for s in trajectory.segment])
-    process = kind == "process"
-    deviation = np.full(n, np.nan)
+    deviation = np.full(len(trajectory.t), np.nan)
     for si, (a, b, k, _ln) in enumerate(segs):
         if k != "process":
             continue
         sel = np.flatnonzero(trajectory.segment == si)
         if len(sel):
             deviation[sel] = _polyline_distance(path.T_tool[a:b + 1, :3, 3], tcp_b[sel])
+    return kind, line, deviation
 
-    # Exact ball-to-part distance (workpiece frame of the TRUE cell).
+
+def _tip_clearances(cell: Cell, index: MeshIndex, tcp_b: np.ndarray, zax_b: np.ndarray,
+                    T_bw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance (N,) [m] of the ball end to the exact part (workpiece frame of the TRUE
+    cell; negative: into the material) and the height (N,) [m] of its lowest point above the table."""
     r = cell.scenario.path.tip_radius_m
     centre_b = tcp_b + r * zax_b
     T_base_wp = T_bw @ cell.T_world_workpiece
     c_wp = transform_points(inv_pose(T_base_wp), centre_b)
     tip_surface = index.signed_distance(c_wp) - r
     centre_w = transform_points(cell.T_world_base, centre_b)
-    table_clear = centre_w[:, 2] - r
+    return tip_surface, centre_w[:, 2] - r
 
-    t = trajectory.t
-    contacts = contact_records(contact_names, cdata, t, T_bw)
-    # The ball end: intended on the process lines, unintended anywhere else or into the table.
+
+def _tip_contacts(t: np.ndarray, kind: np.ndarray, tip_surface: np.ndarray, table_clear: np.ndarray,
+                  tcp_b: np.ndarray, tip_tolerance_m: float) -> list[ContactRecord]:
+    """The ball end's contacts: with the part, intended on the process lines (touch-down and
+    lift-off included) and unintended on the transits; with the table, always unintended."""
+    contacts = []
     touching = tip_surface <= tip_tolerance_m
-    # Touch-down (approach) and lift-off (retract) belong to the process; transits do not.
     in_process = kind != "transit"
     for intended, mask in ((True, touching & in_process), (False, touching & ~in_process)):
         if mask.any():
@@ -425,7 +425,13 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
         j = idx[np.argmin(table_clear[idx])]
         contacts.append(ContactRecord("tool_tip", "table", False, float(t[idx[0]]), float(t[idx[-1]]),
                                       int(len(idx)), float(-table_clear[j]), tuple(tcp_b[j])))
+    return contacts
 
+
+def _limit_hits(model: mujoco.MjModel, q_true: np.ndarray, qd: np.ndarray,
+                t: np.ndarray) -> tuple[list[dict], list[dict]]:
+    """Per joint, the samples within ``JOINT_LIMIT_MARGIN_RAD`` of a joint limit and those over
+    the velocity limit: (joint, first_t_s, steps[, max_ratio]) dicts."""
     rng = model.jnt_range[[model.joint(j).id for j in JOINT_NAMES]]
     jl, vl = [], []
     for j, name in enumerate(JOINT_NAMES):
@@ -438,5 +444,43 @@ def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshInd
         if over.any():
             vl.append({"joint": name, "first_t_s": float(t[np.argmax(over)]), "steps": int(over.sum()),
                        "max_ratio": float(ratio.max())})
-    return ReplayLog(t, q_true, trajectory.q, qd, tcp_b, zax_b, tcp_plan, tracking, deviation, tip_surface,
-                     table_clear, process, line, kind, tuple(contacts), tuple(jl), tuple(vl), wall, tip_tolerance_m)
+    return jl, vl
+
+
+def replay(cell: Cell, trajectory: Trajectory, path: ProcessPath, index: MeshIndex,
+           tip_tolerance_m: float = 1e-4) -> ReplayLog:
+    """Run ``trajectory`` in the replay cell (:func:`build_replay_cell`) and verify it.
+
+    Args:
+        cell: the replay cell (true cell with the tool).
+        trajectory: joint references every 1 ms.
+        path: the process path the trajectory was planned from (robot base frame).
+        index: the MeshIndex of the workpiece mesh (``Realized.workpiece.index``).
+        tip_tolerance_m: on a process line the ball counts as touching within this distance.
+
+    Raises:
+        TwinError: the cell has no tool, or the trajectory's step is not the cell's.
+    """
+    model = cell.model
+    _check_replay_inputs(model, trajectory)
+    log = _ReplaySensors(model, len(trajectory.t))
+    t0 = time.perf_counter()
+    simulate(cell, trajectory.q, trajectory.qd, log.on_chunk)
+    wall = time.perf_counter() - t0
+
+    T_bw = inv_pose(cell.T_world_base)
+    tcp_b = transform_points(T_bw, log.tcp)
+    zax_b = log.zax @ T_bw[:3, :3].T
+    T_plan = dh_forward(trajectory.q, UR5E_DH) @ cell.scenario.path.T_flange_tool
+    tcp_plan = T_plan[:, :3, 3]
+    tracking = np.linalg.norm(tcp_b - tcp_plan, axis=1)
+    kind, line, deviation = _path_deviation(path, trajectory, tcp_b)
+    tip_surface, table_clear = _tip_clearances(cell, index, tcp_b, zax_b, T_bw)
+
+    t = trajectory.t
+    contacts = contact_records(log.contact_names, log.cdata, t, T_bw)
+    contacts.extend(_tip_contacts(t, kind, tip_surface, table_clear, tcp_b, tip_tolerance_m))
+    jl, vl = _limit_hits(model, log.q_true, log.qd, t)
+    return ReplayLog(t, log.q_true, trajectory.q, log.qd, tcp_b, zax_b, tcp_plan, tracking, deviation, tip_surface,
+                     table_clear, kind == "process", line, kind, tuple(contacts), tuple(jl), tuple(vl), wall,
+                     tip_tolerance_m)

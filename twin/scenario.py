@@ -13,7 +13,7 @@ from __future__ import annotations
 import copy
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -69,7 +69,7 @@ def _is_number(v: Any) -> bool:
 class _Section:
     """Reads one TOML table, checking each key once and refusing the rest."""
 
-    def __init__(self, table: Any, where: str):
+    def __init__(self, table: Any, where: str) -> None:
         if not isinstance(table, dict):
             raise TwinError(f"[{where}] must be a table, got {type(table).__name__}")
         self.table = dict(table)
@@ -102,7 +102,14 @@ class _Section:
             raise TwinError(f"{self.where}.{key} must be true or false, got {v!r}")
         return v
 
+    @overload
+    def choice(self, key: str, default: str, choices: tuple[str, ...]) -> str: ...
+
+    @overload
+    def choice(self, key: str, default: None, choices: tuple[str, ...]) -> str | None: ...
+
     def choice(self, key: str, default: str | None, choices: tuple[str, ...]) -> str | None:
+        """One of ``choices``; None only when the key is absent and ``default`` is None."""
         v = self._get(key, default)
         if v is None and default is None:
             return None
@@ -110,7 +117,14 @@ class _Section:
             raise TwinError(f"{self.where}.{key} = {v!r} is not one of {', '.join(choices)}")
         return v
 
+    @overload
+    def string(self, key: str, default: str) -> str: ...
+
+    @overload
+    def string(self, key: str, default: None) -> str | None: ...
+
     def string(self, key: str, default: str | None) -> str | None:
+        """A string; None only when the key is absent and ``default`` is None."""
         v = self._get(key, default)
         if v is not None and not isinstance(v, str):
             raise TwinError(f"{self.where}.{key} must be a string, got {v!r}")
@@ -124,7 +138,14 @@ class _Section:
             return default.copy()
         return pose_from_table(v, f"{self.where}.{key}")
 
+    @overload
+    def vector(self, key: str, default: list[float], n: int) -> np.ndarray: ...
+
+    @overload
+    def vector(self, key: str, default: None, n: int) -> np.ndarray | None: ...
+
     def vector(self, key: str, default: list[float] | None, n: int) -> np.ndarray | None:
+        """An (n,) float array; None only when the key is absent and ``default`` is None."""
         v = self._get(key, default)
         if v is None:
             return None

@@ -62,7 +62,7 @@ PATH_ACCELERATION_FRACTION = 0.5
 class PathError(TwinError):
     """A path the robot cannot follow; ``problems`` lists every bad pose."""
 
-    def __init__(self, message: str, problems: tuple = ()):
+    def __init__(self, message: str, problems: tuple[PathProblem, ...] = ()) -> None:
         super().__init__(message)
         self.problems = problems
 
@@ -176,18 +176,18 @@ def solve_path(cell: Cell, T_base_flange: np.ndarray, q_start: np.ndarray | None
         q[i] = s.q
         sig[i] = s.sigma_min(JACOBIAN_LENGTH_M)
     elapsed = time.perf_counter() - t0
-    problems = []
-    for i in np.flatnonzero(~reachable(pe, oe)):
-        problems.append(PathProblem(int(i), "unreachable", tuple(T[i, :3, 3]),
-                                    f"flange stays {pe[i] * 1e3:.3f} mm / {np.degrees(oe[i]):.3f} deg off"))
-    for i in np.flatnonzero(sig < SINGULAR_SIGMA):
-        msg = f"smallest Jacobian singular value {sig[i] * 1e3:.3f} mm/rad < {SINGULAR_SIGMA * 1e3:g}"
-        problems.append(PathProblem(int(i), "singular", tuple(T[i, :3, 3]), msg))
+    problems: list[PathProblem] = []
+    for j in np.flatnonzero(~reachable(pe, oe)):
+        problems.append(PathProblem(int(j), "unreachable", tuple(T[j, :3, 3]),
+                                    f"flange stays {pe[j] * 1e3:.3f} mm / {np.degrees(oe[j]):.3f} deg off"))
+    for j in np.flatnonzero(sig < SINGULAR_SIGMA):
+        msg = f"smallest Jacobian singular value {sig[j] * 1e3:.3f} mm/rad < {SINGULAR_SIGMA * 1e3:g}"
+        problems.append(PathProblem(int(j), "singular", tuple(T[j, :3, 3]), msg))
     if k > 1:
         jump = np.max(np.abs(np.diff(q, axis=0)), axis=1)
-        for i in np.flatnonzero(jump > JUMP_RAD):
-            problems.append(PathProblem(int(i + 1), "discontinuous", tuple(T[i + 1, :3, 3]),
-                                        f"a joint moves {jump[i]:.3f} rad from the previous pose (> {JUMP_RAD} rad)"))
+        for j in np.flatnonzero(jump > JUMP_RAD):
+            problems.append(PathProblem(int(j + 1), "discontinuous", tuple(T[j + 1, :3, 3]),
+                                        f"a joint moves {jump[j]:.3f} rad from the previous pose (> {JUMP_RAD} rad)"))
     problems.sort(key=lambda p: (p.index, p.kind))
     result = PathIK(q, pe, oe, sig, its, tuple(problems), elapsed, first_time)
     if problems and on_problem == "raise":
@@ -207,7 +207,7 @@ class TableCheck:
         clearance_m: from the table [m]; part_clearance_m: from the part [m] (None: unchecked).
     """
 
-    def __init__(self, cell: Cell, clearance_m: float, part_clearance_m: float | None = None):
+    def __init__(self, cell: Cell, clearance_m: float, part_clearance_m: float | None = None) -> None:
         self.model = copy.copy(cell.model)
         self.table = self.model.geom("table").id
         self.clearance_m = clearance_m
@@ -275,8 +275,8 @@ def first_pose(s: IKSolver, cell: Cell, site: str, T_world_target: np.ndarray,
     return best[0], best[1], best[2]
 
 
-def _summarise(problems: list, k: int) -> str:
-    kinds = {}
+def _summarise(problems: list[PathProblem], k: int) -> str:
+    kinds: dict[str, list[PathProblem]] = {}
     for p in problems:
         kinds.setdefault(p.kind, []).append(p)
     parts = []

@@ -13,6 +13,7 @@ wrong, so this reader refuses, naming the file and the element or line:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -88,7 +89,12 @@ def _header(path: Path, raw: bytes) -> tuple[str, list[_Element], int]:
     return fmt, elements, body_start
 
 
-def _ascii_body(path: Path, body: bytes, elements: list[_Element]) -> dict[str, dict[str, list]]:
+# Each element's columns by property name: a list of values (or of index lists), or, for a
+# binary element without list properties, an array.
+_Body = dict[str, Mapping[str, list | np.ndarray]]
+
+
+def _ascii_body(path: Path, body: bytes, elements: list[_Element]) -> _Body:
     try:
         lines = [ln for ln in body.decode("ascii").splitlines() if ln.strip()]
     except UnicodeDecodeError:
@@ -97,7 +103,7 @@ def _ascii_body(path: Path, body: bytes, elements: list[_Element]) -> dict[str, 
     if len(lines) != declared:
         counts = ", ".join(f"{e.count} {e.name}" for e in elements)
         raise _bad(path, f"the header declares {counts} ({declared} lines) but the body holds {len(lines)} lines")
-    out: dict[str, dict[str, list]] = {}
+    out: _Body = {}
     row = 0
     for e in elements:
         cols: dict[str, list] = {name: [] for name, _, _ in e.props}
@@ -124,8 +130,8 @@ def _ascii_body(path: Path, body: bytes, elements: list[_Element]) -> dict[str, 
     return out
 
 
-def _binary_body(path: Path, body: bytes, elements: list[_Element], order: str) -> dict[str, dict[str, list]]:
-    out: dict[str, dict[str, list]] = {}
+def _binary_body(path: Path, body: bytes, elements: list[_Element], order: str) -> _Body:
+    out: _Body = {}
     pos = 0
     for e in elements:
         if all(ct is None for _, _, ct in e.props):

@@ -22,8 +22,9 @@ choices documented on each generator.
   (document 000, sections 4 and 5).
 
 Layout: :mod:`~twin.parts.kernel` is the meshing kernel every family builds on (parameter
-checks, surfaces of revolution, planar faces, assembly); within the package, each family
-module imports only the kernel; :mod:`~twin.parts.loading` reads mesh files; this module
+checks, surfaces of revolution, boxes, assembly), :mod:`~twin.parts.planar` meshes its planar
+faces; within the package, each family module imports only these two;
+:mod:`~twin.parts.loading` reads mesh files; this module
 imports the families and holds the registry (``_GENERATORS``). No module registers itself:
 adding a part means adding its generator to a family module and one line to the registry.
 

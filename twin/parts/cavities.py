@@ -10,13 +10,14 @@ In both, the block's top face is the safety plane the probe crosses between meas
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 
+from algorithms.arraytypes import FloatArray, IntArray
 from twin.parts.kernel import (
     CHORD_TOL_M,
-    PLANAR_MAX_EDGE_M,
     assemble,
     box_features,
     box_patches,
@@ -29,8 +30,93 @@ from twin.parts.kernel import (
     revolve,
     sample_profile,
 )
+from twin.parts.planar import PLANAR_MAX_EDGE_M
 
 __all__ = ["inner_sphere", "through_hole"]
+
+
+@dataclass(frozen=True)
+class _Bowl:
+    """The cavity and post of :func:`inner_sphere` [m], workpiece frame (axis: the z axis).
+
+    Attributes:
+        height: the block's height (the top face's z).
+        radius: the cavity's radius; depth, zc: the depth of its centre below the top face
+            and its height.
+        opening: radius of the cavity's circle in the top face.
+        post_r: the post's radius; z_foot, z_post: heights of its foot (on the cavity floor)
+            and of its top.
+    """
+
+    height: float
+    radius: float
+    depth: float
+    zc: float
+    opening: float
+    post_r: float
+    z_foot: float
+    z_post: float
+
+
+def _bowl_geometry(length: float, width: float, height: float, radius: float, depth: float, post_r: float,
+                   post_depth: float) -> _Bowl:
+    """Check that :func:`inner_sphere`'s cavity and post fit the block, and place them.
+
+    Raises:
+        TwinError: the cavity would not open in the top face, break through a side or the
+            bottom (2 mm minimum wall), or not contain the post.
+    """
+    wall = 0.002
+    require(
+        depth <= 0.9 * radius,
+        f"sphere_center_depth_m must be at most 0.9 x sphere_radius_m so the cavity opens in "
+        f"the top face, got {format_mm(depth)} with radius {format_mm(radius)}",
+    )
+    require(
+        radius + wall <= min(length, width) / 2,
+        f"sphere_radius_m {format_mm(radius)} leaves less than a 2 mm wall in the "
+        f"{format_mm(length)} x {format_mm(width)} block",
+    )
+    zc = height - depth
+    require(
+        zc - radius >= wall,
+        f"block_height_m {format_mm(height)} leaves less than a 2 mm floor under the cavity "
+        f"(radius {format_mm(radius)}, centre {format_mm(depth)} below the top)",
+    )
+    opening = math.sqrt(radius**2 - depth**2)
+    require(
+        post_r + 0.001 <= opening,
+        f"post_radius_m must be at least 1 mm smaller than the opening radius "
+        f"{format_mm(opening)}, got {format_mm(post_r)}",
+    )
+    z_foot = zc - math.sqrt(radius**2 - post_r**2)
+    z_post = height - post_depth
+    require(
+        z_post - z_foot >= 0.001,
+        f"post_top_depth_m {format_mm(post_depth)} puts the post's top below the cavity floor",
+    )
+    return _Bowl(height, radius, depth, zc, opening, post_r, z_foot, z_post)
+
+
+def _bowl_surface(bowl: _Bowl, res: float, tol: float) -> tuple[FloatArray, IntArray, list[IntArray]]:
+    """The cavity's sphere from the top-face rim down to the post's foot, the post's side and
+    its top, revolved about the z axis (:func:`~twin.parts.kernel.revolve`'s vertices,
+    triangles and rings; ring 0 is the rim in the top face)."""
+    radius, zc, post_r = bowl.radius, bowl.zc, bowl.post_r
+    theta_open = math.atan2(bowl.depth, bowl.opening)  # angle of the rim above the equator
+    theta_foot = -math.atan2(math.sqrt(radius**2 - post_r**2), post_r)
+
+    def sphere_arc(t: FloatArray) -> FloatArray:
+        th = theta_open + (theta_foot - theta_open) * t
+        return np.column_stack([radius * np.cos(th), zc + radius * np.sin(th)])
+
+    profile, edges = sample_profile(
+        [sphere_arc, line_segment((post_r, bowl.z_foot), (post_r, bowl.z_post)),
+         line_segment((post_r, bowl.z_post), (0.0, bowl.z_post))],
+        res, tol,
+    )
+    profile[0] = (bowl.opening, bowl.height)
+    return revolve(profile, edges)
 
 
 def inner_sphere(
@@ -87,49 +173,8 @@ def inner_sphere(
     post_r = check_positive("post_radius_m", post_radius_m)
     post_depth = check_nonnegative("post_top_depth_m", post_top_depth_m)
     res, tol = check_resolution(resolution_m, chord_tolerance_m)
-    wall = 0.002
-    require(
-        depth <= 0.9 * radius,
-        f"sphere_center_depth_m must be at most 0.9 x sphere_radius_m so the cavity opens in "
-        f"the top face, got {format_mm(depth)} with radius {format_mm(radius)}",
-    )
-    require(
-        radius + wall <= min(length, width) / 2,
-        f"sphere_radius_m {format_mm(radius)} leaves less than a 2 mm wall in the "
-        f"{format_mm(length)} x {format_mm(width)} block",
-    )
-    zc = height - depth
-    require(
-        zc - radius >= wall,
-        f"block_height_m {format_mm(height)} leaves less than a 2 mm floor under the cavity "
-        f"(radius {format_mm(radius)}, centre {format_mm(depth)} below the top)",
-    )
-    opening = math.sqrt(radius**2 - depth**2)
-    require(
-        post_r + 0.001 <= opening,
-        f"post_radius_m must be at least 1 mm smaller than the opening radius "
-        f"{format_mm(opening)}, got {format_mm(post_r)}",
-    )
-    z_foot = zc - math.sqrt(radius**2 - post_r**2)
-    z_post = height - post_depth
-    require(
-        z_post - z_foot >= 0.001,
-        f"post_top_depth_m {format_mm(post_depth)} puts the post's top below the cavity floor",
-    )
-    theta_open = math.atan2(depth, opening)  # angle of the rim above the equator
-    theta_foot = -math.atan2(math.sqrt(radius**2 - post_r**2), post_r)
-
-    def sphere_arc(t: np.ndarray) -> np.ndarray:
-        th = theta_open + (theta_foot - theta_open) * t
-        return np.column_stack([radius * np.cos(th), zc + radius * np.sin(th)])
-
-    profile, edges = sample_profile(
-        [sphere_arc, line_segment((post_r, z_foot), (post_r, z_post)),
-         line_segment((post_r, z_post), (0.0, z_post))],
-        res, tol,
-    )
-    profile[0] = (opening, height)
-    v, f, rings = revolve(profile, edges)
+    bowl = _bowl_geometry(length, width, height, radius, depth, post_r, post_depth)
+    v, f, rings = _bowl_surface(bowl, res, tol)
     patches = [(v, f)]
     patches.extend(
         box_patches((-length / 2, -width / 2, 0.0), (length / 2, width / 2, height),

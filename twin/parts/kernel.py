@@ -6,10 +6,10 @@ is closed by construction (no boolean engine is needed):
 * curved surfaces are surfaces of revolution: a profile of :func:`line_segment` and
   :func:`cubic_bezier` curves in (r, a) coordinates, sampled by :func:`sample_profile`
   against a chord tolerance and revolved by :func:`revolve`;
-* planar faces are meshed by :func:`planar_patch`, a conforming Delaunay triangulation of
-  their boundary loops with graded interior points, so that triangles stay well shaped
-  (MuJoCo's ray casts are slow on long slivers) and face counts moderate; :func:`box_patches`
-  gives the six faces of a block with holes cut where curved surfaces meet it;
+* planar faces are meshed by :func:`~twin.parts.planar.planar_patch` (:mod:`twin.parts.planar`),
+  a conforming Delaunay triangulation of their boundary loops with graded interior points;
+  :func:`box_patches` gives the six faces of a block with holes cut where curved surfaces
+  meet it;
 * :func:`assemble` stitches the patches by merging coincident vertices and checks that the
   result is a closed, consistently wound solid of positive volume.
 
@@ -27,19 +27,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import Delaunay, cKDTree
+from scipy.spatial import cKDTree
 
+from algorithms.arraytypes import FloatArray, IntArray
 from twin.errors import TwinError
+from twin.parts.planar import PLANAR_GRADING, planar_patch
 
 __all__ = [
     "CHORD_TOL_M",
-    "PLANAR_GRADING",
-    "PLANAR_MAX_EDGE_M",
     "assemble",
     "box_patches",
     "check_finite",
@@ -50,21 +51,10 @@ __all__ = [
     "edge_points",
     "format_mm",
     "line_segment",
-    "planar_patch",
     "require",
     "revolve",
     "sample_profile",
 ]
-
-PLANAR_MAX_EDGE_M = 0.005
-"""Largest edge [m] of the graded planar faces, far from curved features."""
-
-PLANAR_GRADING = 0.3
-"""Growth of the planar edge length per unit distance from the nearest boundary (dimensionless).
-
-0.3 lets the edge grow from 0.5 mm to 5 mm over 15 mm while neighbouring triangles differ by
-less than 1.5x.
-"""
 
 CHORD_TOL_M = 1e-5
 """Default chord tolerance [m] of the curved surfaces: the mesh deviates from them by less."""
@@ -74,10 +64,6 @@ _MAX_FACES = 200_000
 # Two points closer than this [m] are the same vertex when the surfaces are stitched; every
 # generated edge is micrometres long at least, so this cannot merge distinct vertices.
 _MERGE_TOL_M = 1e-9
-# Smallest distance of an interior point from the boundary, relative to the local edge length.
-_CLEARANCE = 0.55
-# Damped Laplacian smoothing steps applied to the interior points of planar faces.
-_SMOOTHING_STEPS = 4
 
 
 # --------------------------------------------------------------------------------------------
@@ -165,280 +151,11 @@ def check_resolution(resolution_m: object, chord_tolerance_m: object | None = No
 
 
 # --------------------------------------------------------------------------------------------
-# Planar regions: conforming Delaunay with graded interior points
-# --------------------------------------------------------------------------------------------
-
-
-def _hex_lattice(lo: np.ndarray, hi: np.ndarray, spacing: float) -> np.ndarray:
-    """Points of a triangular lattice covering the box [lo, hi] (2-D)."""
-    row = spacing * math.sqrt(3.0) / 2.0
-    ys = np.arange(lo[1], hi[1] + row, row)
-    xs = np.arange(lo[0] - spacing, hi[0] + spacing, spacing)
-    gx, gy = np.meshgrid(xs, ys)
-    gx = gx + (np.arange(len(ys)) % 2)[:, None] * (spacing / 2.0)
-    return np.column_stack([gx.ravel(), gy.ravel()])
-
-
-def _hex_lattice_near(
-    lo: np.ndarray, hi: np.ndarray, spacing: float, centers: np.ndarray, reach: float
-) -> np.ndarray:
-    """The points of ``_hex_lattice(lo, hi, spacing)`` in tiles within ``reach`` of centers."""
-    tile = 32.0 * spacing
-    nx = max(1, int(math.ceil((hi[0] - lo[0]) / tile)))
-    ny = max(1, int(math.ceil((hi[1] - lo[1]) / tile)))
-    tx, ty = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-    tile_lo = lo + np.column_stack([tx.ravel(), ty.ravel()]) * tile
-    mid = tile_lo + 0.5 * tile
-    dist, _ = cKDTree(centers).query(mid)
-    keep = dist <= reach + tile / math.sqrt(2.0)
-    if not np.any(keep):
-        return np.zeros((0, 2))
-    lattice = _hex_lattice(lo, hi, spacing)
-    cell = np.floor((lattice - lo) / tile).astype(np.int64)
-    cell = np.clip(cell, 0, [nx - 1, ny - 1])
-    kept = np.zeros((nx, ny), dtype=bool)
-    kept[tx.ravel()[keep], ty.ravel()[keep]] = True
-    return lattice[kept[cell[:, 0], cell[:, 1]]]
-
-
-def _inside(points: np.ndarray, seg_a: np.ndarray, seg_b: np.ndarray) -> np.ndarray:
-    """Even-odd point-in-region test against all boundary segments, (N,) bool."""
-    out = np.zeros(len(points), dtype=bool)
-    ya, yb = seg_a[:, 1], seg_b[:, 1]
-    xa, xb = seg_a[:, 0], seg_b[:, 0]
-    for start in range(0, len(points), 2048):
-        p = points[start : start + 2048]
-        px, py = p[:, 0:1], p[:, 1:2]
-        straddle = (ya[None, :] > py) != (yb[None, :] > py)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_cross = xa + (py - ya) * (xb - xa) / (yb - ya)
-        hits = straddle & (px < x_cross)
-        out[start : start + 2048] = (np.count_nonzero(hits, axis=1) % 2) == 1
-    return out
-
-
-def _mesh_planar_region(
-    loops: Sequence[np.ndarray], max_edge: float, grading: float = PLANAR_GRADING
-) -> tuple[np.ndarray, np.ndarray]:
-    """Triangulate a planar region bounded by closed polygons, keeping the loop points.
-
-    The loop points are the only boundary vertices, so a neighbouring surface that shares a
-    loop is stitched exactly. Interior points come from triangular lattices whose spacing
-    follows ``min(max_edge, s + grading * d)`` (``s`` the boundary spacing nearby, ``d`` the
-    distance to the boundary) and keep every boundary segment's diametral circle empty, so
-    each segment is a Delaunay edge and the triangulation conforms to the boundary.
-
-    Args:
-        loops: closed polygons, each (n_i, 2) [m] without the closing point repeated; any
-            orientation. The region is what the even-odd rule calls inside.
-        max_edge: largest interior edge length [m].
-        grading: growth of the edge length per unit distance from the boundary.
-
-    Returns:
-        points: (N, 2) [m]; the first sum(n_i) rows are the loop points in the given order.
-        triangles: (M, 3) int, counter-clockwise.
-    """
-    loops = [np.asarray(lp, dtype=np.float64) for lp in loops]
-    boundary = np.concatenate(loops)
-    n_boundary = len(boundary)
-    seg_a_list, seg_b_list, seg_index_list = [], [], []
-    offset = 0
-    for lp in loops:
-        n = len(lp)
-        idx = np.arange(n) + offset
-        seg_a_list.append(lp)
-        seg_b_list.append(np.roll(lp, -1, axis=0))
-        seg_index_list.append(np.column_stack([idx, np.roll(idx, -1)]))
-        offset += n
-    seg_a = np.concatenate(seg_a_list)
-    seg_b = np.concatenate(seg_b_list)
-    seg_len = np.linalg.norm(seg_b - seg_a, axis=1)
-    seg_mid = 0.5 * (seg_a + seg_b)
-    seg_index = np.concatenate(seg_index_list)
-
-    # Dense samples of the boundary give the distance to it and the local spacing there.
-    min_len = float(seg_len.min())
-    pieces = np.maximum(1, np.ceil(seg_len / (0.25 * min_len + 1e-300)).astype(int))
-    pieces = np.minimum(pieces, 64)
-    dense_parts, dense_spacing_parts = [], []
-    for k in np.unique(pieces):
-        sel = np.nonzero(pieces == k)[0]
-        t = (np.arange(k) / k)[None, :, None]
-        pts = seg_a[sel, None, :] + t * (seg_b[sel] - seg_a[sel])[:, None, :]
-        dense_parts.append(pts.reshape(-1, 2))
-        dense_spacing_parts.append(np.repeat(seg_len[sel], k))
-    dense = np.concatenate(dense_parts)
-    dense_spacing = np.concatenate(dense_spacing_parts)
-    dense_tree = cKDTree(dense)
-    mid_tree = cKDTree(seg_mid)
-    max_seg = float(seg_len.max())
-
-    lo, hi = boundary.min(axis=0), boundary.max(axis=0)
-
-    def target_size(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        dist, nearest = dense_tree.query(pts)
-        return np.minimum(max_edge, dense_spacing[nearest] + grading * dist), dist
-
-    def admissible(pts: np.ndarray) -> np.ndarray:
-        """Inside, clear of the boundary, and outside every segment's diametral circle."""
-        size, dist = target_size(pts)
-        ok = dist >= _CLEARANCE * size
-        ok[ok] = _inside(pts[ok], seg_a, seg_b)
-        rows = np.nonzero(ok)[0]
-        if len(rows):
-            near = mid_tree.query_ball_point(pts[rows], r=0.56 * max_seg)
-            counts = np.fromiter((len(js) for js in near), dtype=np.int64, count=len(near))
-            if counts.sum():
-                which = np.repeat(rows, counts)
-                js = np.concatenate([np.asarray(j, dtype=np.int64) for j in near if j])
-                inside_circle = np.linalg.norm(seg_mid[js] - pts[which], axis=1) < (
-                    0.56 * seg_len[js]
-                )
-                ok[which[inside_circle]] = False
-        return ok
-
-    # Level spacings max_edge / 2^k down to the finest boundary spacing.
-    levels = [max_edge]
-    while levels[-1] > min_len:
-        levels.append(levels[-1] / 2.0)
-    accepted = [boundary]
-    accepted_tree = cKDTree(boundary)
-    for k in range(len(levels) - 1, -1, -1):
-        h = levels[k]
-        if k == 0:
-            cand = _hex_lattice(lo, hi, h)
-        else:
-            # Sizes below 2 h occur only within (2 h - s) / grading of boundary samples
-            # spaced s < 2 h: build this level's lattice only in tiles that reach them.
-            fine = dense_spacing < 2.0 * h
-            if not np.any(fine):
-                continue
-            reach = float(np.max(2.0 * h - dense_spacing[fine])) / grading
-            cand = _hex_lattice_near(lo, hi, h, dense[fine], reach)
-        cand = cand[(cand[:, 0] > lo[0]) & (cand[:, 0] < hi[0])]
-        cand = cand[(cand[:, 1] > lo[1]) & (cand[:, 1] < hi[1])]
-        if len(cand) == 0:
-            continue
-        size, _ = target_size(cand)
-        upper = np.inf if k == 0 else 2.0 * h
-        lower = 0.0 if k == len(levels) - 1 else h
-        cand = cand[(size >= lower) & (size < upper)]
-        if len(cand) == 0:
-            continue
-        d_acc, _ = accepted_tree.query(cand)
-        cand = cand[d_acc >= 0.7 * h]
-        cand = cand[admissible(cand)]
-        if len(cand) == 0:
-            continue
-        accepted.append(cand)
-        accepted_tree = cKDTree(np.concatenate(accepted))
-    points = np.concatenate(accepted)
-
-    # Ghost points keep the boundary points off the convex hull (Qhull would drop collinear
-    # hull points); triangles touching them are outside the region and discarded.
-    margin = 2.0 * max(max_edge, max_seg)
-    glo, ghi = lo - margin, hi + margin
-    nx = max(2, int(math.ceil((ghi[0] - glo[0]) / max_edge)))
-    ny = max(2, int(math.ceil((ghi[1] - glo[1]) / max_edge)))
-    gx = np.linspace(glo[0], ghi[0], nx + 1)
-    gy = np.linspace(glo[1], ghi[1], ny + 1)
-    ghosts = np.concatenate(
-        [
-            np.column_stack([gx, np.full_like(gx, glo[1])]),
-            np.column_stack([gx, np.full_like(gx, ghi[1])]),
-            np.column_stack([np.full_like(gy[1:-1], glo[0]), gy[1:-1]]),
-            np.column_stack([np.full_like(gy[1:-1], ghi[0]), gy[1:-1]]),
-        ]
-    )
-
-    def triangulate(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        tri = Delaunay(np.concatenate([pts, ghosts])).simplices
-        tri = tri[np.all(tri < len(pts), axis=1)]
-        tri = tri[_inside(pts[tri].mean(axis=1), seg_a, seg_b)]
-        p0, p1, p2 = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
-        cross = (p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (
-            p2[:, 0] - p0[:, 0]
-        )
-        return np.where((cross < 0.0)[:, None], tri[:, [0, 2, 1]], tri), np.abs(cross)
-
-    # Smooth the lattice seams: move each interior point toward the mean of its neighbours
-    # (a few damped Laplacian steps), refusing moves that break the conditions above.
-    n_pts = len(points)
-    for _ in range(_SMOOTHING_STEPS):
-        if n_pts == n_boundary:
-            break
-        tri, _ = triangulate(points)
-        edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-        adj = coo_matrix(
-            (np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n_pts, n_pts)
-        ).tocsr()
-        adj = ((adj + adj.T) > 0).astype(np.float64)
-        degree = np.asarray(adj.sum(axis=1)).ravel()
-        mean = (adj @ points) / np.maximum(degree, 1.0)[:, None]
-        moved = points[n_boundary:] + 0.6 * (mean[n_boundary:] - points[n_boundary:])
-        ok = admissible(moved)
-        points[n_boundary:][ok] = moved[ok]
-    tri, cross = triangulate(points)
-
-    # Conformity: every loop segment is the edge of exactly one triangle, every other edge of
-    # two. Anything else is a bug (or parameters the generators should have refused).
-    edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
-    uniq, counts = np.unique(edges, axis=0, return_counts=True)
-    seg_sorted = np.unique(np.sort(seg_index, axis=1), axis=0)
-    boundary_edges = uniq[counts == 1]
-    if (
-        np.any(counts > 2)
-        or len(boundary_edges) != len(seg_sorted)
-        or not np.array_equal(boundary_edges, seg_sorted)
-        or len(np.unique(tri)) != len(points)
-        or np.any(np.abs(cross) <= 1e-18 * max_edge**2)
-    ):
-        raise RuntimeError("internal error: planar face triangulation does not conform")
-    return points, tri
-
-
-def planar_patch(
-    loops3d: Sequence[np.ndarray],
-    origin: np.ndarray,
-    u: np.ndarray,
-    v: np.ndarray,
-    outward: np.ndarray,
-    max_edge: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Mesh a planar face given by 3-D boundary loops lying in the plane (origin, u, v).
-
-    The loop points are kept as the patch's boundary vertices, unchanged and in order, so a
-    neighbouring patch built on the same loop is stitched exactly by :func:`assemble`.
-
-    Args:
-        loops3d: closed polygons, each (n_i, 3) [m] without the closing point repeated, in
-            the plane; the face is what the even-odd rule calls inside (an outer loop and the
-            holes in it, any orientation).
-        origin: (3,) [m] a point of the plane.
-        u, v: (3,) orthonormal in-plane axes.
-        outward: (3,) the face's outward normal (only its side of the plane matters).
-        max_edge: largest interior edge [m]; edges grade from the loops' spacing up to it.
-
-    Returns:
-        vertices (N, 3) [m], the first sum(n_i) being the loop points; triangles (M, 3) int,
-        wound counter-clockwise seen from ``outward``.
-    """
-    loops2d = [(lp - origin) @ np.column_stack([u, v]) for lp in loops3d]
-    pts2d, tri = _mesh_planar_region(loops2d, max_edge)
-    n_b = sum(len(lp) for lp in loops3d)
-    interior = origin + pts2d[n_b:, 0:1] * u + pts2d[n_b:, 1:2] * v
-    vertices = np.concatenate([np.concatenate(loops3d), interior])
-    if float(np.dot(np.cross(u, v), outward)) < 0.0:
-        tri = tri[:, [0, 2, 1]]
-    return vertices, tri
-
-
-# --------------------------------------------------------------------------------------------
 # Surfaces of revolution
 # --------------------------------------------------------------------------------------------
 
 
-def _graded(values: np.ndarray, arc: np.ndarray, grading: float) -> np.ndarray:
+def _graded(values: FloatArray, arc: FloatArray, grading: float) -> FloatArray:
     """Smallest ``values[j] + grading * |arc[i] - arc[j]|`` over j, for samples along a curve."""
     out = values.copy()
     for i in range(1, len(out)):
@@ -448,9 +165,83 @@ def _graded(values: np.ndarray, arc: np.ndarray, grading: float) -> np.ndarray:
     return out
 
 
+# Dense samples per profile segment of the curvature and size analysis of :func:`sample_profile`.
+_DENSE_SAMPLES = 2001
+
+
+@dataclass(frozen=True)
+class _DenseSegment:
+    """A profile segment sampled densely, with the size limits at each sample.
+
+    Attributes:
+        curve: the segment: t (K,) in [0, 1] -> (K, 2) points (r, a) [m].
+        t: (D,) parameters of the dense samples.
+        arc: (D,) arc length along the whole profile [m].
+        ring_edge: (D,) largest ring edge [m] for the chord tolerance (not graded, no floor).
+        step: (D,) largest profile step [m] for the chord tolerance (not graded).
+    """
+
+    curve: Callable[[FloatArray], FloatArray]
+    t: FloatArray
+    arc: FloatArray
+    ring_edge: FloatArray
+    step: FloatArray
+
+
+def _dense_segment(seg: Callable[[FloatArray], FloatArray], arc0: float, resolution: float,
+                   chord_tol: float) -> _DenseSegment:
+    """Sample one segment densely and bound its ring edge and profile step (see
+    :func:`sample_profile`); its arc length starts at ``arc0`` [m]."""
+    t = np.linspace(0.0, 1.0, _DENSE_SAMPLES)
+    p = seg(t)
+    d1 = np.gradient(p, t, axis=0)
+    d2 = np.gradient(d1, t, axis=0)
+    speed = np.linalg.norm(d1, axis=1)
+    curv = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(speed, 1e-300) ** 3
+    arc = arc0 + np.concatenate(
+        [[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))]
+    )
+    radial_normal = np.abs(d1[:, 1]) / np.maximum(speed, 1e-300)
+    # On the axis (a pole) or where the normal is axial, rings do not leave the surface.
+    curved_ring = (radial_normal > 1e-9) & (p[:, 0] > 1e-12)
+    ring_edge = np.full(len(t), resolution)
+    ring_edge[curved_ring] = np.minimum(
+        resolution,
+        np.sqrt(4.0 * chord_tol * p[curved_ring, 0] / radial_normal[curved_ring]),
+    )
+    step = np.minimum(resolution, np.sqrt(4.0 * chord_tol / np.maximum(curv, 1e-12)))
+    return _DenseSegment(seg, t, arc, ring_edge, step)
+
+
+def _resample(part: _DenseSegment, step: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Stations (n + 1, 2) of one segment spaced by the graded ``step`` (D,) [m] at its dense
+    samples, both ends included exactly, and their arc lengths (n + 1,) [m]."""
+    t, arc = part.t, part.arc
+    density = 1.0 / step
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(arc))])
+    n = max(1, int(math.ceil(cum[-1] - 1e-9)))
+    t_s = np.interp(np.linspace(0.0, cum[-1], n + 1), cum, t)
+    t_s[0], t_s[-1] = 0.0, 1.0
+    return part.curve(t_s), np.interp(t_s, t, arc)
+
+
+def _station_ring_edge(arc_stations: FloatArray, arc_all: FloatArray, edge_all: FloatArray,
+                       ends: list[float]) -> FloatArray:
+    """The graded ring edge (K,) [m] at the stations' arc lengths.
+
+    At a station shared by two segments (a sharp edge) the finer ring edge wins, which the
+    graded field already holds there: the dense samples of both segments share its arc.
+    """
+    ring_edge = np.interp(arc_stations, arc_all, edge_all)
+    at_joint = np.isin(arc_stations, np.asarray(ends[:-1]))
+    for i in np.nonzero(at_joint)[0]:
+        ring_edge[i] = float(edge_all[arc_all == arc_stations[i]].min())
+    return ring_edge
+
+
 def sample_profile(
-    segments: Sequence[Callable[[np.ndarray], np.ndarray]], resolution: float, chord_tol: float
-) -> tuple[np.ndarray, np.ndarray]:
+    segments: Sequence[Callable[[FloatArray], FloatArray]], resolution: float, chord_tol: float
+) -> tuple[FloatArray, FloatArray]:
     """Stations along a profile to be revolved, and the ring edge length at each.
 
     The segments map t in [0, 1] to (K, 2) points (r, a): radius and axial coordinate; they
@@ -476,63 +267,30 @@ def sample_profile(
         profile: (K, 2) stations (r, a) [m].
         ring_edge: (K,) ring edge length at each station [m].
     """
-    dense, arc_parts, step_parts, edge_parts, ends = [], [], [], [], []
+    parts: list[_DenseSegment] = []
     arc0 = 0.0
     for seg in segments:
-        t = np.linspace(0.0, 1.0, 2001)
-        p = seg(t)
-        d1 = np.gradient(p, t, axis=0)
-        d2 = np.gradient(d1, t, axis=0)
-        speed = np.linalg.norm(d1, axis=1)
-        curv = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(speed, 1e-300) ** 3
-        arc = arc0 + np.concatenate(
-            [[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))]
-        )
-        radial_normal = np.abs(d1[:, 1]) / np.maximum(speed, 1e-300)
-        # On the axis (a pole) or where the normal is axial, rings do not leave the surface.
-        curved_ring = (radial_normal > 1e-9) & (p[:, 0] > 1e-12)
-        ring_edge = np.full(len(t), resolution)
-        ring_edge[curved_ring] = np.minimum(
-            resolution,
-            np.sqrt(4.0 * chord_tol * p[curved_ring, 0] / radial_normal[curved_ring]),
-        )
-        step = np.minimum(resolution, np.sqrt(4.0 * chord_tol / np.maximum(curv, 1e-12)))
-        dense.append((seg, t, arc))
-        arc_parts.append(arc)
-        edge_parts.append(ring_edge)
-        step_parts.append(step)
-        ends.append(arc[-1])
-        arc0 = arc[-1]
-    arc_all = np.concatenate(arc_parts)
+        parts.append(_dense_segment(seg, arc0, resolution, chord_tol))
+        arc0 = parts[-1].arc[-1]
+    arc_all = np.concatenate([part.arc for part in parts])
     floor = 0.05 * resolution  # near a pole the ring edge tends to 0; the ring count is >= 3
-    edge_all = _graded(np.maximum(np.concatenate(edge_parts), floor), arc_all, 0.5)
-    step_all = _graded(np.minimum(np.concatenate(step_parts), 2.0 * edge_all), arc_all, 0.5)
+    edge_all = _graded(np.maximum(np.concatenate([part.ring_edge for part in parts]), floor), arc_all, 0.5)
+    step_all = _graded(np.minimum(np.concatenate([part.step for part in parts]), 2.0 * edge_all), arc_all, 0.5)
 
-    out, offset = [], 0
-    for seg, t, arc in dense:
-        n_t = len(t)
-        step = step_all[offset : offset + n_t]
+    stations: list[tuple[FloatArray, FloatArray]] = []
+    offset = 0
+    for part in parts:
+        n_t = len(part.t)
+        samples, arc_s = _resample(part, step_all[offset : offset + n_t])
         offset += n_t
-        density = 1.0 / step
-        cum = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(arc))])
-        n = max(1, int(math.ceil(cum[-1] - 1e-9)))
-        t_s = np.interp(np.linspace(0.0, cum[-1], n + 1), cum, t)
-        t_s[0], t_s[-1] = 0.0, 1.0
-        samples = seg(t_s)
-        arc_s = np.interp(t_s, t, arc)
-        out.append((samples, arc_s) if not out else (samples[1:], arc_s[1:]))
-    profile = np.concatenate([o[0] for o in out])
-    arc_stations = np.concatenate([o[1] for o in out])
-    # At a station shared by two segments (a sharp edge) the finer ring edge wins, which the
-    # graded field already holds there: the dense samples of both segments share its arc.
-    ring_edge = np.interp(arc_stations, arc_all, edge_all)
-    at_joint = np.isin(arc_stations, np.asarray(ends[:-1]))
-    for i in np.nonzero(at_joint)[0]:
-        ring_edge[i] = float(edge_all[arc_all == arc_stations[i]].min())
-    return profile, ring_edge
+        stations.append((samples, arc_s) if not stations else (samples[1:], arc_s[1:]))
+    profile = np.concatenate([st[0] for st in stations])
+    arc_stations = np.concatenate([st[1] for st in stations])
+    ends = [part.arc[-1] for part in parts]
+    return profile, _station_ring_edge(arc_stations, arc_all, edge_all, ends)
 
 
-def line_segment(p: Sequence[float], q: Sequence[float]) -> Callable[[np.ndarray], np.ndarray]:
+def line_segment(p: Sequence[float], q: Sequence[float]) -> Callable[[FloatArray], FloatArray]:
     """Straight profile segment from p to q, for :func:`sample_profile`.
 
     Args:
@@ -543,7 +301,7 @@ def line_segment(p: Sequence[float], q: Sequence[float]) -> Callable[[np.ndarray
     """
     p_arr, q_arr = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
 
-    def f(t: np.ndarray) -> np.ndarray:
+    def f(t: FloatArray) -> FloatArray:
         t = np.asarray(t, dtype=np.float64)[:, None]
         out = p_arr + t * (q_arr - p_arr)
         out[t[:, 0] == 1.0] = q_arr
@@ -552,7 +310,7 @@ def line_segment(p: Sequence[float], q: Sequence[float]) -> Callable[[np.ndarray
     return f
 
 
-def cubic_bezier(control: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+def cubic_bezier(control: FloatArray) -> Callable[[FloatArray], FloatArray]:
     """Cubic Bezier profile segment, for :func:`sample_profile`.
 
     Args:
@@ -563,7 +321,7 @@ def cubic_bezier(control: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """
     c = np.asarray(control, dtype=np.float64)
 
-    def f(t: np.ndarray) -> np.ndarray:
+    def f(t: FloatArray) -> FloatArray:
         t = np.asarray(t, dtype=np.float64)[:, None]
         s = 1.0 - t
         return s**3 * c[0] + 3 * s**2 * t * c[1] + 3 * s * t**2 * c[2] + t**3 * c[3]
@@ -571,7 +329,7 @@ def cubic_bezier(control: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     return f
 
 
-def _zip_rings(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray, closed: bool):
+def _zip_rings(a: IntArray, b: IntArray, pa: FloatArray, pb: FloatArray, closed: bool) -> IntArray:
     """Triangulate the strip between two rings of vertex indices (a earlier on the profile).
 
     Triangles are oriented along d(angle) x d(profile). Advancing along the shorter diagonal
@@ -619,12 +377,12 @@ def _zip_rings(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray, clo
 
 
 def revolve(
-    profile: np.ndarray,
-    ring_edge: np.ndarray,
+    profile: FloatArray,
+    ring_edge: FloatArray,
     half: bool = False,
-    rotation: np.ndarray | None = None,
+    rotation: FloatArray | None = None,
     origin: Sequence[float] = (0.0, 0.0, 0.0),
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+) -> tuple[FloatArray, IntArray, list[IntArray]]:
     """Revolve a sampled profile about the local z axis.
 
     Local point = (r cos(phi), r sin(phi), a); world = origin + rotation @ local. A full
@@ -654,6 +412,7 @@ def revolve(
             local = np.array([[0.0, 0.0, a]])
         else:
             edge = float(ring_edge[k])
+            phi: np.ndarray
             if half:
                 m = max(2, int(math.ceil(span * r / edge)))
                 phi = np.linspace(0.0, math.pi, m + 1)
@@ -693,13 +452,13 @@ class _SizeField:
         max_edge: cap [m].
     """
 
-    def __init__(self, points: np.ndarray, spacing: np.ndarray, max_edge: float) -> None:
+    def __init__(self, points: FloatArray, spacing: FloatArray, max_edge: float) -> None:
         self.max_edge = max_edge
         self.points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         self.spacing = np.asarray(spacing, dtype=np.float64).reshape(-1)
         self.tree = cKDTree(self.points) if len(self.points) else None
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
+    def __call__(self, x: FloatArray) -> FloatArray:
         x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
         if self.tree is None:
             return np.full(len(x), self.max_edge)
@@ -711,14 +470,14 @@ class _SizeField:
         return np.minimum(self.max_edge, size.min(axis=1))
 
 
-def _loop_spacing(loop: np.ndarray) -> np.ndarray:
+def _loop_spacing(loop: FloatArray) -> FloatArray:
     """(n,) mean length of the two edges at each vertex of a closed loop (n, 3)."""
     lengths = np.linalg.norm(np.roll(loop, -1, axis=0) - loop, axis=1)
     return 0.5 * (lengths + np.roll(lengths, 1))
 
 
-def edge_points(p: np.ndarray, q: np.ndarray, size: Callable[[np.ndarray], np.ndarray] | float
-                 ) -> np.ndarray:
+def edge_points(p: FloatArray, q: FloatArray, size: Callable[[FloatArray], FloatArray] | float
+                 ) -> FloatArray:
     """Points from p to q (both included) spaced by a size field, identical either way.
 
     Sampling p -> q and q -> p gives the same points (reversed), so two patches that share
@@ -750,8 +509,8 @@ def edge_points(p: np.ndarray, q: np.ndarray, size: Callable[[np.ndarray], np.nd
 
 
 def _polygon_loop(
-    corners: Sequence[np.ndarray], size: Callable[[np.ndarray], np.ndarray] | float
-) -> np.ndarray:
+    corners: Sequence[FloatArray], size: Callable[[FloatArray], FloatArray] | float
+) -> FloatArray:
     """Closed loop through the corners, each side sampled by :func:`edge_points`."""
     parts = []
     n = len(corners)
@@ -764,9 +523,9 @@ def box_patches(
     lo: Sequence[float],
     hi: Sequence[float],
     max_edge: float,
-    top_holes: Sequence[np.ndarray] = (),
-    end_holes: dict[int, Sequence[np.ndarray]] | None = None,
-) -> list[tuple[np.ndarray, np.ndarray]]:
+    top_holes: Sequence[FloatArray] = (),
+    end_holes: dict[int, Sequence[FloatArray]] | None = None,
+) -> list[tuple[FloatArray, IntArray]]:
     """The six faces of an axis-aligned box, with optional holes in the top and x-end faces.
 
     The box edges are graded toward the holes so that the faces meet them with short edges
@@ -796,7 +555,7 @@ def box_patches(
     else:
         size = _SizeField(np.zeros((0, 3)), np.zeros(0), max_edge)
 
-    def corner(x: float, y: float, z: float) -> np.ndarray:
+    def corner(x: float, y: float, z: float) -> FloatArray:
         return np.array([x, y, z])
 
     ex, ey, ez = np.eye(3)
@@ -831,7 +590,7 @@ def box_features(prefix: str) -> list[str]:
     return [f"{prefix}_{face}" for face in BOX_FACES]
 
 
-def assemble(patches: Sequence[tuple[np.ndarray, np.ndarray]], name: str,
+def assemble(patches: Sequence[tuple[FloatArray, IntArray]], name: str,
              features: Sequence[str] | None = None) -> trimesh.Trimesh:
     """Stitch patches into one mesh by merging coincident vertices, and check the solid.
 

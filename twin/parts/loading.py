@@ -89,12 +89,11 @@ def _parse(p: Path, raw: bytes, ext: str) -> tuple[np.ndarray, np.ndarray]:
         geometries = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
         if not geometries:
             raise TwinError(f"mesh file {str(p)!r} has no faces")
-        mesh = trimesh.util.concatenate(geometries) if len(geometries) > 1 else geometries[0]
-    elif isinstance(loaded, trimesh.Trimesh):
-        mesh = loaded
-    else:
+        # Trimesh parts concatenate into one Trimesh.
+        loaded = trimesh.util.concatenate(geometries) if len(geometries) > 1 else geometries[0]
+    if not isinstance(loaded, trimesh.Trimesh):
         raise TwinError(f"mesh file {str(p)!r} has no faces (it holds a {type(loaded).__name__})")
-    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+    return np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, dtype=np.int64)
 
 
 def _check_model(p: Path, vertices: np.ndarray, faces: np.ndarray) -> None:

@@ -15,9 +15,9 @@ import math
 import numpy as np
 import trimesh
 
+from algorithms.arraytypes import FloatArray, IntArray
 from twin.parts.kernel import (
     CHORD_TOL_M,
-    PLANAR_MAX_EDGE_M,
     assemble,
     box_features,
     box_patches,
@@ -31,6 +31,7 @@ from twin.parts.kernel import (
     revolve,
     sample_profile,
 )
+from twin.parts.planar import PLANAR_MAX_EDGE_M
 
 __all__ = ["hemisphere_punch", "bottle_punch", "bottle_profile_bezier"]
 
@@ -38,6 +39,61 @@ __all__ = ["hemisphere_punch", "bottle_punch", "bottle_profile_bezier"]
 # --------------------------------------------------------------------------------------------
 # 000 workpiece A: hemisphere punch
 # --------------------------------------------------------------------------------------------
+
+
+def _pin_centres(length: float, width: float, radius: float, offset: float, pin_r: float,
+                 inset: float) -> list[tuple[float, float]]:
+    """(x, y) [m] of the four pins of :func:`hemisphere_punch`, after checking that the
+    hemisphere and the pins fit on the plate.
+
+    Raises:
+        TwinError: they do not fit with at least 1 mm between them and to the plate edges.
+    """
+    gap = 0.001
+    require(
+        abs(offset) + radius + gap <= length / 2 and radius + gap <= width / 2,
+        f"the hemisphere (radius {format_mm(radius)} at x = {format_mm(offset)}) must lie on the "
+        f"{format_mm(length)} x {format_mm(width)} plate with >= 1 mm to its edges",
+    )
+    require(
+        inset >= pin_r + gap and 2 * inset + 2 * pin_r + gap <= min(length, width),
+        f"pin_inset_m must be >= pin_radius_m + 1 mm and leave the pins apart, got inset "
+        f"{format_mm(inset)} with pin radius {format_mm(pin_r)}",
+    )
+    pins = [(sx * (length / 2 - inset), sy * (width / 2 - inset)) for sx in (-1, 1)
+            for sy in (-1, 1)]
+    for px, py in pins:
+        require(
+            math.hypot(px - offset, py) >= radius + pin_r + gap,
+            f"a pin at ({format_mm(px)}, {format_mm(py)}) overlaps the hemisphere; move the pins out "
+            "(pin_inset_m) or shrink the hemisphere (>= 1 mm clearance needed)",
+        )
+    return pins
+
+
+def _hemisphere_surface(radius: float, offset: float, thick: float, res: float,
+                        tol: float) -> tuple[FloatArray, IntArray, list[IntArray]]:
+    """The hemisphere on the plate's top face, centred at (offset, 0, thick) [m]
+    (:func:`~twin.parts.kernel.revolve`'s vertices, triangles and rings; ring 0 its foot)."""
+    hemi_profile, hemi_edges = sample_profile(
+        [lambda t: np.column_stack([radius * np.cos(0.5 * np.pi * t),
+                                    thick + radius * np.sin(0.5 * np.pi * t)])],
+        res, tol,
+    )
+    hemi_profile[-1] = (0.0, thick + radius)
+    return revolve(hemi_profile, hemi_edges, origin=(offset, 0.0, 0.0))
+
+
+def _pin_surface(px: float, py: float, pin_r: float, pin_h: float, thick: float, res: float,
+                 tol: float) -> tuple[FloatArray, IntArray, list[IntArray]]:
+    """A pin standing on the plate's top face at (px, py) [m]: its side and its flat top
+    (:func:`~twin.parts.kernel.revolve`'s vertices, triangles and rings; ring 0 its foot)."""
+    profile, edges = sample_profile(
+        [line_segment((pin_r, thick), (pin_r, thick + pin_h)),
+         line_segment((pin_r, thick + pin_h), (0.0, thick + pin_h))],
+        res, tol,
+    )
+    return revolve(profile, edges, origin=(px, py, 0.0))
 
 
 def hemisphere_punch(
@@ -92,44 +148,12 @@ def hemisphere_punch(
     pin_h = check_positive("pin_height_m", pin_height_m)
     inset = check_positive("pin_inset_m", pin_inset_m)
     res, tol = check_resolution(resolution_m, chord_tolerance_m)
-    gap = 0.001
-    require(
-        abs(offset) + radius + gap <= length / 2 and radius + gap <= width / 2,
-        f"the hemisphere (radius {format_mm(radius)} at x = {format_mm(offset)}) must lie on the "
-        f"{format_mm(length)} x {format_mm(width)} plate with >= 1 mm to its edges",
-    )
-    require(
-        inset >= pin_r + gap and 2 * inset + 2 * pin_r + gap <= min(length, width),
-        f"pin_inset_m must be >= pin_radius_m + 1 mm and leave the pins apart, got inset "
-        f"{format_mm(inset)} with pin radius {format_mm(pin_r)}",
-    )
-    pins = [(sx * (length / 2 - inset), sy * (width / 2 - inset)) for sx in (-1, 1)
-            for sy in (-1, 1)]
+    pins = _pin_centres(length, width, radius, offset, pin_r, inset)
+    v, f, rings = _hemisphere_surface(radius, offset, thick, res, tol)
+    patches = [(v, f)]
+    holes = [v[rings[0]]]
     for px, py in pins:
-        require(
-            math.hypot(px - offset, py) >= radius + pin_r + gap,
-            f"a pin at ({format_mm(px)}, {format_mm(py)}) overlaps the hemisphere; move the pins out "
-            "(pin_inset_m) or shrink the hemisphere (>= 1 mm clearance needed)",
-        )
-
-    patches = []
-    holes = []
-    hemi_profile, hemi_edges = sample_profile(
-        [lambda t: np.column_stack([radius * np.cos(0.5 * np.pi * t),
-                                    thick + radius * np.sin(0.5 * np.pi * t)])],
-        res, tol,
-    )
-    hemi_profile[-1] = (0.0, thick + radius)
-    v, f, rings = revolve(hemi_profile, hemi_edges, origin=(offset, 0.0, 0.0))
-    patches.append((v, f))
-    holes.append(v[rings[0]])
-    for px, py in pins:
-        profile, edges = sample_profile(
-            [line_segment((pin_r, thick), (pin_r, thick + pin_h)),
-             line_segment((pin_r, thick + pin_h), (0.0, thick + pin_h))],
-            res, tol,
-        )
-        v, f, rings = revolve(profile, edges, origin=(px, py, 0.0))
+        v, f, rings = _pin_surface(px, py, pin_r, pin_h, thick, res, tol)
         patches.append((v, f))
         holes.append(v[rings[0]])
     patches.extend(

@@ -14,9 +14,8 @@ import math
 import numpy as np
 import trimesh
 
+from algorithms.arraytypes import FloatArray, IntArray
 from twin.parts.kernel import (
-    PLANAR_GRADING,
-    PLANAR_MAX_EDGE_M,
     assemble,
     check_finite,
     check_nonnegative,
@@ -24,9 +23,9 @@ from twin.parts.kernel import (
     check_resolution,
     edge_points,
     format_mm,
-    planar_patch,
     require,
 )
+from twin.parts.planar import PLANAR_GRADING, PLANAR_MAX_EDGE_M, planar_patch
 
 __all__ = ["s_surface", "s_surface_height", "s_surface_normal"]
 
@@ -141,6 +140,97 @@ def _graded_drop(height: float, fine: float, coarse: float) -> np.ndarray:
     return np.asarray(d)
 
 
+# Outward normals of the side walls, in the order of the footprint's edges (counter-clockwise
+# from the -y edge).
+_WALL_OUTWARD = (np.array([0.0, -1.0, 0.0]), np.array([1.0, 0.0, 0.0]),
+                 np.array([0.0, 1.0, 0.0]), np.array([-1.0, 0.0, 0.0]))
+
+
+def _top_patch(length: float, width: float, res: float,
+               params: dict[str, float]) -> tuple[FloatArray, IntArray, IntArray]:
+    """The top: a regular grid over the footprint, each cell split along the diagonal whose
+    midpoint lies closer to the surface.
+
+    Returns:
+        vertices ((nx + 1) (ny + 1), 3) [m], triangles (M, 3), and the (nx + 1, ny + 1) vertex
+        index of each grid node (x along the rows).
+
+    Raises:
+        TwinError: the grid would have more than 400,000 vertices.
+    """
+    nx = max(2, int(math.ceil(length / res - 1e-9)))
+    ny = max(2, int(math.ceil(width / res - 1e-9)))
+    require(
+        (nx + 1) * (ny + 1) <= 400_000,
+        f"resolution_m {format_mm(res)} gives a {nx} x {ny} grid; allowed are at most "
+        "400,000 top vertices (MuJoCo refuses meshes over 200k faces)",
+    )
+    xs = np.linspace(-length / 2, length / 2, nx + 1)
+    ys = np.linspace(-width / 2, width / 2, ny + 1)
+    xs[0], xs[-1], ys[0], ys[-1] = -length / 2, length / 2, -width / 2, width / 2
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    gz = s_surface_height(gx, gy, **params)
+    top_v = np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
+    idx = np.arange((nx + 1) * (ny + 1)).reshape(nx + 1, ny + 1)
+    v00, v10 = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    v11, v01 = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    xc = 0.5 * (gx[:-1, :-1] + gx[1:, 1:]).ravel()
+    yc = 0.5 * (gy[:-1, :-1] + gy[1:, 1:]).ravel()
+    zc = s_surface_height(xc, yc, **params)
+    err_main = np.abs(0.5 * (top_v[v00, 2] + top_v[v11, 2]) - zc)
+    err_anti = np.abs(0.5 * (top_v[v10, 2] + top_v[v01, 2]) - zc)
+    main = err_main <= err_anti
+    top_f = np.concatenate(
+        [
+            np.column_stack([v00, v10, v11])[main],
+            np.column_stack([v00, v11, v01])[main],
+            np.column_stack([v00, v10, v01])[~main],
+            np.column_stack([v10, v11, v01])[~main],
+        ]
+    )
+    return top_v, top_f, idx
+
+
+def _corner_edge(cx: float, cy: float, res: float, coarse: float, params: dict[str, float]) -> FloatArray:
+    """Points (n, 3) [m] down the vertical edge at footprint corner (cx, cy), from the top
+    (exactly on the surface) to z = 0, spaced ``res`` at the top and growing to ``coarse``."""
+    zc_top = float(s_surface_height(cx, cy, **params))
+    drop = _graded_drop(zc_top, res, coarse)
+    z = zc_top - drop
+    z[-1] = 0.0
+    z[0] = zc_top
+    return np.column_stack([np.full_like(z, cx), np.full_like(z, cy), z])
+
+
+def _side_walls(corner_xy: list[tuple[float, float]], verticals: list[FloatArray], top_edges: list[FloatArray],
+                coarse: float) -> tuple[list[tuple[FloatArray, IntArray]], list[FloatArray]]:
+    """The four side walls (patches in the order of ``_WALL_OUTWARD``) and their bottom edges
+    (each (n, 3) [m], from corner i to corner i + 1 at z = 0)."""
+    patches, bottom_edges = [], []
+    for i in range(4):
+        j = (i + 1) % 4
+        p = np.array([*corner_xy[i], 0.0])
+        q = np.array([*corner_xy[j], 0.0])
+        bottom = edge_points(p, q, coarse)
+        bottom_edges.append(bottom)
+        # Loop: bottom edge i -> j, up corner j, top edge j -> i, down corner i.
+        loop = np.concatenate(
+            [bottom[:-1], verticals[j][::-1][:-1], top_edges[i][::-1][:-1], verticals[i][:-1]]
+        )
+        u = (q - p) / np.linalg.norm(q - p)
+        patches.append(planar_patch([loop], p, u, np.array([0.0, 0.0, 1.0]), _WALL_OUTWARD[i], coarse))
+    return patches, bottom_edges
+
+
+def _bottom_patch(bottom_edges: list[FloatArray], coarse: float) -> tuple[FloatArray, IntArray]:
+    """The flat bottom at z = 0, bounded by the walls' bottom edges, facing -z."""
+    bottom_loop = np.concatenate([e[:-1] for e in bottom_edges])
+    return planar_patch(
+        [bottom_loop], bottom_loop[0], np.array([1.0, 0.0, 0.0]),
+        np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, -1.0]), coarse,
+    )
+
+
 def s_surface(
     length_m: float = 0.12,
     width_m: float = 0.08,
@@ -161,9 +251,6 @@ def s_surface(
     The amplitude gradient and crown make the top free-form (not an extruded or revolved
     surface), and the sine is odd in x, so no rigid motion other than the identity maps the
     part onto itself: it can be localised in all 6 DOF, from the top alone.
-
-    With the defaults the top's chord error against the analytic height is about 1 um
-    (below 2 um) and the mesh has about 87k faces (77k of them on the top).
 
     Args:
         length_m: footprint along x [m].
@@ -191,50 +278,11 @@ def s_surface(
         length_m=length, width_m=width, base_thickness_m=base, amplitude_m=amp,
         amplitude_gradient=grad, crown_m=crown,
     )
-    nx = max(2, int(math.ceil(length / res - 1e-9)))
-    ny = max(2, int(math.ceil(width / res - 1e-9)))
-    require(
-        (nx + 1) * (ny + 1) <= 400_000,
-        f"resolution_m {format_mm(res)} gives a {nx} x {ny} grid; allowed are at most "
-        "400,000 top vertices (MuJoCo refuses meshes over 200k faces)",
-    )
-    xs = np.linspace(-length / 2, length / 2, nx + 1)
-    ys = np.linspace(-width / 2, width / 2, ny + 1)
-    xs[0], xs[-1], ys[0], ys[-1] = -length / 2, length / 2, -width / 2, width / 2
-    gx, gy = np.meshgrid(xs, ys, indexing="ij")
-    gz = s_surface_height(gx, gy, **params)
-    top_v = np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
-    idx = np.arange((nx + 1) * (ny + 1)).reshape(nx + 1, ny + 1)
-    v00, v10 = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
-    v11, v01 = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    # Split each cell along the diagonal whose midpoint lies closer to the surface.
-    xc = 0.5 * (gx[:-1, :-1] + gx[1:, 1:]).ravel()
-    yc = 0.5 * (gy[:-1, :-1] + gy[1:, 1:]).ravel()
-    zc = s_surface_height(xc, yc, **params)
-    err_main = np.abs(0.5 * (top_v[v00, 2] + top_v[v11, 2]) - zc)
-    err_anti = np.abs(0.5 * (top_v[v10, 2] + top_v[v01, 2]) - zc)
-    main = err_main <= err_anti
-    top_f = np.concatenate(
-        [
-            np.column_stack([v00, v10, v11])[main],
-            np.column_stack([v00, v11, v01])[main],
-            np.column_stack([v00, v10, v01])[~main],
-            np.column_stack([v10, v11, v01])[~main],
-        ]
-    )
-    patches = [(top_v, top_f)]
-
+    top_v, top_f, idx = _top_patch(length, width, res, params)
     coarse = max(res, PLANAR_MAX_EDGE_M)
     x0, x1, y0, y1 = -length / 2, length / 2, -width / 2, width / 2
     corner_xy = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
-    verticals = []
-    for cx, cy in corner_xy:
-        zc_top = float(s_surface_height(cx, cy, **params))
-        drop = _graded_drop(zc_top, res, coarse)
-        z = zc_top - drop
-        z[-1] = 0.0
-        z[0] = zc_top
-        verticals.append(np.column_stack([np.full_like(z, cx), np.full_like(z, cy), z]))
+    verticals = [_corner_edge(cx, cy, res, coarse, params) for cx, cy in corner_xy]
     # Top edges of the walls, each running between consecutive corners (counter-clockwise).
     top_edges = [
         top_v[idx[:, 0]],
@@ -242,28 +290,8 @@ def s_surface(
         top_v[idx[::-1, -1]],
         top_v[idx[0, ::-1]],
     ]
-    outward = [np.array([0.0, -1.0, 0.0]), np.array([1.0, 0.0, 0.0]),
-               np.array([0.0, 1.0, 0.0]), np.array([-1.0, 0.0, 0.0])]
-    bottom_edges = []
-    for i in range(4):
-        j = (i + 1) % 4
-        p = np.array([*corner_xy[i], 0.0])
-        q = np.array([*corner_xy[j], 0.0])
-        bottom = edge_points(p, q, coarse)
-        bottom_edges.append(bottom)
-        # Loop: bottom edge i -> j, up corner j, top edge j -> i, down corner i.
-        loop = np.concatenate(
-            [bottom[:-1], verticals[j][::-1][:-1], top_edges[i][::-1][:-1], verticals[i][:-1]]
-        )
-        u = (q - p) / np.linalg.norm(q - p)
-        patches.append(planar_patch([loop], p, u, np.array([0.0, 0.0, 1.0]), outward[i], coarse))
-    bottom_loop = np.concatenate([e[:-1] for e in bottom_edges])
-    patches.append(
-        planar_patch(
-            [bottom_loop], bottom_loop[0], np.array([1.0, 0.0, 0.0]),
-            np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, -1.0]), coarse,
-        )
-    )
-    # the top, the walls in the order of ``outward`` (-y, +x, +y, -x), the bottom
+    walls, bottom_edges = _side_walls(corner_xy, verticals, top_edges, coarse)
+    patches = [(top_v, top_f), *walls, _bottom_patch(bottom_edges, coarse)]
+    # the top, the walls in the order of ``_WALL_OUTWARD`` (-y, +x, +y, -x), the bottom
     return assemble(patches, "s_surface", ["s_surface", "side_front", "side_right", "side_back", "side_left",
                                            "bottom"])

@@ -25,14 +25,15 @@ The source document gives no dimensions; the defaults are plausible choices.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import trimesh
 
+from algorithms.arraytypes import ArrayLike
 from twin.errors import TwinError
 from twin.parts.kernel import (
     CHORD_TOL_M,
-    PLANAR_MAX_EDGE_M,
     assemble,
     box_features,
     box_patches,
@@ -46,6 +47,7 @@ from twin.parts.kernel import (
     revolve,
     sample_profile,
 )
+from twin.parts.planar import PLANAR_MAX_EDGE_M
 
 __all__ = [
     "bore_and_face",
@@ -207,7 +209,7 @@ def cast_blank_geometry(
     e = check_nonnegative("core_shift_m", core_shift_m)
     dd = check_nonnegative("dome_depth_m", dome_depth_m)
     require(e < s, f"core_shift_m ({format_mm(e)}) must be smaller than stock_m ({format_mm(s)})")
-    bosses = []
+    bosses: list[dict[str, Any]] = []
     for name, r, h, x, shift in (
         ("boss_a", boss_a_radius_m, boss_a_height_m, boss_a_x_m, (e, 0.0)),
         ("boss_b", boss_b_radius_m, boss_b_height_m, boss_b_x_m, (0.0, e)),
@@ -239,7 +241,7 @@ _GEOMETRY_KEYS = (
 )
 
 
-def _geometry(params: dict) -> dict:
+def _geometry(params: dict[str, Any]) -> dict[str, Any]:
     unknown = set(params) - set(_GEOMETRY_KEYS)
     if unknown:
         raise TwinError(f"unknown cast blank parameter(s) {sorted(unknown)}; valid: {', '.join(_GEOMETRY_KEYS)}")
@@ -330,7 +332,7 @@ def cast_blank_finished(
 
 
 def cast_blank_rough_points(n: int, rng: np.random.Generator, max_slope_deg: float = 60.0,
-                            **params) -> tuple[np.ndarray, np.ndarray]:
+                            **params: object) -> tuple[np.ndarray, np.ndarray]:
     """Points on the blank's cast domes (the rough surfaces), workpiece frame [m].
 
     Area-uniform on each dome where its slope is at most ``max_slope_deg`` (what a vertical
@@ -364,7 +366,7 @@ def cast_blank_rough_points(n: int, rng: np.random.Generator, max_slope_deg: flo
     return np.concatenate(pts), np.concatenate(labels)
 
 
-def classify_cast_blank_points(points_wp, guard_m: float = 0.001, **params) -> np.ndarray:
+def classify_cast_blank_points(points_wp: ArrayLike, guard_m: float = 0.001, **params: object) -> np.ndarray:
     """Label scan points of the cast blank: "finished" (plate top), "rough" (domes), "other".
 
     For a real cell: map the scan into the workpiece frame with the nominal pose, then label

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import copy
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import embreex.mesh_construction
@@ -62,7 +63,7 @@ class CellRays:
         qpos_adr: (J,) the qpos addresses of the joints a cast's ``q`` gives (the arm's).
     """
 
-    def __init__(self, model: mujoco.MjModel, qpos_adr: np.ndarray):
+    def __init__(self, model: mujoco.MjModel, qpos_adr: np.ndarray) -> None:
         if np.any(model.geom_group == HIDDEN_GROUP):
             raise ValueError(f"geom group {HIDDEN_GROUP} is in use: the bulk rays need it to hide the static meshes")
         self.model = copy.copy(model)
@@ -166,7 +167,7 @@ class CellRays:
         slices = [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
         return list(self._pool.map(fn, range(RAY_THREADS), slices))
 
-    def map_blocks(self, fn, n: int, block: int, rays: int | None = None) -> None:
+    def map_blocks(self, fn: Callable[[slice], object], n: int, block: int, rays: int | None = None) -> None:
         """``fn(rows)`` over blocks of ``block`` rows of ``range(n)``: each thread takes a
         contiguous share and works through it block by block, so the numpy work between the
         casts runs on every core too, and the temporaries stay a few MB (reused by the
@@ -365,9 +366,9 @@ class CellRays:
         rest = np.flatnonzero(~blocked & reach)
         if len(rest):
             thread = getattr(self._local, "thread", None) or 0
-            if self._batches[thread] is None:
-                self._batches[thread] = mujoco.batch.Batch(self.model, 1, nthread=1)
-            hit, _ = self._batches[thread].ray(start[rest][None], unit[rest][None], geomgroup=self._group_mask(others),
-                                               flg_static=True)
+            batch = self._batches[thread]
+            if batch is None:
+                batch = self._batches[thread] = mujoco.batch.Batch(self.model, 1, nthread=1)
+            hit, _ = batch.ray(start[rest][None], unit[rest][None], geomgroup=self._group_mask(others), flg_static=True)
             blocked[rest] = (hit[0] >= 0.0) & (hit[0] < length[rest])
         return blocked

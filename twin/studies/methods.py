@@ -28,6 +28,7 @@ from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.registration import global_localize, localize
 from algorithms.registration.global_search import pso_refine
 from algorithms.registration.global_search.search import GLOBAL_METHODS
+from twin.realize import Workpiece
 
 #: Spacing of the dense model sample the peers align to [m].
 PEER_TARGET_SPACING_M = 0.0005
@@ -44,22 +45,24 @@ class Outcome:
     time_s: float
 
 
-def run_method(method: str, points: np.ndarray, workpiece, T_init: np.ndarray, sigma_m: float | None,
+def run_method(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np.ndarray, sigma_m: float | None,
                rng: np.random.Generator, init_distance_m: float) -> Outcome | str:
     """Localize ``points`` (world frame) on ``workpiece`` (its ``mesh`` and ``index``) by
     ``method`` (module docstring); a status string instead of an outcome when it cannot run."""
     index = workpiece.index
     t0 = time.perf_counter()
     if method in GLOBAL_METHODS:
-        res = global_localize(points, index=index, method=method, rng=rng, noise_sigma_m=sigma_m)
-        return Outcome(res.T_world_workpiece, res.rmse_m, res.iterations, res.status.value, res.time_s)
+        found = global_localize(points, index=index, method=method, rng=rng, noise_sigma_m=sigma_m)
+        return Outcome(found.T_world_workpiece, found.rmse_m, found.iterations, found.status.value, found.time_s)
     if method == "genetic_coarse":
-        res = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma_m, polish=None,
-                              ga_restarts=1)
-        ga = res.diagnostics.genetic
+        found = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma_m, polish=None,
+                                ga_restarts=1)
+        ga = found.diagnostics.genetic
+        if ga is None:
+            raise RuntimeError("internal error: the genetic search returned no GA diagnostics")
         T = ga.T_coarse
         return Outcome(T, _rms_m(points, T, index), ga.generations, "ok",
-                       float(res.diagnostics.timings_s.get("ga_s", res.time_s)))
+                       float(found.diagnostics.timings_s.get("ga_s", found.time_s)))
     if method == "pso_alone":
         T, diag = pso_refine(points, T_init, index=index, rng=rng)
         return Outcome(T, _rms_m(points, T, index), len(diag.fitness_history) - 1, "ok", time.perf_counter() - t0)

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import ScalarFormatter
@@ -86,7 +87,7 @@ def cell_stats(table: pa.Table, cell: int, success: dict | None = None) -> dict:
     return out
 
 
-def write_report(study: Study, table: pa.Table, out: Path, adaptive: dict | None = None) -> list[Path]:
+def write_report(study: Study, table: pa.Table, out: Path, adaptive: list[dict] | None = None) -> list[Path]:
     """Write ``report.md`` and the plots into ``out``; returns their paths (report first).
     ``adaptive``: per cell, the trials the adaptive rule ran and whether it was met."""
     out = Path(out)
@@ -212,7 +213,7 @@ def _series(study: Study, x_factor: str, skip: tuple[str, ...] = ()) -> dict[str
     return groups
 
 
-def _figure(title: str) -> tuple[Figure, object]:
+def _figure(title: str) -> tuple[Figure, Axes]:
     fig = Figure(figsize=(6.4, 4.0), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()

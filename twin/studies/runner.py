@@ -47,6 +47,7 @@ import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 import pyarrow as pa
@@ -248,7 +249,7 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
     prepare_folder(out, study, resume, force)
     done = finished_ids(out)
     resumed = len(done)
-    numbers = [int(BATCH_RE.match(p.name).group(1)) for p in batch_files(out)]
+    numbers = [_batch_number(p) for p in batch_files(out)]
     state = {"next": max(numbers, default=-1) + 1, "count": len(done)}
     total = study.n_trials
     on_progress(state["count"], total)
@@ -271,7 +272,7 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
             run_ids([(c, t) for c in range(study.n_cells) for t in range(study.trials) if (c, t) not in done])
             rounds = None
         else:
-            rounds = _run_adaptive(study, out, done, run_ids)
+            rounds = _run_adaptive(study, study.adaptive, out, done, run_ids)
     table = final_table(out)
     expected = total if rounds is None else sum(r["trials"] for r in rounds)
     if table.num_rows != expected:
@@ -289,12 +290,20 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
     return summary
 
 
-def _run_adaptive(study: Study, out: Path, done: set, run_ids: Callable[[list], None]) -> list[dict]:
-    """JCGM 101 7.9's rounds (module docstring of :mod:`twin.studies.adaptive`); per cell the
-    trials run and whether the rule was met."""
+def _batch_number(path: Path) -> int:
+    """The number of a batch file (``batch-NNNNNN.parquet``, as :func:`batch_files` lists them)."""
+    match = BATCH_RE.match(path.name)
+    if match is None:
+        raise TwinError(f"{path}: not a batch file (batch-NNNNNN.parquet)")
+    return int(match.group(1))
+
+
+def _run_adaptive(study: Study, adaptive: dict, out: Path, done: set, run_ids: Callable[[list], None]) -> list[dict]:
+    """JCGM 101 7.9's rounds (module docstring of :mod:`twin.studies.adaptive`) under the study's
+    adaptive rule ``adaptive``; per cell the trials run and whether the rule was met."""
     from twin.studies.adaptive import is_stable
 
-    h, digits = study.adaptive["batch"], study.adaptive["digits"]
+    h, digits = adaptive["batch"], adaptive["digits"]
     rounds = [{"trials": 0, "stable": False} for _ in range(study.n_cells)]
     active = list(range(study.n_cells))
     r = 0
@@ -393,7 +402,7 @@ def final_table(out: Path) -> pa.Table:
     return table
 
 
-def progress_printer(quiet: bool, stream=None) -> Callable[[int, int], None]:
+def progress_printer(quiet: bool, stream: TextIO | None = None) -> Callable[[int, int], None]:
     """A progress callback: a tqdm bar on a terminal, plain lines elsewhere, nothing when quiet."""
     stream = sys.stderr if stream is None else stream
     if quiet:

@@ -253,7 +253,20 @@ def load_study(path: str | Path) -> Study:
     return parse_study(raw, path.parent)
 
 
-def parse_study(raw: dict, base_dir: Path) -> Study:
+@dataclass(frozen=True)
+class _Header:
+    """A study's top-level keys, checked: name, seed, base scenario, trials, kind, overrides."""
+
+    name: str
+    seed: int
+    scenario_path: Path
+    trials: int
+    kind: str
+    overrides: dict
+
+
+def _header(raw: dict, base_dir: Path) -> _Header:
+    """Check the study's top-level keys (unknown keys, then each key's value)."""
     unknown = sorted(set(raw) - set(TOP_KEYS))
     if unknown:
         raise TwinError(f"unknown study key(s) {', '.join(unknown)}; allowed: {', '.join(TOP_KEYS)}")
@@ -275,6 +288,23 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
     overrides = raw.get("overrides", {})
     if not isinstance(overrides, dict):
         raise TwinError(f"study overrides must be a table of scenario tables, got {overrides!r}")
+    return _Header(name, seed, scenario_path, trials, kind, overrides)
+
+
+@dataclass(frozen=True)
+class _Tables:
+    """A study's settings tables with their defaults, every key checked."""
+
+    localize: dict
+    points: dict
+    normals: dict
+    adaptive: dict | None
+    success: dict
+
+
+def _tables(raw: dict, kind: str) -> _Tables:
+    """Read ``[localize]``, ``[points]``, ``[normals]``, ``[adaptive]`` and ``[success]``,
+    refusing a table the study's kind does not take."""
     loc = _table(raw, "localize", LOCALIZE_KEYS)
     for table, needs in KIND_TABLES.items():
         if table in raw and kind != needs:
@@ -285,6 +315,11 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
     if adaptive is not None and kind == "normals":
         raise TwinError("study [adaptive] watches pose errors; kind = 'normals' takes a fixed number of trials")
     success = _table(raw, "success", SUCCESS_KEYS)
+    return _Tables(loc, pts, nrm, adaptive, success)
+
+
+def _grid(raw: dict) -> tuple[dict, list[str], list[tuple]]:
+    """The ``[grid]`` table, its keys in file order and their value lists (non-empty lists)."""
     grid = raw.get("grid", {})
     if not isinstance(grid, dict):
         raise TwinError(f"study [grid] must be a table of key paths to value lists, got {grid!r}")
@@ -296,9 +331,11 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
             raise TwinError(f"grid {key!r} is an empty list; give at least one value (or leave the key out)")
         factors.append(key)
         levels.append(tuple(values))
-    scenario_paths = [scenario_path]
-    if "scenario" in grid:
-        scenario_paths = [_scenario_file(base_dir, v) for v in grid["scenario"]]
+    return grid, factors, levels
+
+
+def _scenario_texts(scenario_paths: list[Path], overrides: dict) -> list[str]:
+    """The text of each scenario file, after checking that it loads with the base overrides."""
     texts = []
     for sp in scenario_paths:
         try:
@@ -306,11 +343,33 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
         except (OSError, UnicodeDecodeError):
             raise TwinError(f"study scenario not found or unreadable: {sp}") from None
         load_scenario(sp, overrides, machine="arm")  # the base overrides alone
+    return texts
+
+
+def parse_study(raw: dict, base_dir: Path) -> Study:
+    """Validate a study's content (a parsed study file) and expand its grid.
+
+    Args:
+        raw: the study file's tables.
+        base_dir: the study file's folder (scenario files are relative to it).
+
+    Raises:
+        TwinError: one line naming the first key or value that is refused; every grid value
+            and every grid cell is checked before any trial runs.
+    """
+    head = _header(raw, base_dir)
+    kind, overrides = head.kind, head.overrides
+    tables = _tables(raw, kind)
+    grid, factors, levels = _grid(raw)
+    scenario_paths = [head.scenario_path]
+    if "scenario" in grid:
+        scenario_paths = [_scenario_file(base_dir, v) for v in grid["scenario"]]
+    texts = _scenario_texts(scenario_paths, overrides)
     for key, values in zip(factors, levels, strict=True):
         _check_factor(key, values, kind, scenario_paths, overrides)
-    study = Study(name, seed, scenario_path, trials, kind, copy.deepcopy(overrides), loc, tuple(factors),
-                  tuple(levels), copy.deepcopy(raw), "\n".join(texts), pts, nrm, adaptive,
-                  base_dir.resolve(), success)
+    study = Study(head.name, head.seed, head.scenario_path, head.trials, kind, copy.deepcopy(overrides),
+                  tables.localize, tuple(factors), tuple(levels), copy.deepcopy(raw), "\n".join(texts),
+                  tables.points, tables.normals, tables.adaptive, base_dir.resolve(), tables.success)
     designs: set[str] = set()
     for cell in range(study.n_cells):
         settings = study.cell_settings(cell)
@@ -366,52 +425,72 @@ def _check_cell(cell: CellSettings, kind: str) -> None:
                             f"{cell.scenario_path.name} has sensor.kind = {scenario.sensor.kind!r}")
 
 
-def _check_factor(key: str, values: tuple, kind: str, scenario_paths: list[Path], overrides: dict) -> None:
-    parts = key.split(".")
-    if not all(parts):
-        raise TwinError(f"grid key {key!r} is not a dotted key path (e.g. 'sensor.sigma_m', 'localize.method')")
-    if key == "scenario":
-        return  # each file was loaded above
-    if key == "normals":
-        if kind != "normals":
-            raise TwinError("grid key 'normals' needs kind = 'normals'")
-        for v in values:
-            if not isinstance(v, dict) or not v or set(v) - set(NORMALS_KEYS):
-                raise TwinError(f"grid 'normals' values must be tables of {', '.join(NORMALS_KEYS)} "
-                                f"(e.g. {{ method = 'pca', k = 16 }}), got {v!r}")
-            for k, x in v.items():
-                _check_value(NORMALS_KEYS, k, x, f"grid 'normals' value {k}")
-        return
-    if key == "overrides":
-        for v in values:
-            if not isinstance(v, dict):
-                raise TwinError(f"grid 'overrides' values must be tables of scenario tables "
-                                f"(e.g. {{ noise = {{ encoder_sigma_rad = 1e-5 }} }}), got {v!r}")
-            for sp in scenario_paths:
-                try:
-                    load_scenario(sp, merge_tables(overrides, v), machine="arm")
-                except TwinError as exc:
-                    raise TwinError(f"grid 'overrides' value {v!r} is refused: {' '.join(str(exc).split())}") \
-                        from None
-        return
-    if parts[0] in ("localize", "points", "normals"):
-        keys = {"localize": LOCALIZE_KEYS, "points": POINTS_KEYS, "normals": NORMALS_KEYS}[parts[0]]
-        if len(parts) != 2 or parts[1] not in keys:
-            raise TwinError(f"unknown grid key {key!r}; {parts[0]} keys allowed: "
-                            f"{', '.join(parts[0] + '.' + k for k in keys)}")
-        if parts[0] == "localize" and kind in ("full", "normals"):
-            raise TwinError(f"grid key {key!r} needs kind = 'fast' or 'points' "
-                            f"(a {kind} trial does not localize from the study's settings)")
-        if parts[0] in KIND_TABLES and kind != KIND_TABLES[parts[0]]:
-            raise TwinError(f"grid key {key!r} needs kind = '{KIND_TABLES[parts[0]]}'")
-        for v in values:
-            _check_value(keys, parts[1], v, f"grid {key!r} value")
-        return
-    if parts[0] == "seed":
-        raise TwinError("grid key 'seed' is not a factor: every trial draws its own random stream")
+def _check_normals_factor(values: tuple, kind: str) -> None:
+    """Grid key ``normals``: tables of normals settings, for kind = "normals"."""
+    if kind != "normals":
+        raise TwinError("grid key 'normals' needs kind = 'normals'")
+    for v in values:
+        if not isinstance(v, dict) or not v or set(v) - set(NORMALS_KEYS):
+            raise TwinError(f"grid 'normals' values must be tables of {', '.join(NORMALS_KEYS)} "
+                            f"(e.g. {{ method = 'pca', k = 16 }}), got {v!r}")
+        for k, x in v.items():
+            _check_value(NORMALS_KEYS, k, x, f"grid 'normals' value {k}")
+
+
+def _check_overrides_factor(values: tuple, scenario_paths: list[Path], overrides: dict) -> None:
+    """Grid key ``overrides``: tables merged over the scenario; every scenario loads with each."""
+    for v in values:
+        if not isinstance(v, dict):
+            raise TwinError(f"grid 'overrides' values must be tables of scenario tables "
+                            f"(e.g. {{ noise = {{ encoder_sigma_rad = 1e-5 }} }}), got {v!r}")
+        for sp in scenario_paths:
+            try:
+                load_scenario(sp, merge_tables(overrides, v), machine="arm")
+            except TwinError as exc:
+                raise TwinError(f"grid 'overrides' value {v!r} is refused: {' '.join(str(exc).split())}") \
+                    from None
+
+
+def _check_settings_factor(key: str, parts: list[str], values: tuple, kind: str) -> None:
+    """Grid key ``localize.K``, ``points.K`` or ``normals.K``: a known key of that table, for a
+    kind that takes it, and allowed values."""
+    keys = {"localize": LOCALIZE_KEYS, "points": POINTS_KEYS, "normals": NORMALS_KEYS}[parts[0]]
+    if len(parts) != 2 or parts[1] not in keys:
+        raise TwinError(f"unknown grid key {key!r}; {parts[0]} keys allowed: "
+                        f"{', '.join(parts[0] + '.' + k for k in keys)}")
+    if parts[0] == "localize" and kind in ("full", "normals"):
+        raise TwinError(f"grid key {key!r} needs kind = 'fast' or 'points' "
+                        f"(a {kind} trial does not localize from the study's settings)")
+    if parts[0] in KIND_TABLES and kind != KIND_TABLES[parts[0]]:
+        raise TwinError(f"grid key {key!r} needs kind = '{KIND_TABLES[parts[0]]}'")
+    for v in values:
+        _check_value(keys, parts[1], v, f"grid {key!r} value")
+
+
+def _check_scenario_factor(key: str, values: tuple, scenario_paths: list[Path], overrides: dict) -> None:
+    """A dotted scenario key: every scenario loads with each value."""
     for v in values:
         for sp in scenario_paths:
             try:
                 load_scenario(sp, merge_tables(overrides, _nested(key, v)), machine="arm")
             except TwinError as exc:
                 raise TwinError(f"grid {key!r} value {v!r} is refused: {' '.join(str(exc).split())}") from None
+
+
+def _check_factor(key: str, values: tuple, kind: str, scenario_paths: list[Path], overrides: dict) -> None:
+    """Check one grid factor and all its values, whichever table it sets."""
+    parts = key.split(".")
+    if not all(parts):
+        raise TwinError(f"grid key {key!r} is not a dotted key path (e.g. 'sensor.sigma_m', 'localize.method')")
+    if key == "scenario":
+        return  # each file was loaded by parse_study
+    if key == "normals":
+        _check_normals_factor(values, kind)
+    elif key == "overrides":
+        _check_overrides_factor(values, scenario_paths, overrides)
+    elif parts[0] in ("localize", "points", "normals"):
+        _check_settings_factor(key, parts, values, kind)
+    elif parts[0] == "seed":
+        raise TwinError("grid key 'seed' is not a factor: every trial draws its own random stream")
+    else:
+        _check_scenario_factor(key, values, scenario_paths, overrides)

@@ -10,9 +10,14 @@ point of the scan whatever the cursor: the deviation map.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
+
+if TYPE_CHECKING:
+    from rerun.encodings import EntityPathLike
 
 TIMELINE = "sim_time"
 REPORT_ENTITY = "report"
@@ -23,7 +28,7 @@ ALTERNATIVE_COLOURINGS = ("world/scan/points_by_line", "world/scan/points_by_sta
 def cumulative() -> rrb.VisibleTimeRange:
     """Everything from the start of the timeline up to the cursor."""
     return rrb.VisibleTimeRange(TIMELINE, start=rrb.TimeRangeBoundary.infinite(),
-                                end=rrb.TimeRangeBoundary.cursor_relative(0))
+                                end=rrb.TimeRangeBoundary.cursor_relative())
 
 
 def whole() -> rrb.VisibleTimeRange:
@@ -48,7 +53,8 @@ def send_blueprint(focus_world: np.ndarray, extent_m: float, plots: list[tuple[s
     eye = eye_on(focus_world, extent_m)
     # one colouring of the points at a time: by deviation; by scan line and by sensor status
     # are there to switch on
-    hidden = {e: rrb.EntityBehavior(visible=False) for e in ALTERNATIVE_COLOURINGS}
+    hidden: dict[EntityPathLike, rrb.EntityBehavior] = {e: rrb.EntityBehavior(visible=False)
+                                                        for e in ALTERNATIVE_COLOURINGS}
     main = rrb.Spatial3DView(origin="world", name="cell", eye_controls=eye, time_ranges=cumulative(),
                              overrides=hidden)
     # the part view shows every point whatever the cursor: the deviation map of the whole scan
@@ -58,7 +64,7 @@ def send_blueprint(focus_world: np.ndarray, extent_m: float, plots: list[tuple[s
                                        "world/probe/**"],
                              eye_controls=eye_on(focus_world, 0.45 * extent_m), time_ranges=whole())
     tabs = [rrb.TimeSeriesView(origin=entity, name=title) for entity, title in plots]
-    right = [part]
+    right: list[rrb.Container | rrb.View] = [part]
     if tabs:
         right.append(rrb.Tabs(*tabs))
     right.append(rrb.TextDocumentView(origin=REPORT_ENTITY, name="report"))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import mujoco
 import numpy as np
 import rerun as rr
@@ -104,7 +106,7 @@ def sensor_poses(cell: Cell, q: np.ndarray) -> np.ndarray:
     return out
 
 
-def log_pose_with_outline(entity: str, T_world: np.ndarray, mesh: trimesh.Trimesh, colour) -> None:
+def log_pose_with_outline(entity: str, T_world: np.ndarray, mesh: trimesh.Trimesh, colour: Sequence[int]) -> None:
     """A pose of the part (static): its frame, its sharp-edge outline, and the matrix in full
     precision (``pose_matrix``: 16 float64, row-major; the transform itself is stored in float32)."""
     T = np.asarray(T_world, dtype=np.float64)

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 import rerun as rr
 
 from twin.cell import Cell
 from twin.viz.cell import body_poses
 from twin.viz.scan import POSE_EVERY
+
+if TYPE_CHECKING:
+    from twin.replay import ReplayLog
 
 FRAME_EVERY = 50      # one tool frame / normal arrow every 50 path points
 FRAME_LENGTH_M = 0.004
@@ -17,7 +23,8 @@ def _world(T_world_base: np.ndarray, p: np.ndarray) -> np.ndarray:
     return p @ T_world_base[:3, :3].T + T_world_base[:3, 3]
 
 
-def log_path_lines(entity: str, lines: list, T_world_base: np.ndarray, color, radius: float = 0.0002) -> None:
+def log_path_lines(entity: str, lines: Sequence[np.ndarray], T_world_base: np.ndarray, color: Sequence[int],
+                   radius: float = 0.0002) -> None:
     """Static polylines (each (n, 3) [m], base frame), e.g. the planned contact lines."""
     strips = [_world(T_world_base, np.asarray(ln)) for ln in lines if len(ln) > 1]
     rr.log(entity, rr.LineStrips3D(strips, colors=[color], radii=radius), static=True)
@@ -33,7 +40,7 @@ def log_tool_frames(entity: str, T_base_tool: np.ndarray, T_world_base: np.ndarr
     rr.log(entity, rr.Arrows3D(origins=origins, vectors=vectors * length, colors=colors, radii=0.00015), static=True)
 
 
-def log_normals(entity: str, points: np.ndarray, normals: np.ndarray, T_world_base: np.ndarray, color,
+def log_normals(entity: str, points: np.ndarray, normals: np.ndarray, T_world_base: np.ndarray, color: Sequence[int],
                 every: int = FRAME_EVERY, length: float = FRAME_LENGTH_M) -> None:
     """Static normal arrows at every ``every``-th point (base frame in, world out)."""
     p = _world(T_world_base, np.asarray(points)[::every])
@@ -41,7 +48,7 @@ def log_normals(entity: str, points: np.ndarray, normals: np.ndarray, T_world_ba
     rr.log(entity, rr.Arrows3D(origins=p, vectors=n * length, colors=[color], radii=0.0001), static=True)
 
 
-def log_replay(cell: Cell, replay_log, t_offset: float, entity: str, colour) -> None:
+def log_replay(cell: Cell, replay_log: ReplayLog, t_offset: float, entity: str, colour: Sequence[int]) -> None:
     """The arm replaying a trajectory on ``sim_time`` (from ``t_offset``) and the actual TCP.
 
     ``entity``/tcp: the TCP every 10 ms, which the blueprint's cumulative views draw as a trail

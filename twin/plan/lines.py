@@ -1,24 +1,14 @@
-"""Scan planning: scan lines over the workpiece, seen on the CAD model at the NOMINAL pose.
+"""Scan lines on the nominal CAD model, the motion through them, and what they predict.
 
-One pass (the ``[scan]`` table's own keys): lines run along the workpiece's x (or y) axis,
-``line_spacing_m`` apart, alternating direction. Each line is found by casting rays at the
-nominal CAD model (1 mm apart, along -z of the workpiece, or along the fixed beam direction);
-the sensor sits at the stand-off along the (smoothed) surface normal or the fixed direction,
-its +z on the beam and its +x along the line axis.
+The pieces :func:`twin.plan.plan_scan` assembles a plan from (see :mod:`twin.plan`): the plan's
+types (:class:`ScanPlan`, :class:`PassInfo`), planning rays cast at the nominal CAD model, the
+lines of the ``[scan]`` table's single pass and of a pass with a view direction
+(:func:`pass_runs`), the sensor poses along a line, the motion between lines and passes
+(:func:`straight_poses`, trapezoidal speed profiles, poses every ``dt``), document 001's level
+raster (:func:`plan_level_raster`), and the observability the planned points predict.
 
-Several passes (``[[scan.passes]]``, or ``passes = "auto"``): each pass has a view direction
-(the fixed beam, or the planning direction of a beam along the normal). Its lines lie on a
-plane normal to the view, ``line_spacing_m`` apart, along the pass's line axis; planning rays
-1 mm apart are cast along the view at the nominal CAD model, and a line is each run of
-consecutive hits that lies in the pass's region, is seen within the sensor's incidence limit,
-and crosses no sharp edge (a jump in the face normal) and no step (a jump in the hit point):
-a line never bridges a step. The automatic planner (:func:`plan_auto_passes`) picks views
-from straight down and tilted cones until the predicted points fix all six pose directions
-(:func:`algorithms.registration.uncertainty.observability`) and checks each with the scan's IK.
-
-Between lines the sensor retracts along the beam, moves over and approaches; between passes it
-climbs to a safe height above the part, moves over and comes down. Each segment follows a
-trapezoidal speed profile; poses come out every 1 ms.
+Frames: the workpiece frame for planning points, normals and views; the world frame for the
+sensor poses. Units: metres, radians, seconds.
 """
 
 from __future__ import annotations
@@ -29,17 +19,17 @@ import mujoco
 import mujoco.batch
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
+from algorithms.arraytypes import BoolArray, FloatArray, IntArray
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.raycast import GRID_SHIFT_M
 from algorithms.geometry.se3 import transform_points
 from algorithms.registration.uncertainty import OBSERVABILITY_TOL, information_rows, observability
 from twin.cell import Cell
 from twin.errors import TwinError
-from twin.robot import HOME_Q, WORKPIECE_GROUPS
-from twin.scenario import AutoPlanSpec, PassSpec, ScanSpec
+from twin.robot import WORKPIECE_GROUPS
+from twin.scenario import PassSpec, ScanSpec
 
 PLAN_STEP_M = 0.001          # ray spacing along a line on the CAD model
 NORMAL_SMOOTHING_M = 0.003   # Gaussian smoothing of the normals along a line (sigma)
@@ -60,14 +50,6 @@ INCIDENCE_MARGIN_DEG = 5.0
 MIN_LINE_M = 0.004
 # Planning rays start this far before the region, back along the view.
 RAY_START_M = 0.05
-# Auto planner: a candidate view's line is new when at least NEW_FRACTION of its points have
-# no point of an earlier pass within one line spacing whose normal is within NEW_NORMAL_DEG.
-NEW_FRACTION = 0.5
-NEW_NORMAL_DEG = 30.0
-# Reachability check of a view: the scan's IK follows its moves in steps of at most these.
-REACH_STEP_M = 0.01
-REACH_STEP_RAD = 0.1
-REACH_ITERATIONS = 200
 # A coordinate direction counts as fixed when less than this part of it lies in the weak
 # subspace of the predicted information.
 FIXED_WEAK_FRACTION = 0.5
@@ -108,6 +90,12 @@ class PassInfo:
             "predicted_min_relative_eigenvalue": float(self.predicted_min_relative_eigenvalue),
             "fixed": list(self.fixed),
         }
+
+
+def _view3(view: FloatArray) -> tuple[float, float, float]:
+    """A (3,) view direction as the report's tuple of floats."""
+    x, y, z = (float(c) for c in view)
+    return x, y, z
 
 
 @dataclass(frozen=True)
@@ -231,7 +219,8 @@ def scan_region(cell: Cell) -> tuple[tuple[float, float], tuple[float, float]]:
     return (float(lo[0] + m), float(lo[1] + m)), (float(hi[0] - m), float(hi[1] - m))
 
 
-def _cast_wp(cell: Cell, batch, start_wp: np.ndarray, direction_wp: np.ndarray):
+def _cast_wp(cell: Cell, batch: mujoco.batch.Batch, start_wp: FloatArray,
+             direction_wp: FloatArray) -> tuple[BoolArray, FloatArray, FloatArray]:
     """Cast rays from ``start_wp`` along ``direction_wp`` (workpiece frame) at the nominal CAD
     model; returns hit mask, points and face normals (workpiece frame)."""
     T = cell.T_world_workpiece
@@ -245,7 +234,8 @@ def _cast_wp(cell: Cell, batch, start_wp: np.ndarray, direction_wp: np.ndarray):
     return hit, (p_w - T[:3, 3]) @ R, normal @ R
 
 
-def _cast_line(cell: Cell, batch, u: np.ndarray, v: float, axis: str, direction_wp: np.ndarray):
+def _cast_line(cell: Cell, batch: mujoco.batch.Batch, u: FloatArray, v: float, axis: str,
+               direction_wp: FloatArray) -> tuple[BoolArray, FloatArray, FloatArray]:
     """Planning rays of one single-pass line; returns hit mask, points and normals (workpiece frame)."""
     top = cell.mesh.bounds[1, 2]
     if axis == "x":
@@ -288,18 +278,15 @@ def _beam_along(normals: np.ndarray) -> np.ndarray:
     return -n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
-    """Plan the scan on the nominal cell (poses in the world frame): the ``[scan]`` table's one
-    pass, its explicit passes, or passes planned automatically."""
-    if cell.which != "nominal":
-        raise TwinError("scan planning uses the nominal cell (what the planner believes)")
-    spec = cell.scenario.scan
-    if spec.auto is not None:
-        planned = plan_auto_passes(cell, spec, spec.auto)
-        return _plan_passes(cell, planned.passes, dt, planned)
-    if spec.passes is not None:
-        return _plan_passes(cell, spec.passes, dt)
-    return _plan_single_pass(cell, spec, dt)
+def _longest_run(hit: BoolArray) -> IntArray | None:
+    """Indices of the longest run of consecutive hits (the line's span on the part), or None
+    when it has fewer than two."""
+    if hit.sum() < 2:
+        return None
+    idx = np.flatnonzero(hit)
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    run = max(runs, key=len)
+    return run if len(run) >= 2 else None
 
 
 def _plan_single_pass(cell: Cell, spec: ScanSpec, dt: float) -> ScanPlan:
@@ -312,35 +299,30 @@ def _plan_single_pass(cell: Cell, spec: ScanSpec, dt: float) -> ScanPlan:
         v_lines = v_lines[: spec.max_lines]
     u = np.arange(u0, u1 - GRID_SHIFT_M, PLAN_STEP_M) + GRID_SHIFT_M
     plan_dir_wp = np.array([0.0, 0.0, -1.0]) if spec.beam == "normal" else spec.direction
+    # Sensor +x along the line axis (not the travel direction), so the wrist does not turn half
+    # a revolution at every line change.
+    axis_wp = np.array([1.0, 0.0, 0.0]) if axis == "x" else np.array([0.0, 1.0, 0.0])
     batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
-    lines, pts = [], []
+    lines: list[_Line] = []
+    pts: list[FloatArray] = []
     for i, v in enumerate(v_lines):
         hit, p, n = _cast_line(cell, batch, u, float(v), axis, plan_dir_wp)
-        if hit.sum() < 2:
-            continue
-        # Longest run of consecutive hits: the line's span on the part.
-        idx = np.flatnonzero(hit)
-        runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-        run = max(runs, key=len)
-        if len(run) < 2:
+        run = _longest_run(hit)
+        if run is None:
             continue
         p, n = p[run], n[run]
         pts.append(p)
         if len(lines) % 2 == 1:
             p, n = p[::-1], n[::-1]
         beam = _beam_along(n) if spec.beam == "normal" else np.broadcast_to(spec.direction, p.shape)
-        # Sensor +x along the line axis (not the travel direction), so the wrist does not
-        # turn half a revolution at every line change.
-        axis_wp = np.array([1.0, 0.0, 0.0]) if axis == "x" else np.array([0.0, 1.0, 0.0])
         T_line, s_path = _line_poses(cell.T_world_workpiece, p, beam, axis_wp, spec.standoff_m, spec.speed_m_s)
         lines.append(_Line(i, 0, float(v), T_line, s_path, spec.speed_m_s, spec.transit_speed_m_s,
                            spec.retract_m))
     if not lines:
         raise TwinError("the scan region does not cover the part: no scan line hits the nominal CAD model")
-    view = tuple(float(c) for c in plan_dir_wp)
-    pts = np.concatenate(pts)
-    rel, fixed = _predicted(pts, _smooth_normals(MeshIndex(cell.mesh), pts), OBSERVABILITY_TOL)
-    info = PassInfo("scan", spec.beam, view, len(lines), lines[0].index,
+    points = np.concatenate(pts)
+    rel, fixed = _predicted(points, _smooth_normals(MeshIndex(cell.mesh), points), OBSERVABILITY_TOL)
+    info = PassInfo("scan", spec.beam, _view3(plan_dir_wp), len(lines), lines[0].index,
                     "the [scan] table's single pass" + (f": covers {', '.join(fixed)}" if fixed else ""),
                     rel, fixed)
     plan = _assemble(cell, lines, dt, (info,), ())
@@ -421,7 +403,7 @@ def _split_runs(ok: np.ndarray, p: np.ndarray, n: np.ndarray, step_m: float, max
     runs, start = [], 0
     for k in np.flatnonzero(cut):
         runs.append(np.arange(start, k + 1))
-        start = k + 1
+        start = int(k) + 1
     runs.append(np.arange(start, len(ok)))
     return [r for r in runs if ok[r].all()]
 
@@ -439,7 +421,7 @@ def _smooth_normals(index: MeshIndex, points_wp: np.ndarray) -> np.ndarray:
     return index.smooth_normals(cp.face, cp.foot)
 
 
-def pass_runs(cell: Cell, batch, p: PassSpec, index: MeshIndex) -> list[_Run]:
+def pass_runs(cell: Cell, batch: mujoco.batch.Batch, p: PassSpec, index: MeshIndex) -> list[_Run]:
     """The lines of one pass on the nominal CAD model, in raster order (before direction
     alternation), each with its planning points, face normals and smooth-surface normals
     (workpiece frame)."""
@@ -481,7 +463,7 @@ def _pass_lines(cell: Cell, p: PassSpec, pass_index: int, runs: list[_Run], firs
     """Sensor poses of a pass's runs: rows alternate direction, each run is one line."""
     u_ax, _, d = _pass_axes(p)
     rows = sorted({r.row for r in runs})
-    out = []
+    out: list[_Line] = []
     for k, row in enumerate(rows):
         in_row = [r for r in runs if r.row == row]
         if k % 2 == 1:
@@ -496,35 +478,6 @@ def _pass_lines(cell: Cell, p: PassSpec, pass_index: int, runs: list[_Run], firs
             out.append(_Line(first_index + len(out), pass_index, r.cross_m, T_line, s_path, p.speed_m_s,
                              p.transit_speed_m_s, p.retract_m))
     return out
-
-
-def _plan_passes(cell: Cell, passes: tuple[PassSpec, ...], dt: float, planned: AutoPlan | None = None) -> ScanPlan:
-    """Lines and motion of a list of passes (``planned``: the auto planner's lines and records)."""
-    batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
-    index = MeshIndex(cell.mesh)
-    lines: list[_Line] = []
-    made, pts, nrm = [], [], []
-    for i, p in enumerate(passes):
-        runs = pass_runs(cell, batch, p, index) if planned is None else planned.runs[i]
-        if not runs:
-            raise TwinError(
-                f"scan pass {p.name!r}: no planning ray hits the part in its region within the sensor's "
-                f"incidence limit (view {np.round(p.view, 3).tolist()}, workpiece frame)")
-        new = _pass_lines(cell, p, i, runs, len(lines))
-        pts.extend(r.points_wp for r in runs)
-        nrm.extend(r.smooth_normals_wp for r in runs)
-        rel, fixed = _predicted(np.concatenate(pts), np.concatenate(nrm), OBSERVABILITY_TOL)
-        made.append(PassInfo(p.name, p.beam, tuple(float(c) for c in p.view), len(new), len(lines),
-                             "explicit pass of the scenario" + (f" (passes so far fix {', '.join(fixed)})"
-                                                                if fixed else ""), rel, fixed))
-        lines.extend(new)
-    if planned is None:
-        return _assemble(cell, lines, dt, tuple(made), ())
-    # The auto planner's records, with the line counts as planned here.
-    infos = tuple(PassInfo(a.name, a.beam, a.beam_wp, b.lines, b.first_line, a.reason,
-                           a.predicted_min_relative_eigenvalue, a.fixed)
-                  for a, b in zip(planned.infos, made, strict=True))
-    return _assemble(cell, lines, dt, infos, planned.notes)
 
 
 # --------------------------------------------------------------------------- motion
@@ -619,189 +572,3 @@ def _predicted(points: np.ndarray, normals: np.ndarray, tol: float) -> tuple[flo
     return rel_min, fixed
 
 
-# --------------------------------------------------------------------------- automatic planner
-
-
-@dataclass(frozen=True)
-class AutoPlan:
-    """The automatic planner's choice: passes, their lines (runs) and why each was chosen."""
-
-    passes: tuple[PassSpec, ...]
-    runs: tuple[list[_Run], ...]
-    infos: tuple[PassInfo, ...]
-    notes: tuple[str, ...]
-
-
-_AZIMUTH_LABELS = {0: "+x", 45: "+x+y", 90: "+y", 135: "-x+y", 180: "-x", 225: "-x-y", 270: "-y", 315: "+x-y"}
-
-
-def candidate_views(spec: ScanSpec, auto: AutoPlanSpec) -> list[PassSpec]:
-    """Straight down, then each tilt at evenly spaced azimuths, as fixed-beam passes over the
-    whole part (workpiece frame). A tilted view's lines run level, across its azimuth, so that
-    they follow the edges of the faces it looks at."""
-    top_axis = (1.0, 0.0, 0.0) if spec.line_axis == "x" else (0.0, 1.0, 0.0)
-    views = [("top view", np.array([0.0, 0.0, -1.0]), np.array(top_axis))]
-    for tilt in auto.tilts_deg:
-        t = np.radians(tilt)
-        for k in range(auto.azimuths):
-            deg = 360.0 * k / auto.azimuths
-            a = np.radians(deg)
-            label = _AZIMUTH_LABELS.get(int(round(deg)), f"azimuth {deg:g} deg") \
-                if abs(deg - round(deg)) < 1e-9 else f"azimuth {deg:g} deg"
-            view = np.array([-np.sin(t) * np.cos(a), -np.sin(t) * np.sin(a), -np.cos(t)])
-            views.append((f"tilted {tilt:g} deg from {label}", view, np.array([-np.sin(a), np.cos(a), 0.0])))
-    return [PassSpec(name, "fixed", view, None, axis, spec.line_spacing_m, spec.speed_m_s, spec.transit_speed_m_s,
-                     spec.standoff_m, spec.retract_m, 0.001, spec.max_lines) for name, view, axis in views]
-
-
-def _new_runs(runs: list[_Run], tree: cKDTree, normals: np.ndarray, radius_m: float) -> list[_Run]:
-    """The runs that mostly see surface no earlier pass saw (a point is seen when an earlier
-    point lies within ``radius_m`` with a normal within NEW_NORMAL_DEG)."""
-    out = []
-    cos_max = np.cos(np.radians(NEW_NORMAL_DEG))
-    for r in runs:
-        dist, idx = tree.query(r.points_wp, k=8, distance_upper_bound=radius_m)
-        near = np.isfinite(dist)
-        idx = np.where(near, idx, 0)
-        similar = near & (np.einsum("nkj,nj->nk", normals[idx], r.smooth_normals_wp) >= cos_max)
-        if np.mean(~similar.any(axis=1)) >= NEW_FRACTION:
-            out.append(r)
-    return out
-
-
-@dataclass
-class _ReachState:
-    """Where the reachability check of the chosen passes left the arm (nominal cell)."""
-
-    solver: object
-    T_world_sensor: np.ndarray | None = None
-
-
-def _densify(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
-    """Poses from ``T_a`` (excluded) to ``T_b`` at most REACH_STEP_M / REACH_STEP_RAD apart."""
-    length = float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3]))
-    ang = float(np.linalg.norm(Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).as_rotvec()))
-    n = max(1, int(np.ceil(max(length / REACH_STEP_M, ang / REACH_STEP_RAD))))
-    return _interp_poses(np.stack([T_a, T_b]), np.array([0.0, 1.0]), np.arange(1, n + 1) / n)
-
-
-def _unreachable(cell: Cell, p: PassSpec, runs: list[_Run], state: _ReachState) -> tuple[str | None, object]:
-    """Follow the view's moves with the scan's IK on the nominal cell, from where the passes
-    before it left the arm: the transit over the part, then every line's approach, ends and
-    retract (in steps of REACH_STEP_M / REACH_STEP_RAD, each warm-started from the last).
-
-    Returns (None, the solver's joints at the end) when every key pose is reached, else
-    (why not, None).
-    """
-    from twin.ik import reachable
-
-    solver = state.solver
-    q_before = solver.q
-    keys = []
-    for ln in _pass_lines(cell, p, 0, runs, 0):
-        above = ln.T_world_sensor[0].copy()
-        above[:3, 3] -= ln.retract_m * above[:3, 2]
-        retract = ln.T_world_sensor[-1].copy()
-        retract[:3, 3] -= ln.retract_m * retract[:3, 2]
-        keys.extend([above, ln.T_world_sensor[0], ln.T_world_sensor[-1], retract])
-    if state.T_world_sensor is None:
-        # The first pose of the scan is solved from the home configuration, as the scan does.
-        solver.set_q(HOME_Q)
-        path = [(keys[0], True)]
-        pe, oe, _ = solver.solve(keys[0], dt=0.05, max_iterations=1000, velocity_limited=False)
-        prev = keys[0]
-    else:
-        prev = state.T_world_sensor
-        height = max(_part_top_world_m(cell) + cell.scenario.scan.transit_clearance_m, prev[2, 3], keys[0][2, 3])
-        up, down = _climb(prev, height), _climb(keys[0], height)
-        path = [(up, False), (down, False)]
-    path.extend((T, True) for T in keys)
-    for T_key, is_key in path:
-        for T in _densify(prev, T_key):
-            pe, oe, _ = solver.solve(T, dt=0.05, max_iterations=REACH_ITERATIONS, velocity_limited=False)
-        prev = T_key
-        if is_key and not reachable(pe, oe):
-            solver.set_q(q_before)
-            x, y, z = T_key[:3, 3]
-            return (f"the arm cannot reach its sensor pose at world ({x:.3f}, {y:.3f}, {z:.3f}) m "
-                    f"({pe * 1e3:.2f} mm / {np.degrees(oe):.2f} deg off)"), None
-    q_after = solver.q
-    solver.set_q(q_before)
-    return None, (q_after, keys[-1])
-
-
-def plan_auto_passes(cell: Cell, spec: ScanSpec, auto: AutoPlanSpec) -> AutoPlan:
-    """Pick views greedily until the predicted points fix all six pose directions.
-
-    The top view comes first (it covers what a process from above works on). Then, each round,
-    every remaining candidate view keeps the lines that see new surface, and the one whose
-    points raise the union's smallest relative eigenvalue the most is added, if the arm
-    reaches it from where the passes before left it (else it is skipped and noted; an
-    unreachable top view leaves the first place to the best view the arm reaches), until that eigenvalue reaches
-    ``auto.min_relative_eigenvalue``, no view adds anything, or ``auto.max_passes`` are planned.
-    """
-    batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
-    index = MeshIndex(cell.mesh)
-    cands = []
-    for p in candidate_views(spec, auto):
-        runs = pass_runs(cell, batch, p, index)
-        if runs:
-            cands.append((p, runs))
-    if not cands:
-        raise TwinError("scan.passes = \"auto\": no candidate view sees the part within the sensor's incidence limit")
-    from twin.ik import IKSolver
-
-    reach = _ReachState(IKSolver(cell.model, cell.sensor.site, 1e-6, 1e-5))
-    target = auto.min_relative_eigenvalue
-    passes, chosen_runs, infos, notes = [], [], [], []
-    P, N = np.empty((0, 3)), np.empty((0, 3))
-    rel_now, fixed_now = 0.0, ()
-    while len(passes) < auto.max_passes and rel_now < target and cands:
-        scored = []
-        tree = cKDTree(P) if len(P) else None
-        for p, runs in cands:
-            new = runs if tree is None else _new_runs(runs, tree, N, spec.line_spacing_m)
-            if not new:
-                continue
-            rel, fixed = _predicted(np.concatenate([P] + [r.points_wp for r in new]),
-                                    np.concatenate([N] + [r.smooth_normals_wp for r in new]), target)
-            scored.append((rel, p, new, fixed))
-        # The top view first (while it is a candidate), then the best raise.
-        scored.sort(key=lambda s: (s[1].name != "top view", -s[0]))
-        pick = None
-        for rel, p, new, fixed in scored:
-            if passes and rel <= rel_now * (1.0 + 1e-6):
-                break
-            why, end = _unreachable(cell, p, new, reach)
-            if why is None:
-                pick = (rel, p, new, fixed)
-                reach.solver.set_q(end[0])
-                reach.T_world_sensor = end[1]
-                break
-            notes.append(f"{p.name}: skipped, {why}")
-            cands = [c for c in cands if c[0] is not p]
-        if pick is None:
-            break
-        rel, p, new, fixed = pick
-        cands = [c for c in cands if c[0] is not p]
-        gained = [f for f in fixed if f not in fixed_now]
-        if not passes:
-            first = "covers the part from above" if p.name == "top view" else "the first view the arm reaches"
-            reason = f"{p.name}: {first}" + (f"; fixes {', '.join(gained)}" if gained else "")
-        elif gained:
-            reason = f"{p.name}: fixes {', '.join(gained)}"
-        else:
-            reason = f"{p.name}: raises the smallest relative eigenvalue from {rel_now:.2g} to {rel:.2g}"
-        infos.append(PassInfo(p.name, p.beam, tuple(float(c) for c in p.view), 0, 0, reason, rel, fixed))
-        passes.append(p)
-        chosen_runs.append(new)
-        P = np.concatenate([P] + [r.points_wp for r in new])
-        N = np.concatenate([N] + [r.smooth_normals_wp for r in new])
-        rel_now, fixed_now = rel, fixed
-    if not passes:
-        raise TwinError("scan.passes = \"auto\": the arm reaches no candidate view (" + "; ".join(notes) + ")")
-    if rel_now < target:
-        weak = [c for c in ("x", "y", "z", "rx", "ry", "rz") if c not in fixed_now]
-        notes.append(f"the planned views reach a smallest relative eigenvalue of {rel_now:.2g}, below the target "
-                     f"{target:g}" + (f"; {', '.join(weak)} stay weak" if weak else ""))
-    return AutoPlan(tuple(passes), tuple(chosen_runs), tuple(infos), tuple(notes))
