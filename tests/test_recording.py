@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from algorithms.geometry.mesh_index import MeshIndex
 from tests.helpers import scenario
 from twin.realize import realize
 from twin.sensors.base import VALID
@@ -48,6 +49,19 @@ def _rerun_executable() -> str:
     return str(native) if native.exists() else (shutil.which("rerun") or "rerun")
 
 
+# The face counts of every MeshIndex built while the module's run is made, realized and
+# recorded (the run must reuse the realized workpiece's index: one build of the part's mesh).
+MESH_INDEX_BUILDS: list[int] = []
+
+
+def _counting(init):
+    def counted(self, mesh, *args, **kwargs):
+        MESH_INDEX_BUILDS.append(len(mesh.faces))
+        return init(self, mesh, *args, **kwargs)
+
+    return counted
+
+
 @pytest.fixture(scope="module")
 def run_recording(tmp_path_factory):
     """One run, written to a file at the end and streamed stage by stage to a Rerun server
@@ -56,6 +70,8 @@ def run_recording(tmp_path_factory):
     port = _free_port()
     server = subprocess.Popen([_rerun_executable(), "--port", str(port), "--save", str(folder / "live.rrd")],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    build_index = MeshIndex.__init__
+    MeshIndex.__init__ = _counting(build_index)
     try:
         for _ in range(100):
             try:
@@ -74,12 +90,13 @@ def run_recording(tmp_path_factory):
         result = loop.run(realize(sc), watch=watch)
         live.finish(result)
         time.sleep(1.0)
+        path = folder / "run.rrd"
+        save_run_recording(path, result)
     finally:
+        MeshIndex.__init__ = build_index
         server.terminate()
         server.wait(timeout=10)
     assert result.complete, result.failure
-    path = folder / "run.rrd"
-    save_run_recording(path, result)
     return result, RrdReader(path), _chunks(path), events, _chunks(folder / "live.rrd")
 
 
@@ -89,6 +106,11 @@ def _column(batches, name) -> list:
         if name in b.schema.names:
             out.extend(b.column(name).to_pylist())
     return out
+
+
+def test_one_run_builds_one_closest_point_index_of_its_part(run_recording):
+    result = run_recording[0]
+    assert MESH_INDEX_BUILDS.count(len(result.realized.workpiece.mesh.faces)) == 1, MESH_INDEX_BUILDS
 
 
 def test_the_recording_carries_a_blueprint(run_recording):

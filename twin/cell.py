@@ -23,6 +23,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from algorithms.geometry.mesh_index import MeshIndex
 from twin.errors import TwinError
 from twin.realize import Realized
 from twin.robot import FLANGE_BODY, GROUP_FIXTURE, GROUP_WORKPIECE, JOINT_NAMES, SCENE_XML, T_WRIST3_FLANGE
@@ -48,6 +49,7 @@ class Cell:
         which: "true" or "nominal".
         scenario: the scenario it was built from.
         mesh: the workpiece mesh in the workpiece frame [m].
+        index: the realized workpiece's closest-point index of ``mesh`` (built once per run).
         sensor: the sensor on the flange.
         T_world_base: (4, 4) robot base in the world.
         T_world_workpiece: (4, 4) workpiece pose in THIS cell.
@@ -59,6 +61,7 @@ class Cell:
     which: str
     scenario: Scenario
     mesh: trimesh.Trimesh
+    index: MeshIndex
     sensor: RaySensor
     T_world_base: np.ndarray
     T_world_workpiece: np.ndarray
@@ -196,6 +199,6 @@ def compile_cell(spec: mujoco.MjSpec, realized: Realized, which: str, poses: dic
         raise TwinError(f"MuJoCo could not compile the cell: {str(exc).splitlines()[0]}") from None
     data = mujoco.MjData(model)
     scenario = realized.scenario
-    return Cell(model, data, which, scenario, realized.workpiece.mesh, poses["sensor"],
+    return Cell(model, data, which, scenario, realized.workpiece.mesh, realized.workpiece.index, poses["sensor"],
                 scenario.T_world_base.copy(), poses["T_world_workpiece"], poses["T_flange_sensor"],
                 poses.get("probe"))

@@ -32,7 +32,6 @@ import mujoco.batch
 import numpy as np
 
 from algorithms.arraytypes import FloatArray
-from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.registration.uncertainty import OBSERVABILITY_TOL
 from twin.cell import Cell
 from twin.errors import TwinError
@@ -120,7 +119,7 @@ def plan_scan(cell: Cell, dt: float = 0.001) -> ScanPlan:
 def _plan_passes(cell: Cell, passes: tuple[PassSpec, ...], dt: float, planned: AutoPlan | None = None) -> ScanPlan:
     """Lines and motion of a list of passes (``planned``: the auto planner's lines and records)."""
     batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
-    index = MeshIndex(cell.mesh)
+    index = cell.index
     lines: list[_Line] = []
     made: list[PassInfo] = []
     pts: list[FloatArray] = []

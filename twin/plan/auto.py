@@ -21,7 +21,6 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from algorithms.arraytypes import FloatArray, Pose
-from algorithms.geometry.mesh_index import MeshIndex
 from twin.cell import Cell
 from twin.errors import TwinError
 from twin.plan.lines import (
@@ -198,7 +197,7 @@ class _Greedy:
 def _candidate_runs(cell: Cell, spec: ScanSpec, auto: AutoPlanSpec) -> list[tuple[PassSpec, list[_Run]]]:
     """The candidate views that see the part, with their lines."""
     batch = mujoco.batch.Batch(cell.model, 1, nthread=1)
-    index = MeshIndex(cell.mesh)
+    index = cell.index
     cands = []
     for p in candidate_views(spec, auto):
         runs = pass_runs(cell, batch, p, index)

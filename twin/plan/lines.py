@@ -321,7 +321,7 @@ def _plan_single_pass(cell: Cell, spec: ScanSpec, dt: float) -> ScanPlan:
     if not lines:
         raise TwinError("the scan region does not cover the part: no scan line hits the nominal CAD model")
     points = np.concatenate(pts)
-    rel, fixed = _predicted(points, _smooth_normals(MeshIndex(cell.mesh), points), OBSERVABILITY_TOL)
+    rel, fixed = _predicted(points, _smooth_normals(cell.index, points), OBSERVABILITY_TOL)
     info = PassInfo("scan", spec.beam, _view3(plan_dir_wp), len(lines), lines[0].index,
                     "the [scan] table's single pass" + (f": covers {', '.join(fixed)}" if fixed else ""),
                     rel, fixed)
