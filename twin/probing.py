@@ -579,8 +579,8 @@ def joint_state_of(state: np.ndarray, cell: Cell) -> np.ndarray:
     return np.asarray(state)[cell.qpos_adr + 1]
 
 
-__all__ = ["ProbeHit", "ProbeTarget", "ProbingLog", "ProbingProgram", "build_probe_cell", "line_profile",
-           "safe_height_world"]
+__all__ = ["ProbeHit", "ProbeTarget", "ProbingLog", "ProbingProgram", "brake_profile", "build_probe_cell",
+           "line_profile", "safe_height_world"]
 
 
 class ReachCheck:
