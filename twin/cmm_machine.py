@@ -11,7 +11,8 @@ measurement program starts from); the part lies at the true pose.
   trapezoidal speed law (the transit speed and acceleration of ``[cmm]``), stylus changes as
   head indexing moves, probing moves at the probing speed until the probe triggers (the
   trigger model of :mod:`twin.sensors.touch_probe`, on the exact part) or the search distance
-  is spent (a miss); the scales latched at the trigger give the hit. Then every 1 ms sample is
+  is spent (a miss); the scales latched at the trigger give the hit. The probing move is
+  :func:`twin.touch_probing.probing_move`, the axes its machine (:class:`_AxesProbingLine`). Then every 1 ms sample is
   checked for contact of the ball, stylus, body, head or ram with the exact part (python-fcl
   distances; samples skipped only where the probe cannot have reached the part since the last
   checked one); a ball contact inside a probing move is the measurement, anything else is a
@@ -26,6 +27,7 @@ import mujoco
 import numpy as np
 import trimesh
 
+from algorithms.arraytypes import FloatArray
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
@@ -34,7 +36,6 @@ from algorithms.probing.cmm_planning import (
     StylusReach,
     program_moves,
 )
-from algorithms.probing.pretravel import PretravelModel
 from algorithms.probing.program import MeasurePoint, Program, SelectStylus
 from algorithms.probing.sweep import ProbeGeometry, ProbeSweep, frame_with_z
 from twin.cell import quat_wxyz
@@ -42,7 +43,8 @@ from twin.errors import TwinError
 from twin.realize import load_workpiece_mesh
 from twin.robot import MODELS_DIR
 from twin.scenario import Scenario
-from twin.sensors.touch_probe import BALL_SITE, TouchProbe, find_trigger
+from twin.sensors.touch_probe import BALL_SITE, TouchProbe
+from twin.touch_probing import probing_move
 
 CMM_SCENE_XML = MODELS_DIR / "cmm" / "scene.xml"
 AXES = ("axis_x", "axis_y", "axis_z")
@@ -313,7 +315,6 @@ def execute(program: Program, setup: CmmSetup, rng: np.random.Generator) -> CmmR
     stylus0 = next(st.name for st in program.statements if isinstance(st, SelectStylus))
     q = np.concatenate([head_of(moves[0].start_m, stylus0), _angles(cmm.styli, stylus0)])
     machine.reset(q)
-    pretravel = machine.probe.pretravel
     hits: list[CmmHit] = []
     measures = {k: st for k, st in enumerate(program.statements) if isinstance(st, MeasurePoint)}
     i = 0
@@ -324,15 +325,12 @@ def execute(program: Program, setup: CmmSetup, rng: np.random.Generator) -> CmmR
             i += 1
             continue
         if mv.kind == "probe":
-            st = measures[mv.statement]
-            hit, q = _probe(machine, q, mv, st, program.settings.search_m, setup, pretravel, rng)
+            # the retract (the next move) starts where the machine stopped
+            back = moves[i + 1]
+            hit, q = _probe(machine, q, mv, measures[mv.statement], (head_of(back.end_m, back.stylus), back.statement),
+                            program.settings.search_m, setup, rng)
             hits.append(hit)
-            i += 1
-            # the retract starts where the machine stopped
-            back = moves[i]
-            q = _line(machine, q, head_of(back.end_m, back.stylus), cmm.transit_speed_m_s, cmm.acceleration_m_s2,
-                      back.statement, "retract")
-            i += 1
+            i += 2
             continue
         q = _line(machine, q, head_of(mv.end_m, mv.stylus), cmm.transit_speed_m_s, cmm.acceleration_m_s2,
                   mv.statement, mv.kind)
@@ -387,78 +385,145 @@ def _index(machine: _Machine, q: np.ndarray, angles: np.ndarray, time_s: float, 
     return np.concatenate([q[:3], angles])
 
 
-def _probe(machine: _Machine, q: np.ndarray, mv: Move, st: MeasurePoint, search_m: float, setup: CmmSetup,
-           pretravel: PretravelModel, rng: np.random.Generator) -> tuple[CmmHit, np.ndarray]:
-    """The probing move along -normal at the probing speed until the trigger or the search end."""
+@dataclass(frozen=True)
+class _ProbingLine:
+    """A CMM probing move as the head's set-points (world frame, SI).
+
+    Attributes:
+        n_world: (3,) the point's outward normal; the head moves along ``-n_world``.
+        speed_m_s: the probing speed (no ramp: the axes follow a constant-speed line).
+        n_steps: 1 ms steps to the search end.
+        statement: the program statement the move belongs to.
+        R_world_probe: (3, 3) the probe frame (z along the stylus).
+        retract_head_m: (3,) where the program's retract move takes the head.
+        retract_statement: the retract move's statement.
+    """
+
+    n_world: np.ndarray
+    speed_m_s: float
+    n_steps: int
+    statement: int
+    R_world_probe: np.ndarray
+    retract_head_m: np.ndarray
+    retract_statement: int
+
+
+class _AxesProbingLine:
+    """The CMM as the probing engine's machine (:class:`twin.touch_probing.ProbingMachine`):
+    set-points along a :class:`_ProbingLine`, one 1 ms step between two trigger checks, the
+    head angles held; the scales latched at the trigger."""
+
+    chunk_steps = 1
+
+    def __init__(self, machine: _Machine, q: np.ndarray, line: _ProbingLine, scenario: Scenario,
+                 rng: np.random.Generator):
+        assert scenario.cmm is not None and scenario.probe is not None
+        self.machine = machine
+        self.line = line
+        self.cmm = scenario.cmm
+        self.deceleration_m_s2 = scenario.probe.stop_deceleration_m_s2
+        self.rng = rng
+        self.head_start_m = q[:3].copy()
+        self.angles_rad = q[3:]
+        self.t0 = len(machine.t)
+        self.k = 0
+        self.head_m = self._set_point(0)
+
+    def _set_point(self, k: int) -> np.ndarray:
+        """The head's set-point (3,) [m, world] after ``k`` steps of the probing move."""
+        return self.head_start_m - k * self.line.speed_m_s * self.machine.dt * self.line.n_world
+
+    @property
+    def q(self) -> np.ndarray:
+        """(5,) the machine's set-point now: head position [m] and head angles [rad]."""
+        return np.concatenate([self.head_m, self.angles_rad])
+
+    def lead_in(self) -> tuple[FloatArray, FloatArray]:
+        """The sample recorded just before the move (its start), if any."""
+        m = self.machine
+        lo = max(self.t0 - 1, 0)
+        return np.array(m.ball[lo:self.t0]).reshape(-1, 3), np.array(m.t[lo:self.t0])
+
+    def advance(self, n_steps: int) -> tuple[FloatArray, FloatArray]:
+        """Up to ``n_steps`` steps on along the line: true ball centres (world) and times."""
+        m, ln = self.machine, self.line
+        balls, times = [], []
+        for k in range(self.k + 1, min(self.k + n_steps, ln.n_steps) + 1):
+            balls.append(m.step(np.concatenate([self._set_point(k), self.angles_rad]),
+                                np.concatenate([-ln.speed_m_s * ln.n_world, [0.0, 0.0]]), ln.statement, "probe"))
+            times.append(m.t[-1])
+            self.k = k
+            self.head_m = self._set_point(k)
+        return np.array(balls).reshape(-1, 3), np.array(times)
+
+    def R_world_probe(self) -> FloatArray:
+        return self.line.R_world_probe
+
+    def latch(self, t_s: float) -> FloatArray:
+        """The scales (3,) [m, head centre, world] latched at ``t_s``: interpolated between the
+        two samples around it, plus the scales' noise."""
+        ts = np.array(self.machine.t)
+        qs = np.array(self.machine.q)
+        j = int(np.searchsorted(ts, t_s))
+        j = min(max(j, 1), len(ts) - 1)
+        f = (t_s - ts[j - 1]) / (ts[j] - ts[j - 1])
+        head = qs[j - 1, :3] + f * (qs[j, :3] - qs[j - 1, :3])
+        return head + self.rng.normal(0.0, self.cmm.encoder_sigma_m, 3)
+
+    def brake(self, trigger_t_s: float) -> FloatArray:
+        """Brake to rest from the probing speed, from the set-point of the step that saw the
+        trigger (the last one: the axes step one cycle between checks)."""
+        m, ln = self.machine, self.line
+        v, stop = ln.speed_m_s, self.deceleration_m_s2
+        n_brake = int(np.ceil(v / stop / m.dt))
+        pos = self.head_m.copy()
+        for b in range(1, n_brake + 1):
+            speed = max(v - stop * b * m.dt, 0.0)
+            pos = pos - speed * m.dt * ln.n_world
+            m.step(np.concatenate([pos, self.angles_rad]), np.concatenate([-speed * ln.n_world, [0.0, 0.0]]),
+                   ln.statement, "brake")
+        self.head_m = pos
+        return m.ball[-1]
+
+    def retract(self) -> None:
+        """The program's retract move, from where the machine stopped."""
+        ln = self.line
+        self.head_m = _line(self.machine, self.q, ln.retract_head_m, self.cmm.transit_speed_m_s,
+                            self.cmm.acceleration_m_s2, ln.retract_statement, "retract")[:3]
+
+
+def _probe(machine: _Machine, q: np.ndarray, mv: Move, st: MeasurePoint, back: tuple[np.ndarray, int],
+           search_m: float, setup: CmmSetup, rng: np.random.Generator) -> tuple[CmmHit, np.ndarray]:
+    """The probing move ``mv`` along -normal at the probing speed until the trigger or the
+    search end, then the program's retract move ``back`` (the head's target [m, world] and its
+    statement), from where the machine stopped. Returns the hit and the machine's set-point
+    (5,) after the retract."""
     sc = setup.scenario
     probe, cmm = sc.probe, sc.cmm
     assert probe is not None and cmm is not None
     r = probe.ball_radius_m
     n_part = np.asarray(st.normal)
     T_wp = setup.T_world_part_nominal
-    n_world = T_wp[:3, :3] @ n_part
-    start_head = q[:3].copy()
     total = float(np.linalg.norm(mv.end_m - mv.start_m)) + search_m
     v = probe.probing_speed_m_s
-    n_steps = int(np.ceil(total / v / machine.dt))
-    d_world, L = sc.cmm.direction(mv.stylus), setup.styli[mv.stylus].reach_m  # type: ignore[union-attr]
-    R_world_probe = frame_with_z(d_world)
+    d_world, L = cmm.direction(mv.stylus), setup.styli[mv.stylus].reach_m
+    line = _ProbingLine(T_wp[:3, :3] @ n_part, v, int(np.ceil(total / v / machine.dt)), mv.statement,
+                        frame_with_z(d_world), back[0], back[1])
     T_part_true_world = inv_pose(setup.T_world_part_true)
-    t0 = len(machine.t)
 
     def gap(c: np.ndarray) -> np.ndarray:
         # the exact part where it really lies: ball centres mapped into its true frame
         return setup.index.signed_distance(transform_points(T_part_true_world, c)) - r
 
-    drawn: list[float] = []
-
-    def draw(direction: np.ndarray) -> float:
-        # one draw per touch, however many samples it takes to reach the trigger
-        if not drawn:
-            u = direction @ R_world_probe
-            u[2] = max(u[2], 0.0)  # a touch moving slightly away from the body triggers sideways
-            drawn.append(float(pretravel.draw_m(u / np.linalg.norm(u), rng)))
-        return drawn[0]
-
-    trig = None
-    k = 0
-    touched = False
-    for k in range(1, n_steps + 1):
-        ball = machine.step(np.concatenate([start_head - k * v * machine.dt * n_world, q[3:]]),
-                            np.concatenate([-v * n_world, [0.0, 0.0]]), mv.statement, "probe")
-        if not touched and gap(ball[None])[0] <= 0:
-            touched = True
-        if touched:
-            lo = max(t0 - 1, 0)
-            trig = find_trigger(np.array(machine.t[lo:]), np.array(machine.ball[lo:]), gap, draw)
-            if trig is not None:
-                break
-    q_stop = np.concatenate([start_head - k * v * machine.dt * n_world, q[3:]])
-    if trig is None:
-        return CmmHit(st.label, np.asarray(st.point_m), n_part, None, None, None), q_stop
-    # The scales latched at the trigger (interpolated between the two samples around it).
-    ts = np.array(machine.t)
-    qs = np.array(machine.q)
-    j = int(np.searchsorted(ts, trig.trigger_t_s))
-    j = min(max(j, 1), len(ts) - 1)
-    f = (trig.trigger_t_s - ts[j - 1]) / (ts[j] - ts[j - 1])
-    head = qs[j - 1, :3] + f * (qs[j, :3] - qs[j - 1, :3])
-    head = head + rng.normal(0.0, cmm.encoder_sigma_m, 3)
-    ball_world = head + L * d_world
+    axes = _AxesProbingLine(machine, q, line, sc, rng)
+    out = probing_move(axes, gap, machine.probe.pretravel, rng)
+    if out.trigger is None or out.reading is None:
+        return CmmHit(st.label, np.asarray(st.point_m), n_part, None, None, None), axes.q
+    ball_world = out.reading + L * d_world
     ball_part = transform_points(inv_pose(T_wp), ball_world[None])[0]
     measured = ball_part - r * n_part
     dev = float((measured - np.asarray(st.point_m)) @ n_part)
-    # Brake to rest from the probing speed.
-    stop = probe.stop_deceleration_m_s2
-    n_brake = int(np.ceil(v / stop / machine.dt))
-    pos = q_stop[:3].copy()
-    for b in range(1, n_brake + 1):
-        speed = max(v - stop * b * machine.dt, 0.0)
-        pos = pos - speed * machine.dt * n_world
-        machine.step(np.concatenate([pos, q[3:]]), np.concatenate([-speed * n_world, [0.0, 0.0]]), mv.statement,
-                     "brake")
-    hit = CmmHit(st.label, np.asarray(st.point_m), n_part, measured, dev, trig.trigger_t_s)
-    return hit, np.concatenate([pos, q[3:]])
+    return CmmHit(st.label, np.asarray(st.point_m), n_part, measured, dev, out.trigger.trigger_t_s), axes.q
 
 
 # ----------------------------------------------------------------------------- contacts

@@ -14,6 +14,9 @@ makes:
 3. on the trigger the controller brakes (``stop_deceleration_m_s2``) and retracts to the
    approach point.
 
+Moves 2 and 3 are :func:`twin.touch_probing.probing_move`, the arm its machine
+(:class:`_ArmProbingLine`).
+
 The moves are Cartesian straight lines, solved by mink IK on the NOMINAL cell every 10 ms
 and joined by a clamped cubic spline, then simulated in the TRUE cell (servos, gravity) at
 1 ms, one rollout continuing the last (:func:`twin.sim.simulate` from its final state). The
@@ -38,6 +41,7 @@ import mujoco
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from algorithms.arraytypes import FloatArray
 from algorithms.geometry.kinematics import dh_forward, ur_inverse
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, make_pose, transform_points
@@ -48,8 +52,9 @@ from twin.realize import Realized
 from twin.replay import ContactRecord, add_collision_checks, contact_columns, contact_records
 from twin.robot import HOME_Q, UR5E_DH
 from twin.sensors.base import sensor_slice
-from twin.sensors.touch_probe import BALL_SITE, MODULE_SITE, Trigger, find_trigger
+from twin.sensors.touch_probe import BALL_SITE, MODULE_SITE, Trigger
 from twin.sim import simulate
+from twin.touch_probing import probing_move
 from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
 
 IK_KNOT_STEPS = 10
@@ -278,39 +283,38 @@ class ProbingProgram:
         spline = CubicSpline(t[knots], q, axis=0, bc_type=(start, (1, np.zeros(6))))
         return spline(t), spline(t, 1)
 
-    def _run(self, q_ref: np.ndarray, qd_ref: np.ndarray, phase: int,
-             stop: Callable[[np.ndarray, np.ndarray], bool] | None = None,
-             chunk_steps: int = 2000) -> tuple[int, list]:
-        """Simulate references from the current state; ``stop(ball, t)`` sees the move's
-        samples so far after each chunk and ends the rollout when it returns True. Returns the
-        number of steps simulated and the states after each step."""
-        n_before = sum(len(x) for x in self.logs["t"])
-        t_base = self.t0 + n_before * self.dt
-        balls: list = []
-        times: list = []
-        states: list = []
+    def _n_logged(self) -> int:
+        """How many 1 ms samples the program has logged so far."""
+        return sum(len(x) for x in self.logs["t"])
+
+    def _run(self, q_ref: np.ndarray, qd_ref: np.ndarray, phase: int, chunk_steps: int = 2000,
+             t_base_s: float | None = None, i_first: int = 0, states_out: list | None = None) -> None:
+        """Simulate references (k, 6) from the current state and log every 1 ms sample.
+
+        Reference i is stamped ``t_base_s + (i_first + i) * dt`` [s] (by default ``t_base_s``
+        is the time right after the samples logged so far, ``i_first`` 0: a probing move rolled
+        out chunk by chunk stamps every chunk from the move's start). With ``states_out`` the
+        full state after every step is appended to it, chunk by chunk.
+        """
+        if t_base_s is None:
+            t_base_s = self.t0 + self._n_logged() * self.dt
 
         def on_chunk(i0, sens, q_before):
             n = len(sens)
-            t = t_base + (i0 + np.arange(n)) * self.dt
-            ball_w = sens[:, self.ball_cols]
+            t = t_base_s + (i_first + i0 + np.arange(n)) * self.dt
             self.logs["t"].append(t)
             self.logs["q"].append(q_before.copy())
             self.logs["q_ref"].append(q_ref[i0:i0 + n])
-            self.logs["ball"].append(ball_w.copy())
+            self.logs["ball"].append(sens[:, self.ball_cols].copy())
             self.logs["module"].append(sens[:, self.module_cols].copy())
             self.logs["phase"].append(np.full(n, phase, dtype=np.int8))
             self.logs["cdata"].append(sens[:, self.contact_cols].reshape(n, len(self.contact_names), 5)
                                        if len(self.contact_names) else np.zeros((n, 0, 5)))
-            balls.append(ball_w)
-            times.append(t)
-            return bool(stop is not None and stop(np.vstack(balls), np.concatenate(times)))
 
         t0 = time.perf_counter()
         self.state = simulate(self.cell, q_ref, qd_ref, on_chunk, state=self.state, chunk_steps=chunk_steps,
-                              states_out=states)
+                              states_out=states_out)
         self.wall_s += time.perf_counter() - t0
-        return sum(len(x) for x in times), states
 
     def _truncate(self, n_keep_total: int) -> None:
         """Keep only the first ``n_keep_total`` logged steps (the controller reacted there)."""
@@ -368,66 +372,25 @@ class ProbingProgram:
         c0 = point_w + (r + p.approach_m) * n_w
         c1 = point_w + (r - p.search_m) * n_w
         self.transit(c0, safe_z_world, target.spin_rad)
-        P = line_profile(c0, c1, p.probing_speed_m_s, p.stop_deceleration_m_s2, self.dt)
-        q_ref, qd_ref = self._ik_references(P)
-        found: dict = {}
-
-        def gap(c):
-            return self.obstacles.distance(c, reach_m=r + 1e-3) - r
-
-        def draw(direction_w):
-            # one draw per touch, however many chunks it takes to reach the trigger
-            if "delta" not in found:
-                u = direction_w @ self._R_world_probe_true()
-                # A touch with the motion slightly away from the body (an equator touch while
-                # the servo rises by micrometres) triggers sideways: the model's lateral law.
-                u[2] = max(u[2], 0.0)
-                found["delta"] = float(self.touch_probe.pretravel.draw_m(u / np.linalg.norm(u), self.rng))
-            return found["delta"]
-
-        def stop(balls, times):
-            trig = find_trigger(times, balls, gap, draw) if "trigger" not in found else found["trigger"]
-            if trig is not None:
-                found["trigger"] = trig
-                return True
-            return False
-
-        n_before = sum(len(x) for x in self.logs["t"])
-        n_sim, states = self._run(q_ref, qd_ref, 1, stop=stop, chunk_steps=PROBE_CHUNK_STEPS)
-        trig = found.get("trigger")
-        if trig is None:
-            self.transit_line(c1, c0, p.transit_speed_m_s, 2)
+        out = probing_move(_ArmProbingLine(self, c0, c1), self._gap, self.touch_probe.pretravel, self.rng)
+        trig = out.trigger
+        if trig is None or out.reading is None or out.stop_centre is None:
             return ProbeHit(target, False, np.full(3, np.nan), np.eye(3), float("nan"),
                             f"no trigger within the search distance ({p.search_m * 1e3:g} mm past the expected "
                             "surface)", 0.0)
-        # The controller reacts at the first 1 ms cycle after the trigger.
-        k_react = int(np.ceil((trig.trigger_t_s - (self.t0 + n_before * self.dt)) / self.dt - 1e-9))
-        k_react = min(max(k_react, 1), n_sim)
-        q_latch = self._latched_joints(trig.trigger_t_s)
+        q_latch = out.reading
         centre, R_bp = self._recorded_centre(q_latch)
-        self._truncate(n_before + k_react)
-        self.state = np.vstack(states)[k_react - 1].copy()
-        # Brake along the probing line from the reference at the reaction, then retract.
-        v_ref = P[min(k_react, len(P) - 1)] - P[min(k_react - 1, len(P) - 2)]
-        speed = float(np.linalg.norm(v_ref)) / self.dt
-        u = (c1 - c0) / np.linalg.norm(c1 - c0)
-        s_stop = speed**2 / (2 * p.stop_deceleration_m_s2)
-        tb = np.arange(0.0, speed / p.stop_deceleration_m_s2 + self.dt, self.dt)
-        tb[-1] = min(tb[-1], speed / p.stop_deceleration_m_s2)
-        s = np.minimum(speed * tb - 0.5 * p.stop_deceleration_m_s2 * tb**2, s_stop)
-        P_brake = P[min(k_react, len(P) - 1)] + np.outer(s, u)
-        qd0 = qd_ref[min(k_react, len(qd_ref) - 1)]
-        self.solver.set_q(q_ref[min(k_react, len(q_ref) - 1)])
-        q_b, qd_b = self._ik_references(P_brake, qd_start=qd0)
-        self._run(q_b, qd_b, 2)
-        stop_at = P_brake[-1]
-        overtravel = float(np.linalg.norm(self.logs["ball"][-1][-1] - trig.centre_trigger))
-        self.transit_line(stop_at, c0, p.transit_speed_m_s, 2)
+        overtravel = float(np.linalg.norm(out.stop_centre - trig.centre_trigger))
         to_base = self.T_base_world
         truth = Trigger(trig.touch_t_s, trig.trigger_t_s, transform_points(to_base, trig.centre_touch[None])[0],
                         transform_points(to_base, trig.centre_trigger[None])[0], to_base[:3, :3] @ trig.direction,
                         trig.pretravel_m)
         return ProbeHit(target, True, centre, R_bp, trig.trigger_t_s, None, overtravel, q_latch, truth)
+
+    def _gap(self, centres_world: np.ndarray) -> np.ndarray:
+        """(k,) gap [m] of ball centres (k, 3), world frame, to the part, the sphere or the table."""
+        r = self.spec.ball_radius_m
+        return self.obstacles.distance(centres_world, reach_m=r + 1e-3) - r
 
     def transit_line(self, a: np.ndarray, b: np.ndarray, speed: float, phase: int) -> None:
         P = line_profile(a, b, speed, TRANSIT_ACCELERATION_M_S2, self.dt)
@@ -518,6 +481,90 @@ class ProbingProgram:
         return out, clearance
 
 
+class _ArmProbingLine:
+    """The arm as the probing engine's machine (:class:`twin.touch_probing.ProbingMachine`).
+
+    The ball-centre reference runs along the probing line ``c0_world -> c1_world`` (world
+    frame, from rest at the probing speed, the stop deceleration as its acceleration); its
+    joint references are solved for the whole line before the arm moves, and rolled out
+    PROBE_CHUNK_STEPS at a time so the rollout stops soon after a trigger.
+    """
+
+    chunk_steps = PROBE_CHUNK_STEPS
+
+    def __init__(self, program: ProbingProgram, c0_world: np.ndarray, c1_world: np.ndarray):
+        p = program.spec
+        self.program = program
+        self.c0_world = c0_world
+        self.c1_world = c1_world
+        # where the reference ends (the line's end, or where the brake stops it): the retract starts there
+        self.end_world = c1_world
+        self.P_world = line_profile(c0_world, c1_world, p.probing_speed_m_s, p.stop_deceleration_m_s2, program.dt)
+        self.q_ref, self.qd_ref = program._ik_references(self.P_world)
+        self.n_before = program._n_logged()
+        self.t_base_s = program.t0 + self.n_before * program.dt
+        self.n_done = 0
+        self.states: list[np.ndarray] = []
+
+    def lead_in(self) -> tuple[FloatArray, FloatArray]:
+        """None: the move's first sample is the arm at the line's start."""
+        return np.zeros((0, 3)), np.zeros(0)
+
+    def advance(self, n_steps: int) -> tuple[FloatArray, FloatArray]:
+        """Roll out the next ``n_steps`` references (phase 1): true ball centres (world) and times."""
+        i0 = self.n_done
+        i1 = min(i0 + n_steps, len(self.q_ref))
+        if i1 <= i0:
+            return np.zeros((0, 3)), np.zeros(0)
+        prog = self.program
+        prog._run(self.q_ref[i0:i1], self.qd_ref[i0:i1], 1, chunk_steps=n_steps, t_base_s=self.t_base_s,
+                  i_first=i0, states_out=self.states)
+        self.n_done = i1
+        return prog.logs["ball"][-1], prog.logs["t"][-1]
+
+    def R_world_probe(self) -> FloatArray:
+        return self.program._R_world_probe_true()
+
+    def latch(self, t_s: float) -> FloatArray:
+        """The joint encoders (6,) [rad] latched at ``t_s``."""
+        return self.program._latched_joints(t_s)
+
+    def brake(self, trigger_t_s: float) -> FloatArray:
+        """The controller reacts at the first 1 ms cycle after the trigger: the rollout past it
+        is dropped, and the reference brakes along the probing line from where it was then."""
+        prog = self.program
+        dt = prog.dt
+        k_react = int(np.ceil((trigger_t_s - self.t_base_s) / dt - 1e-9))
+        k_react = min(max(k_react, 1), self.n_done)
+        prog._truncate(self.n_before + k_react)
+        prog.state = np.vstack(self.states)[k_react - 1].copy()
+        P = self.P_world
+        v_ref = P[min(k_react, len(P) - 1)] - P[min(k_react - 1, len(P) - 2)]
+        speed = float(np.linalg.norm(v_ref)) / dt
+        u = (self.c1_world - self.c0_world) / np.linalg.norm(self.c1_world - self.c0_world)
+        P_brake = brake_profile(P[min(k_react, len(P) - 1)], u, speed, prog.spec.stop_deceleration_m_s2, dt)
+        prog.solver.set_q(self.q_ref[min(k_react, len(self.q_ref) - 1)])
+        q_b, qd_b = prog._ik_references(P_brake, qd_start=self.qd_ref[min(k_react, len(self.qd_ref) - 1)])
+        prog._run(q_b, qd_b, 2)
+        self.end_world = P_brake[-1]
+        return prog.logs["ball"][-1][-1]
+
+    def retract(self) -> None:
+        """Back to the approach point at transit speed (phase 2)."""
+        prog = self.program
+        prog.transit_line(self.end_world, self.c0_world, prog.spec.transit_speed_m_s, 2)
+
+
+def brake_profile(p_start: np.ndarray, u: np.ndarray, speed: float, deceleration: float, dt: float) -> np.ndarray:
+    """Positions (k, 3) every ``dt`` braking from ``speed`` [m/s] at ``deceleration`` [m/s^2]
+    along the unit direction ``u`` from ``p_start`` to rest; the first row is ``p_start``."""
+    s_stop = speed**2 / (2 * deceleration)
+    tb = np.arange(0.0, speed / deceleration + dt, dt)
+    tb[-1] = min(tb[-1], speed / deceleration)
+    s = np.minimum(speed * tb - 0.5 * deceleration * tb**2, s_stop)
+    return p_start + np.outer(s, u)
+
+
 def safe_height_world(realized: Realized, T_world_workpiece: np.ndarray) -> float:
     """Transit height: the part's top (at the given pose) or the reference sphere's top, plus
     the probe's ``safe_height_m`` [m, world z of the ball centre]."""
@@ -532,8 +579,8 @@ def joint_state_of(state: np.ndarray, cell: Cell) -> np.ndarray:
     return np.asarray(state)[cell.qpos_adr + 1]
 
 
-__all__ = ["ProbeHit", "ProbeTarget", "ProbingLog", "ProbingProgram", "build_probe_cell", "line_profile",
-           "safe_height_world"]
+__all__ = ["ProbeHit", "ProbeTarget", "ProbingLog", "ProbingProgram", "brake_profile", "build_probe_cell",
+           "line_profile", "safe_height_world"]
 
 
 class ReachCheck:
