@@ -151,12 +151,7 @@ def build_spec(realized: Realized, which: str = "true") -> tuple[mujoco.MjSpec, 
     # Workpiece mesh at this cell's pose.
     mesh = realized.workpiece.mesh
     T_world_workpiece = realized.truth.T_world_workpiece if true else scenario.workpiece.T_world_workpiece_nominal
-    spec.add_mesh(name="workpiece_mesh", uservert=np.asarray(mesh.vertices, dtype=np.float64).ravel(),
-                  userface=np.asarray(mesh.faces, dtype=np.int32).ravel())
-    wp = spec.worldbody.add_body(name="workpiece", pos=T_world_workpiece[:3, 3],
-                                 quat=quat_wxyz(T_world_workpiece[:3, :3]))
-    wp.add_geom(name="workpiece", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="workpiece_mesh",
-                rgba=[0.75, 0.6, 0.35, 1], group=GROUP_WORKPIECE, contype=0, conaffinity=1)
+    add_workpiece(spec, mesh, T_world_workpiece, GROUP_WORKPIECE, conaffinity=1)
 
     # Encoder readings, evaluated in the same step as the sensor (EtherCAT pairing).
     for name in JOINT_NAMES:
@@ -165,6 +160,19 @@ def build_spec(realized: Realized, which: str = "true") -> tuple[mujoco.MjSpec, 
     poses = {"T_world_workpiece": T_world_workpiece, "T_flange_sensor": T_flange_sensor, "sensor": sensor,
              "probe": probe}
     return spec, poses
+
+
+def add_workpiece(spec: mujoco.MjSpec, mesh: trimesh.Trimesh, T_world_workpiece: np.ndarray, group: int,
+                  conaffinity: int) -> None:
+    """The workpiece mesh (workpiece frame [m]) as the ``workpiece`` body and geom at
+    ``T_world_workpiece``: the one way every machine's model (arm cell or CMM) takes the part.
+    Rays see its real triangles; ``conaffinity`` 1 lets the arm's collision geoms meet it."""
+    spec.add_mesh(name="workpiece_mesh", uservert=np.asarray(mesh.vertices, dtype=np.float64).ravel(),
+                  userface=np.asarray(mesh.faces, dtype=np.int32).ravel())
+    wp = spec.worldbody.add_body(name="workpiece", pos=T_world_workpiece[:3, 3],
+                                 quat=quat_wxyz(T_world_workpiece[:3, :3]))
+    wp.add_geom(name="workpiece", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="workpiece_mesh",
+                rgba=[0.75, 0.6, 0.35, 1], group=group, contype=0, conaffinity=conaffinity)
 
 
 REFERENCE_SPHERE_STEM_RADIUS_M = 0.004

@@ -38,10 +38,10 @@ from algorithms.probing.cmm_planning import (
 )
 from algorithms.probing.program import MeasurePoint, Program, SelectStylus
 from algorithms.probing.sweep import ProbeGeometry, ProbeSweep, frame_with_z
-from twin.cell import quat_wxyz
+from twin.cell import add_workpiece
 from twin.errors import TwinError
 from twin.realize import load_workpiece_mesh
-from twin.robot import MODELS_DIR
+from twin.robot import GROUP_WORKPIECE, MODELS_DIR
 from twin.scenario import Scenario
 from twin.sensors.touch_probe import BALL_SITE, TouchProbe
 from twin.touch_probing import probing_move
@@ -243,11 +243,7 @@ class _Machine:
         self.probe.attach(spec, spec.body("probe_mount"))
         T = setup.T_world_part_true
         m = setup.mesh
-        spec.add_mesh(name="workpiece_mesh", uservert=np.asarray(m.vertices, dtype=np.float64).ravel(),
-                      userface=np.asarray(m.faces, dtype=np.int32).ravel())
-        wp = spec.worldbody.add_body(name="workpiece", pos=T[:3, 3], quat=quat_wxyz(T[:3, :3]))
-        wp.add_geom(name="workpiece", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="workpiece_mesh",
-                    rgba=[0.75, 0.6, 0.35, 1], group=3, contype=0, conaffinity=0)
+        add_workpiece(spec, m, T, GROUP_WORKPIECE, conaffinity=0)
         self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
         self.dt = float(self.model.opt.timestep)
