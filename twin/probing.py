@@ -52,7 +52,7 @@ from twin.realize import Realized
 from twin.replay import ContactRecord, add_collision_checks, contact_columns, contact_records
 from twin.robot import HOME_Q, UR5E_DH
 from twin.sensors.base import sensor_slice
-from twin.sensors.touch_probe import BALL_SITE, MODULE_SITE, Trigger
+from twin.sensors.touch_probe import BALL_SITE, MODULE_SITE, Trigger, probe_spec
 from twin.sim import simulate
 from twin.touch_probing import probing_move
 from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
@@ -134,7 +134,7 @@ class ProbingLog:
     contacts: tuple
     min_clearance_m: float
     wall_s: float
-    final_state: np.ndarray = field(repr=False)
+    final_state: np.ndarray | None = field(repr=False)
 
     @property
     def duration_s(self) -> float:
@@ -164,7 +164,7 @@ class Obstacles:
         lo, hi = index.mesh.bounds
         self.box_lo = lo
         self.box_hi = hi
-        probe = cell.scenario.probe
+        probe = probe_spec(cell.scenario)
         self.sphere_centre = np.asarray(probe.sphere_xyz_m, dtype=np.float64)
         self.sphere_radius = probe.sphere_radius_m
 
@@ -228,11 +228,13 @@ class ProbingProgram:
                  t_offset_s: float = 0.0, q_start: np.ndarray = HOME_Q):
         self.realized = realized
         self.scenario = realized.scenario
-        self.spec = self.scenario.probe
+        self.spec = probe_spec(self.scenario)
         self.nominal = nominal
         self.cell = cell
         self.rng = rng
         self.rng_encoder = realized.streams.generator("probe_encoder")
+        if cell.probe is None:
+            raise TwinError("the probing cell has no touch probe: build it with build_probe_cell")
         self.touch_probe = cell.probe
         self.obstacles = Obstacles(cell, realized.workpiece.index)
         self.dt = float(cell.model.opt.timestep)
@@ -402,7 +404,7 @@ class ProbingProgram:
         """The probe frame's rotation in the world at the latest simulated step (true cell)."""
         q = self.logs["q"][-1][-1]
         T_bf = dh_forward(q, UR5E_DH)
-        return self.T_world_base[:3, :3] @ T_bf[:3, :3] @ self.scenario.probe.T_flange_probe[:3, :3]
+        return self.T_world_base[:3, :3] @ T_bf[:3, :3] @ self.spec.T_flange_probe[:3, :3]
 
     def _latched_joints(self, t_s: float) -> np.ndarray:
         """Joint encoder readings latched at ``t_s`` (true positions interpolated between the
@@ -417,7 +419,7 @@ class ProbingProgram:
 
     def _recorded_centre(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Ball centre and probe rotation, base frame, from joints with the nominal kinematics."""
-        T_bp = dh_forward(q, UR5E_DH) @ self.scenario.probe.T_flange_probe
+        T_bp = dh_forward(q, UR5E_DH) @ self.spec.T_flange_probe
         return T_bp[:3, 3] + self.spec.tip_length_m * T_bp[:3, 2], T_bp[:3, :3]
 
     # ------------------------------------------------------------------ the whole program
@@ -568,7 +570,7 @@ def brake_profile(p_start: np.ndarray, u: np.ndarray, speed: float, deceleration
 def safe_height_world(realized: Realized, T_world_workpiece: np.ndarray) -> float:
     """Transit height: the part's top (at the given pose) or the reference sphere's top, plus
     the probe's ``safe_height_m`` [m, world z of the ball centre]."""
-    probe = realized.scenario.probe
+    probe = probe_spec(realized.scenario)
     top = transform_points(T_world_workpiece, np.asarray(realized.workpiece.mesh.vertices))[:, 2].max()
     top = max(top, probe.sphere_xyz_m[2] + probe.sphere_radius_m)
     return float(top + probe.safe_height_m + probe.ball_radius_m)
@@ -597,7 +599,7 @@ class ReachCheck:
     HOUSING_GRID = 5
 
     def __init__(self, nominal: Cell, realized: Realized):
-        p = realized.scenario.probe
+        p = probe_spec(realized.scenario)
         self.realized = realized
         self.nominal = nominal
         self.T_base_world = inv_pose(realized.scenario.T_world_base)
@@ -615,7 +617,7 @@ class ReachCheck:
 
     def spin(self, T_coarse: np.ndarray, point_wp: np.ndarray, normal_wp: np.ndarray) -> float | None:
         """A spin [rad] at which the probe reaches the point and the housing clears, or None."""
-        p = self.realized.scenario.probe
+        p = probe_spec(self.realized.scenario)
         T = self.realized.scenario.T_world_base @ T_coarse
         ends = [transform_points(T, (point_wp + off * normal_wp)[None])[0]
                 for off in (p.ball_radius_m + p.approach_m, p.ball_radius_m - p.search_m)]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import Any
 
 import numpy as np
 
@@ -107,7 +108,7 @@ def run_plan(args: argparse.Namespace) -> int:
     with reporting(args, "cmm plan") as say, Staged(out) as stage:
         plans = plan_programs(teach, setup, _methods(args.planner))
         say(f"planned {', '.join(plans)}")
-        report = {"teach": str(args.teach), "scenario": str(args.scenario), "plans": {}}
+        report: dict[str, Any] = {"teach": str(args.teach), "scenario": str(args.scenario), "plans": {}}
         for m, p in plans.items():
             write_dmis_file(p.program, stage.folder / f"{m}.dmi")
             report["plans"][m] = plan_report(p) | {"program": str(out / f"{m}.dmi")}
@@ -183,7 +184,8 @@ def run_compare(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with reporting(args, "cmm compare") as say, Staged(out) as stage:
         plans = plan_programs(teach, setup)
-        rows, runs = [], {}
+        rows: list[dict[str, Any]] = []
+        runs = {}
         for m, p in plans.items():
             write_dmis_file(p.program, stage.folder / f"{m}.dmi")
             run = execute(p.program, setup, _rng(setup, args.seed))
@@ -192,7 +194,7 @@ def run_compare(args: argparse.Namespace) -> int:
             rows.append({"method": m, "plan": plan_report(p), "run": run_report(run)})
         table = comparison_table(rows)
         (stage.folder / TABLE_FILE).write_text(f"# {teach.name} on {setup.scenario.name}\n\n{table}")
-        report = {"teach": str(args.teach), "scenario": str(args.scenario), "programs": rows}
+        report: dict[str, Any] = {"teach": str(args.teach), "scenario": str(args.scenario), "programs": rows}
         if rrd is not None:
             from twin.viz.cmm import save_cmm_recording
 

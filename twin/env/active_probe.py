@@ -102,6 +102,7 @@ from twin.qualification import Qualification, probe_sigma_m, qualification_targe
 from twin.realize import Realized
 from twin.replay import contact_records
 from twin.scenario import Scenario
+from twin.sensors.touch_probe import probe_spec
 
 __all__ = ["ACTION_SIZE", "DEFAULT_SCENARIOS", "OBSERVATION_LAYOUT", "OBSERVATION_SIZE", "ActiveProbeEnv",
            "ProbeResult", "ProbeScenario", "probe_target", "view_action"]
@@ -163,7 +164,7 @@ def probe_target(action: np.ndarray, es: EnvScenario, reach: ReachCheck,
         it), or a sentence saying why not.
     """
     sc = es.scenario
-    p = sc.probe
+    p = probe_spec(sc)
     index = es.workpiece.index
     T_world_wp = sc.T_world_base @ T_base_workpiece
     view = decode_action(view_action(action), es.geometry)
@@ -254,7 +255,9 @@ class ActiveProbeEnv(ActiveLocalizationEnv):
                              qualification=_qualify(realized, es.nominal), reach=reach)
 
     # ------------------------------------------------------------------ episodes
-    def _start_episode(self, es: ProbeScenario, realized: Realized) -> dict:
+    def _start_episode(self, es: EnvScenario, realized: Realized) -> dict:
+        if not isinstance(es, ProbeScenario):
+            raise TypeError(f"ActiveProbe-v0 runs on a ProbeScenario, got {type(es).__name__}")
         cell = build_probe_cell(realized)
         program = ProbingProgram(realized, es.nominal, cell, realized.streams.generator("probe"))
         program.start()
