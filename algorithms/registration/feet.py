@@ -33,7 +33,7 @@ class Feet:
     """Closest points of the points ``Y`` (N, 3) [m] (world frame) under trial poses.
 
     From the tree, with each point's previous face as the hint: to within ``far_rel_error`` of
-    the distance while the points' RMS distance exceeds ``far_rms_rel`` median face sizes (a far
+    the distance while the points' RMS distance exceeds ``far_rms_rel`` median edge lengths (a far
     point needs no exact foot to point the way), exactly after. When the start is already close
     (``near_from_start``: all points after a subset has converged), from each point's list of
     nearest faces (:meth:`MeshIndex.query_near`, exact), a few point-triangle tests a point.

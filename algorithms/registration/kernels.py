@@ -236,7 +236,7 @@ if _numba is not None:
     @_numba.njit(cache=True, nogil=True)
     def feet(Y, T, hint, shrink, use_near, anchor, nfaces, reach, data, leaf_data, nodes_f, nodes_i,
              hint_map, perm, normals):  # pragma: no cover - compiled
-        """_Feet at the pose T: the points in the model frame and their closest points."""
+        """feet.Feet at the pose T: the points in the model frame and their closest points."""
         n = Y.shape[0]
         Ym = np.empty((n, 3))
         for i in range(n):

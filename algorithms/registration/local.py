@@ -133,10 +133,8 @@ MAX_ITERATIONS = {"hong_tan": 100, "tangent": 100, "menq": 100, "va": 3000, "icp
 TOLERANCE = {"hong_tan": 1e-9, "tangent": 1e-9, "menq": 1e-9, "va": 1e-12, "icp": 1e-12, "fine_001": 1e-22}
 #: RMS residual below ``FLOOR_REL * model size`` counts as an exact fit.
 FLOOR_REL = 1e-12
-#: While the RMS distance exceeds FAR_RMS_REL median edge lengths (and at the first query), feet
-#: are looked up to within FAR_REL_ERROR of the distance: a far point needs no exact foot to point
-#: the way, and an exact search from far away visits many leaves. The iteration never stops on
-#: approximate feet.
+#: Feet to within FAR_REL_ERROR of the distance while the RMS distance exceeds FAR_RMS_REL median
+#: edge lengths: a far point needs no exact foot to point the way, and an exact search visits many leaves.
 FAR_RMS_REL = 2.0
 FAR_REL_ERROR = 0.3
 #: Hong-Tan stops before an update that would move the pose by less than this many standard
