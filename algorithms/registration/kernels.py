@@ -3,8 +3,8 @@ the point-to-plane normal equations, the 6x6 minimum-norm solve, and Hong-Tan's 
 iterations (:func:`run`, see ``local._plain_steps``).
 
 Module-level functions, so that numba's disk cache finds them again in the next process (the
-same functions defined in a closure were compiled anew in every process: 7.5 s at the first
-localization of each). Without numba every name below is None and the library uses numpy.
+same functions defined in a closure are compiled anew in every process). Without numba every
+name below is None and the library uses numpy.
 """
 
 from __future__ import annotations
@@ -134,14 +134,21 @@ if _numba is not None:
         w = np.empty(n)
         for k in range(n):
             w[k] = a[k, k]
-        for i in range(n):  # ascending, with their vectors (insertion sort: n is 6)
+        sort_ascending(w, V)
+        return w, V
+
+    @_numba.njit(cache=True, nogil=True)
+    def sort_ascending(w, V):  # pragma: no cover - compiled
+        """Sort the eigenvalues ``w`` ascending in place, with their vectors (the columns of
+        ``V``): an insertion sort, n is 6."""
+        n = w.shape[0]
+        for i in range(n):
             j = i
             while j > 0 and w[j - 1] > w[j]:
                 w[j - 1], w[j] = w[j], w[j - 1]
                 for k in range(n):
                     V[k, j - 1], V[k, j] = V[k, j], V[k, j - 1]
                 j -= 1
-        return w, V
 
     @_numba.njit(cache=True, nogil=True)
     def solve(A, g):  # pragma: no cover - compiled
@@ -229,7 +236,7 @@ if _numba is not None:
     @_numba.njit(cache=True, nogil=True)
     def feet(Y, T, hint, shrink, use_near, anchor, nfaces, reach, data, leaf_data, nodes_f, nodes_i,
              hint_map, perm, normals):  # pragma: no cover - compiled
-        """_Feet at the pose T: the points in the model frame and their closest points."""
+        """feet.Feet at the pose T: the points in the model frame and their closest points."""
         n = Y.shape[0]
         Ym = np.empty((n, 3))
         for i in range(n):
