@@ -340,7 +340,7 @@ class PathSpec:
         acceleration_m_s2: path acceleration limit of process lines and transits [m/s^2].
         touchdown_acceleration_m_s2: acceleration limit of the approach and retract moves along
             the tool axis [m/s^2]: the servo lag in the deceleration before touch-down pushes
-            the tool into the part (about 0.6 mm per m/s^2 in this cell), so it is low.
+            the tool into the part in proportion to it, so it is low.
         point_spacing_m: spacing of the contact points along a line [m].
         line_spacing_m: spacing of the lines of the CAD raster path [m].
         margin_m: the CAD raster stays this far inside the part's footprint [m].

@@ -34,8 +34,7 @@ DROP_MARGIN_POINTS = 2     # contact points dropped on each side of a bad pose (
 MAX_DROP_ROUNDS = 8        # solve, drop, rebuild: at most this many times
 # The shank and holder keep this far from the part: more than the replay's collision shape
 # (a 1 mm height field, twin.replay.HFIELD_RES_M) stands out from the exact part, which at a
-# concave corner (a punch meeting its base) cuts the corner across a cell (2 mm still let the
-# bottle punch's shank touch the height field by 26 um).
+# concave corner (a punch meeting its base) cuts the corner across a cell.
 CLEARANCE_M = 0.003
 CLEARANCE_STEP_M = 0.002   # spacing of the clearance checks along the tool
 # The foot of a tilted shank (from the ball's equator to the first profile sample, as near a
@@ -49,7 +48,7 @@ BALL_TOLERANCE_M = 1e-4    # the ball may touch (approach, retract) but not ente
 STEER_WINDOW_POINTS = 8    # contact points on each side of an arm problem that share the new tilt
 STEER_RAMP_POINTS = 4      # ... and over which it ramps in and out
 # A line this short is not re-tilted: its approach, few points and retract follow each other too
-# closely (on the bottle punch, 3-point lines at a fillet, re-tilted, replayed 0.45-0.50 mm off).
+# closely for the servos to follow a new tilt.
 STEER_MIN_LINE_POINTS = 2 * STEER_WINDOW_POINTS + 1
 WRIST_SIN_MIN = 0.05       # |sin q5| below this: too near the wrist singularity for a steered axis
 ARM_PROBLEMS = ("unreachable", "singular", "discontinuous")

@@ -55,7 +55,7 @@ JUMP_RAD = 0.2
 TABLE_CLEARANCE_M = 0.002   # the arm's links keep this far above the table
 # Joint accelerations of a process path are held to this fraction of the arm's limits: the
 # servos lag in proportion to the acceleration, and a five-axis path that turns the tool
-# about a small radius (a sphere, a punch's flank) would otherwise lag by 0.5 mm and more.
+# about a small radius (a sphere, a punch's flank) would otherwise lag off the path.
 PATH_ACCELERATION_FRACTION = 0.5
 
 

@@ -30,7 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from algorithms.geometry.se3 import as_pose
-from algorithms.registration import GlobalLocalizationResult, HybridResult, SymmetricResult, global_localize
+from algorithms.registration import (
+    GlobalLocalizationResult,
+    HybridResult,
+    RegistrationResult,
+    SymmetricResult,
+    global_localize,
+)
 from algorithms.registration.local import DEFAULT_METHOD, METHODS, STOP_SIGMAS, localize
 from algorithms.registration.result import Status
 from algorithms.registration.symmetric import FEATURE_TYPES
@@ -254,6 +260,7 @@ def run(args: argparse.Namespace) -> int:
         init = found.T_world_workpiece
     if symmetric != "none" or args.allowance is not None:
         return _run_symmetric(args, mesh, points, init, sigma, outlier, symmetric, scale)
+    res: RegistrationResult
     if found is not None:
         res = found
     else:
@@ -371,6 +378,7 @@ def read_allowance(path: str, units: str, default_value: float | None):
 def _run_symmetric(args, mesh, points, init, sigma, outlier, symmetric, scale) -> int:
     from algorithms.registration.symmetric import localize_symmetric
 
+    res: SymmetricResult | HybridResult
     if args.allowance is None:
         if args.allowance_value is not None or args.stock is not None:
             raise TwinError("--allowance-value and --stock apply with --allowance only")

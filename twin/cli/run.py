@@ -120,8 +120,8 @@ def summary_rows(h: dict, files: str | None = None) -> list[tuple[str, str]]:
     """The summary of ``twin run`` and ``twin demo`` for a reader, from the headline ``h``."""
     rows = [("complete", "yes" if h["complete"] else f"no: stopped at {h.get('failed_stage')}: {h.get('failure')}")]
     loc = h.get("localization")
-    untrusted_loc = loc is not None and loc["status"] != "ok"
-    rows.append(("trusted", yes_no(h["trusted"]) + (f" (localization {loc['status']})" if untrusted_loc else "")))
+    loc_note = f" (localization {loc['status']})" if loc is not None and loc["status"] != "ok" else ""
+    rows.append(("trusted", yes_no(h["trusted"]) + loc_note))
     if loc is not None:
         if "free" in (loc["rotation_error_deg"], loc["translation_error_mm"]):
             # along a free direction the points say nothing, so there is no pose error to state

@@ -181,7 +181,9 @@ class ActiveScanEnv(ActiveLocalizationEnv):
         return ScanScenario(**{f.name: getattr(es, f.name) for f in fields(es)},
                             clearance=build_scan_cell(seed_realized(scenario, es.workpiece), es.hfield, "nominal"))
 
-    def _start_episode(self, es: ScanScenario, realized: Realized) -> dict:
+    def _start_episode(self, es: EnvScenario, realized: Realized) -> dict:
+        if not isinstance(es, ScanScenario):   # _prepare makes every scenario of this environment one
+            raise TypeError(f"ActiveScanEnv runs on a ScanScenario (from its _prepare), got {type(es).__name__}")
         true_cell = build_scan_cell(realized, es.hfield)
         arm = ScanArm(realized, es.nominal, true_cell, es.clearance, realized.scenario.scan.speed_m_s,
                       self.retract_m)

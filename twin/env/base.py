@@ -175,6 +175,9 @@ class ActiveLocalizationEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
     #: The number of values of an action (each in [-1, 1]).
     action_size: int = 0
+    #: Both spaces are boxes, set in ``__init__`` (the observation is clipped to its bounds).
+    action_space: spaces.Box
+    observation_space: spaces.Box
 
     def __init__(self, scenarios, *, tolerance_m: float, tolerance_deg: float, max_steps: int,
                  time_cost_per_s: float, unreachable_penalty: float, collision_penalty: float,

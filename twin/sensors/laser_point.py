@@ -32,7 +32,7 @@ class LaserPoint(LaserSensor):
                         objtype=mujoco.mjtObj.mjOBJ_SITE, objname="laser", intprm=[RAYDATA_ALL, 0, 0])
 
     def decode(self, model: mujoco.MjModel, sensordata: np.ndarray, q: np.ndarray) -> RawRays:
-        # one ray a step: MuJoCo's site rangefinder, evaluated in the rollout (about 1 us a step)
+        # one ray a step: MuJoCo's site rangefinder, evaluated in the rollout
         ray = sensordata[:, sensor_slice(model, "laser_ray")]
         xaxis = sensordata[:, sensor_slice(model, "laser_xaxis")]
         origin = ray[:, None, 4:7]

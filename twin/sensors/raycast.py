@@ -1,16 +1,13 @@
 """Bulk ray casting against a cell, with MuJoCo's ray semantics at Embree's speed.
 
 A scan of the 1024-beam line profiler casts about a million beams and as many receiver rays
-per simulated second; MuJoCo's camera rangefinder cast them at 1.0 M rays/s against the
-87k-face S-surface inside the rollout (benchmarks/results_scan.md), so the scan could not keep
-up with real time. Here the static mesh geoms (the workpiece, a meshed
-fixture) go to Embree (embreex), a well-kept bulk ray caster; each Embree hit is then refined
-in double precision on the triangle it found, so the distance and the face normal are MuJoCo's
-(the same float32 vertices, the same plane intersection). On the 2.3 M beams of a 1024-beam
-S-surface scan the distances agreed with MuJoCo's camera rangefinder to 1.4e-11 m, every hit
-and miss alike, and the normals everywhere but at 12 beams through an edge shared by two faces
-(either face is right there); tests/test_raycast.py holds it to 1e-9 m. Every other geom (the
-table plane, the robot's links at each step's joints, primitive fixtures) is still cast by
+per simulated second, too many for MuJoCo's camera rangefinder inside the rollout to keep up
+with real time. Here the static mesh geoms (the workpiece, a meshed fixture) go to Embree
+(embreex), a well-kept bulk ray caster; each Embree hit is then refined in double precision on
+the triangle it found, so the distance and the face normal are MuJoCo's (the same float32
+vertices, the same plane intersection; at an edge shared by two faces either face's normal is
+right). tests/test_raycast.py holds the distances to MuJoCo's within 1e-9 m. Every other geom
+(the table plane, the robot's links at each step's joints, primitive fixtures) is still cast by
 MuJoCo, only for the beams that could reach it before the mesh.
 
 The static meshes are moved to :data:`HIDDEN_GROUP` in a private copy of the model so that
@@ -37,7 +34,7 @@ RAY_THREADS = 2
 # Below this many rays one thread is faster than starting two.
 THREADED_MIN_RAYS = 50_000
 # Many steps are cast in blocks of about this many rays: their temporaries (a few MB) are
-# reused by the allocator instead of being mapped afresh (page faults cost as much as the rays).
+# reused by the allocator instead of being mapped afresh (page faults would rival the casts).
 BLOCK_RAYS = 256 * 1024
 
 
