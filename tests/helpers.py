@@ -71,9 +71,35 @@ def assert_pose_close(T_est, T_ref, tol_m: float, tol_rad: float, what: str = "p
     )
 
 
+def tiered(values, default, ids=str) -> list:
+    """Parameters of a sweep: those whose id is in ``default`` run in the default suite, the
+    others in the slow tier (``pytest -m slow``, which CI runs after the default suite)."""
+    import pytest
+
+    return [pytest.param(v, id=ids(v), marks=() if ids(v) in default else pytest.mark.slow) for v in values]
+
+
 def run_cli(*args):
+    """``twin ARGS`` in this process: ``twin.cli.main`` with stdout and stderr captured, as a
+    ``CompletedProcess`` (``returncode``, ``stdout``, ``stderr``). What a user sees but a call
+    cannot show (start-up, signals, a closed pipe, the entry point) is tested with
+    :func:`run_cli_process`."""
+    import contextlib
+    import io
+    import subprocess
+
+    from twin.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    argv = [str(a) for a in args]
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return subprocess.CompletedProcess(["twin", *argv], code, out.getvalue(), err.getvalue())
+
+
+def run_cli_process(*args):
     """``python -m twin.cli ARGS`` in a subprocess (stdout, stderr and exit code as a user sees them)."""
     import subprocess
     import sys
 
-    return subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "twin.cli", *map(str, args)], capture_output=True, text=True)

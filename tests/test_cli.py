@@ -1,25 +1,34 @@
 """The command line: help everywhere, files written, bad input is one line and a non-zero exit."""
 
 import json
-import os
 import subprocess
 import sys
 
 import pytest
 
-from tests.helpers import SCENARIOS
+from tests.helpers import SCENARIOS, run_cli
 from tests.tolerances import RECORDING_FLOAT32_M
 from twin.cli import COMMANDS, main
-
-
-def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True)
 
 
 @pytest.mark.parametrize("command", COMMANDS)
 def test_help_on_every_subcommand(command, capsys):
     assert main([command, "--help"]) == 0
     assert "usage: twin " + command in capsys.readouterr().out
+
+
+def test_help_lists_every_command_without_loading_the_numerics():
+    # `twin --help` (and a typo'd command) must answer at once: the command table comes from
+    # twin.cli, and no command module, NumPy, SciPy, MuJoCo, trimesh or numba is imported
+    code = ("import sys, contextlib, io; from twin.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()) as out: rc = main(['--help'])\n"
+            "heavy = [m for m in ('numpy', 'scipy', 'mujoco', 'trimesh', 'numba', 'twin.cli.run')\n"
+            "         if m in sys.modules]\n"
+            "print(rc, heavy, out.getvalue())")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.stdout.startswith("0 []"), r.stdout + r.stderr
+    for name, help_text in COMMANDS.items():
+        assert name in r.stdout and help_text[:40] in " ".join(r.stdout.split())
 
 
 def write_scenario(tmp_path, text, name="bad.toml"):
@@ -138,13 +147,14 @@ def _closed_port() -> int:
     (["--spawn", "--connect", "rerun+http://127.0.0.1:9876/proxy"], "not allowed with argument"),
     (["--spawn"], "--spawn needs a display"),
 ])
-def test_a_live_viewer_that_cannot_be_reached_is_refused_before_any_work(tmp_path, command, live, message):
+def test_a_live_viewer_that_cannot_be_reached_is_refused_before_any_work(tmp_path, monkeypatch, command, live,
+                                                                         message):
     scen = SCENARIOS / "s_surface.toml"
     out = tmp_path / "out"
     args = [command, str(scen)] if command == "run" else [command, "--scenario", str(scen)]
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    r = subprocess.run([sys.executable, "-m", "twin.cli", *args, "--out", str(out),
-                        *[a.format(port=_closed_port()) for a in live]], capture_output=True, text=True, env=env)
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    r = run_cli(*args, "--out", out, *[a.format(port=_closed_port()) for a in live])
     assert r.returncode == 2
     assert message in r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -20,13 +20,6 @@ KEYS = {"T_world_workpiece", "rmse_m", "iterations", "converged", "method", "tim
 CUBE_NOISE_M = 2e-6
 
 
-@pytest.fixture(autouse=True)
-def _dispatcher_knows_localize(monkeypatch):
-    # the dispatcher lists its subcommands; make sure this one is among them
-    if "localize" not in cli.COMMANDS:
-        monkeypatch.setattr(cli, "COMMANDS", [*cli.COMMANDS, "localize"])
-
-
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     d = tmp_path_factory.mktemp("loc")

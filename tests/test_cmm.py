@@ -42,14 +42,20 @@ def _setup(name: str):
 
 
 @cache
-def _case(case: str):
+def _plans(case: str):
     scen, teach = CASES[case]
     setup = _setup(scen)
-    plans = plan_programs(load_teach(TEACH / f"{teach}.toml"), setup)
+    return setup, plan_programs(load_teach(TEACH / f"{teach}.toml"), setup)
+
+
+@cache
+def _case(case: str):
+    setup, plans = _plans(case)
     runs = {m: execute(p.program, setup, np.random.default_rng(1)) for m, p in plans.items()}
     return setup, plans, runs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["inner_sphere", "through_hole"])
 def test_documents_experiments_baseline_hits_the_part_and_the_planners_do_not(case):
     setup, plans, runs = _case(case)
@@ -66,6 +72,7 @@ def test_documents_experiments_baseline_hits_the_part_and_the_planners_do_not(ca
     assert len(plans["baseline"].collisions) >= 1 and plans["document"].collisions == ()
 
 
+@pytest.mark.slow
 def test_below_the_plane_the_document_planner_hits_the_post_and_full_check_does_not():
     _, plans, runs = _case("below_plane")
     assert len(runs["document"].contacts) >= 1
@@ -98,7 +105,7 @@ def test_path_length_and_cycle_time_are_the_programs():
 
 def test_shipped_programs_round_trip_through_dmis():
     for case in CASES:
-        _, plans, _ = _case(case)
+        _, plans = _plans(case)
         for p in plans.values():
             assert parse_dmis(write_dmis(p.program)) == p.program
 

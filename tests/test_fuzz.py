@@ -5,7 +5,7 @@ Every case must end in one of the documented exit statuses with, for a refusal (
 on stderr, nothing on stdout and no output folder; for a finished run, outputs that are
 complete and consistent with themselves. An exception escaping ``main`` (a traceback) fails.
 
-CI runs a fixed, derandomized budget (about a minute); ``TWIN_FUZZ=slow pytest -m slow
+CI runs a fixed, derandomized budget (about a minute); ``TWIN_FUZZ=slow pytest -m long
 tests/test_fuzz.py`` runs the large random one (2,000 cases; README, "Hardening").
 """
 
@@ -43,7 +43,7 @@ def budget(target: str):
 
 
 def slow_or_ci(fn):
-    return pytest.mark.slow(fn) if SLOW else fn
+    return pytest.mark.long(fn) if SLOW else fn
 
 
 # ------------------------------------------------------------------ a valid problem

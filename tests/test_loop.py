@@ -5,7 +5,8 @@ covered without editing this test): every run completes and is trusted, every re
 unintended contact and stays within 0.5 mm of its path, the compensated CAD path lies on the
 true surface within 3 sigma + the fit error, the errors along the determined directions are
 within 3 reported standard deviations, and the free directions are listed. CI runs it with
-coarser process rasters (``TWIN_LOOP=full`` runs the scenarios as written).
+coarser process rasters (``TWIN_LOOP=full`` runs the scenarios as written); the default suite
+runs three of them (:data:`SMOKE`), the slow tier every one.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 import pytest
 
 from algorithms.paths.regions import ProcessRegion, RegionError, chain_pieces, split_runs
-from tests.helpers import run_cli
+from tests.helpers import run_cli, tiered
 from twin.cli.common import EXIT_STAGE_FAILED
 from twin.errors import TwinError
 from twin.scenario import load_scenario
@@ -26,6 +27,9 @@ from twin.scenario import load_scenario
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = sorted((ROOT / "scenarios").glob("*.toml"))
 FULL = os.environ.get("TWIN_LOOP") == "full"
+#: The loop's smoke test in the default suite: a prismatic block, a sphere (every rotation
+#: free) and a block with a bore; the other scenarios run in the slow tier.
+SMOKE = ("cube", "sphere", "through_hole")
 # CI: a coarser CAD raster (12 mm between lines) keeps each replay short; the scan is as written.
 SHORT = {"path": {"line_spacing_m": 0.012}}
 
@@ -66,13 +70,27 @@ def _write_short(src: Path, folder: Path) -> Path:
     return dst
 
 
-@pytest.mark.parametrize("scenario", [s for s in SCENARIOS if _laser(s)], ids=lambda p: p.stem)
-def test_every_scenario_closes_the_loop(tmp_path, scenario):
-    scen = _write_short(scenario, tmp_path)
-    out = tmp_path / "out"
-    r = run_cli("run", str(scen), "--out", str(out))
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    """``twin run`` on a scenario as CI runs it, once per module: (the call, its report)."""
+    done: dict = {}
+
+    def run(scenario: Path):
+        if scenario.stem not in done:
+            folder = tmp_path_factory.mktemp(scenario.stem)
+            out = folder / "out"
+            r = run_cli("run", str(_write_short(scenario, folder)), "--out", str(out))
+            report = json.loads((out / "report.json").read_text()) if r.returncode == 0 else None
+            done[scenario.stem] = (r, report)
+        return done[scenario.stem]
+
+    return run
+
+
+@pytest.mark.parametrize("scenario", tiered([s for s in SCENARIOS if _laser(s)], SMOKE, ids=lambda p: p.stem))
+def test_every_scenario_closes_the_loop(short_run, scenario):
+    r, report = short_run(scenario)
     assert r.returncode == 0, r.stderr
-    report = json.loads((out / "report.json").read_text())
     assert report["complete"] and report["trusted"]
     loc = report["localization"]
     assert loc["max_error_sigmas"] <= 3.0, loc["determined_error_sigmas"]
@@ -87,11 +105,8 @@ def test_every_scenario_closes_the_loop(tmp_path, scenario):
     assert cad["max_surface_error_mm"] <= cad["surface_error_bound_mm"]
 
 
-def test_free_directions_of_symmetric_parts_are_listed(tmp_path):
-    scen = _write_short(ROOT / "scenarios" / "sphere.toml", tmp_path)
-    out = tmp_path / "out"
-    r = run_cli("run", str(scen), "--out", str(out))
-    report = json.loads((out / "report.json").read_text())
+def test_free_directions_of_symmetric_parts_are_listed(short_run):
+    r, report = short_run(ROOT / "scenarios" / "sphere.toml")
     assert r.returncode == 0, r.stderr
     loc = report["localization"]
     assert not loc["observable"] and len(loc["free_directions"]) == 3

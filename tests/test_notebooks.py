@@ -1,11 +1,14 @@
 """Every notebook executes top to bottom from its own folder (they are thin studies over the
-library; ``pip install -e ".[notebook]"`` adds Jupyter). Outputs are not committed."""
+library; ``pip install -e ".[notebook]"`` adds Jupyter). Outputs are not committed. The default
+suite runs the quick start, the slow tier every notebook."""
 
 from pathlib import Path
 
 import nbformat
 import pytest
 from nbclient import NotebookClient
+
+from tests.helpers import tiered
 
 ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
@@ -17,7 +20,7 @@ def test_notebooks_are_committed_without_outputs():
         assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), path.name
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+@pytest.mark.parametrize("path", tiered(NOTEBOOKS, ("quickstart.ipynb",), ids=lambda p: p.name))
 def test_notebook_runs_from_its_folder(path, tmp_path):
     nb = nbformat.read(path, as_version=4)
     # a copy of the folder's notebook runs in a scratch folder beside links to the scenarios and studies,

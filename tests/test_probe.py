@@ -16,7 +16,7 @@ import pytest
 
 from algorithms.geometry.se3 import transform_points
 from algorithms.probing.pretravel import PretravelModel
-from tests.helpers import run_cli
+from tests.helpers import run_cli, tiered
 from twin import evaluate
 from twin.cell import build_cell
 from twin.errors import TwinError
@@ -170,6 +170,7 @@ def test_points_below_six_is_bad_input(tmp_path):
     assert r.returncode == 2 and "at least 6" in r.stderr and not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_a_coarse_pose_far_off_fails_the_fine_stage_with_its_misses(monkeypatch):
     import twin.workflows.locate as loc
 
@@ -189,7 +190,7 @@ def test_a_coarse_pose_far_off_fails_the_fine_stage_with_its_misses(monkeypatch)
     assert all(h.miss and np.all(np.isnan(h.centre)) for h in res.hits if not h.hit)
 
 
-@pytest.mark.parametrize("scenario", LOCATE_SCENARIOS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("scenario", tiered(LOCATE_SCENARIOS, ("locate_bottle_punch",), ids=lambda p: p.stem))
 def test_every_locate_scenario_meets_the_bar(tmp_path, scenario):
     out = tmp_path / "out"
     r = run_cli("locate", str(scenario), "--out", str(out), "--rrd", str(tmp_path / "locate.rrd"))

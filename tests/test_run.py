@@ -1,15 +1,13 @@
 """The closed loop: scan -> localize -> path -> IK -> replay, its report, recording and bad input."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from algorithms.geometry.se3 import make_pose
 from algorithms.paths.toolpath import transform_path
-from tests.helpers import SCENARIOS, scenario
+from tests.helpers import SCENARIOS, run_cli, scenario
 from tests.tolerances import MAX_DEVIATION_MM, MAX_SURFACE_ERROR_MM, TRIANGULATION_RMS_DEG
 from twin.cell import build_cell
 from twin.cli.run import run_and_report
@@ -105,9 +103,6 @@ def test_a_tool_driven_into_the_part_is_an_unintended_contact(loop):
     # the ball end is buried until the shank, 4 mm above the contact point, hits the part
     assert 0.003 < tip.max_penetration_m < 0.009
 
-
-def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True)
 
 
 def write(tmp_path, edit):

@@ -10,8 +10,8 @@ Kolmogorov-Smirnov two-sample test per column (Bonferroni over the seven columns
 within four standard errors and the spreads within a factor two. The same tests must reject
 fast trials whose sensor sigma is four times the scenario's (their power).
 
-CI runs 150 fast trials per sigma against 8 full trials (about 90 s with 2 workers on the
-2-core machine); ``pytest -m slow`` runs 300 against 200.
+The slow tier runs 150 fast trials per sigma against 8 full trials (about 90 s with 2 workers
+on the 2-core machine); ``pytest -m long`` runs 300 against 200.
 """
 
 import numpy as np
@@ -61,10 +61,11 @@ def _check(tmp_path, n_fast: int, n_full: int) -> tuple[dict, dict]:
     return same, wider
 
 
+@pytest.mark.slow
 def test_fast_trials_match_full_trials_for_sensor_factors(tmp_path):
     _check(tmp_path, 150, 8)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_fast_trials_match_full_trials_for_sensor_factors_many(tmp_path):
     _check(tmp_path, 300, 200)

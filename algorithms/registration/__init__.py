@@ -12,11 +12,34 @@ The local module never imports the global search; the global search polishes wit
 module; the symmetric and hybrid methods start from a given pose.
 """
 
-from algorithms.registration.global_search import GlobalLocalizationResult, global_localize
-from algorithms.registration.hybrid import HybridResult, localize_hybrid
-from algorithms.registration.local import localize
-from algorithms.registration.result import RegistrationResult, Status
-from algorithms.registration.symmetric import SymmetricResult, localize_symmetric
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from algorithms.registration.global_search import GlobalLocalizationResult, global_localize
+    from algorithms.registration.hybrid import HybridResult, localize_hybrid
+    from algorithms.registration.local import localize
+    from algorithms.registration.result import RegistrationResult, Status
+    from algorithms.registration.symmetric import SymmetricResult, localize_symmetric
+
+#: Where each name of the package lives; a method's module is imported on first use, so that
+#: ``from algorithms.registration import localize`` does not load the global searches.
+_HOMES = {
+    "GlobalLocalizationResult": "global_search", "global_localize": "global_search",
+    "HybridResult": "hybrid", "localize_hybrid": "hybrid",
+    "localize": "local",
+    "RegistrationResult": "result", "Status": "result",
+    "SymmetricResult": "symmetric", "localize_symmetric": "symmetric",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _HOMES:
+        return getattr(importlib.import_module(f"algorithms.registration.{_HOMES[name]}"), name)
+    raise AttributeError(f"module 'algorithms.registration' has no attribute {name!r}")
+
 
 __all__ = [
     "GlobalLocalizationResult",

@@ -23,14 +23,28 @@ import importlib
 import os
 import signal
 import sys
-from types import FrameType
+from collections.abc import Sequence
+from types import FrameType, ModuleType
 
 from algorithms.errors import AlgorithmError
 from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM, OneLineParser
 from twin.errors import TwinError
 
-#: Subcommands; each is the module of its name with "-" as "_" (``export-mesh``: ``export_mesh.py``).
-COMMANDS = ["scan", "demo", "localize", "run", "locate", "view", "export-mesh", "warmup", "study", "cmm"]
+#: Subcommands and their one-line help; each is the module of its name with "-" as "_"
+#: (``export-mesh``: ``export_mesh.py``). Only the module of the command being run is imported:
+#: ``twin --help`` lists this table without loading MuJoCo, SciPy or the kernels.
+COMMANDS = {
+    "scan": "simulate a scan of a scenario and write samples, points and metadata",
+    "demo": "run the whole loop on the S-surface part and write a report and a recording",
+    "localize": "find T_world_workpiece from measured points and the CAD mesh",
+    "run": "scan, localize, plan the process paths, solve IK, replay and verify",
+    "locate": "document 001: coarse laser pass, planned touch probing, T = T_fine T_coarse",
+    "view": "open a .rrd recording in the Rerun viewer",
+    "export-mesh": "write the scenario's workpiece mesh (metres, workpiece frame) to STL, PLY or OBJ",
+    "warmup": "compile the closest-point kernels now (once per installation)",
+    "study": "run a Monte Carlo / benchmark study (a grid of factors, trials per cell), resumable",
+    "cmm": "document 002: plan, write and run CMM measurement programs (GOTO planning, DMIS)",
+}
 
 
 class Terminated(BaseException):
@@ -43,15 +57,25 @@ class Terminated(BaseException):
 _received: int | None = None
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_module(name: str) -> ModuleType:
+    """The module of subcommand ``name`` (imported on first use)."""
+    return importlib.import_module(f"twin.cli.{name.replace('-', '_')}")
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The ``twin`` parser, with the full parser of the command ``argv`` names (all of them when
+    ``argv`` is None) and a one-line entry for every other command."""
     parser = OneLineParser(
         prog="twin",
         description="Digital twin for robotic laser scanning and CAD-based workpiece localization.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
-    for name in COMMANDS:
-        module = importlib.import_module(f"twin.cli.{name.replace('-', '_')}")
-        module.add_parser(sub)
+    wanted = set(COMMANDS) if argv is None else set(argv[:1]) & set(COMMANDS)
+    for name, help_text in COMMANDS.items():
+        if name in wanted:
+            command_module(name).add_parser(sub)
+        else:
+            sub.add_parser(name, help=help_text)
     return parser
 
 
@@ -129,9 +153,10 @@ def main(argv: list[str] | None = None) -> int:
         in_main_thread = False
     command = "twin"
     try:
-        parser = build_parser()
+        args_in = sys.argv[1:] if argv is None else list(argv)
+        parser = build_parser(args_in)
         try:
-            args = parser.parse_args(argv)
+            args = parser.parse_args(args_in)
         except SystemExit as exc:  # --help (0) or a one-line argument error (2)
             return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
         command = f"twin {args.command}"

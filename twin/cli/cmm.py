@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from twin.cli import COMMANDS
 from twin.cli.common import (
     EXIT_OK,
     EXIT_UNTRUSTED,
@@ -42,7 +43,7 @@ PLANNER_CHOICES = ("all", "baseline", "document", "full_check")
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "cmm", help="document 002: plan, write and run CMM measurement programs (GOTO planning, DMIS)",
+        "cmm", help=COMMANDS["cmm"],
         description="CMM measurement programs (document 002): teach files planned into DMIS programs by the "
                     "safe-plane baseline, the document's algorithm and a full-check variant, and DMIS programs "
                     "run in the twin's CMM with every contact of the probe with the part counted and located.",

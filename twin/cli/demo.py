@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from twin.cli import COMMANDS
 from twin.cli.common import (
     add_live_options,
     add_output_options,
@@ -26,7 +27,7 @@ DEFAULT_SCENARIO = MODELS_DIR.parent / "scenarios" / "s_surface.toml"
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "demo", help="run the whole loop on the S-surface part and write a report and a recording",
+        "demo", help=COMMANDS["demo"],
         description="Scan the S-surface part at 1 ms, localize it against its CAD model, make a "
                     "process path from the scan (document 004) and one from the CAD model moved by "
                     "the estimate (document 003), solve the joints with mink, replay both in the true "

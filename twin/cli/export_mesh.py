@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.cli import COMMANDS
 from twin.cli.common import add_print_options, print_result
 from twin.errors import TwinError
 from twin.io.output import PARTIAL_MARK, check_output_file
@@ -32,7 +33,7 @@ FORMAT_NAMES = {".stl": "binary STL", ".ply": "binary PLY", ".obj": "OBJ"}
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "export-mesh", help="write the scenario's workpiece mesh (metres, workpiece frame) to STL, PLY or OBJ",
+        "export-mesh", help=COMMANDS["export-mesh"],
         description="Write the workpiece mesh of a scenario (its generated part, or its own mesh converted to "
                     "metres), in the workpiece frame, to OUT: binary STL, binary PLY or OBJ by OUT's suffix. "
                     "The file appears whole (written beside it, then moved into place); an existing file "

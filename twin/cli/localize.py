@@ -25,23 +25,23 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from algorithms.geometry.se3 import as_pose
-from algorithms.registration import (
-    GlobalLocalizationResult,
-    HybridResult,
-    RegistrationResult,
-    SymmetricResult,
-    global_localize,
-)
 from algorithms.registration.local import DEFAULT_METHOD, METHODS, STOP_SIGMAS, localize
-from algorithms.registration.result import Status
-from algorithms.registration.symmetric import FEATURE_TYPES
+from algorithms.registration.result import RegistrationResult, Status
+from algorithms.registration.symmetric.groups import FEATURE_TYPES
+from twin.cli import COMMANDS
 from twin.cli.common import EXIT_UNTRUSTED, non_negative_int, positive_float, positive_int
 from twin.errors import TwinError
+
+if TYPE_CHECKING:
+    from algorithms.registration.hybrid import HybridResult
+    from algorithms.registration.symmetric import SymmetricResult
 
 __all__ = ["EXIT_UNTRUSTED", "add_parser", "read_init", "result_to_json", "run"]
 UNIT_SCALE = {"m": 1.0, "mm": 1e-3}
@@ -50,7 +50,7 @@ UNIT_SCALE = {"m": 1.0, "mm": 1e-3}
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "localize",
-        help="find T_world_workpiece from measured points and the CAD mesh",
+        help=COMMANDS["localize"],
         description=(
             "Localize a workpiece: fit its CAD mesh (workpiece frame) to measured points "
             "(world/robot base frame) with Algorithm 1 of document 000 and print the pose "
@@ -164,6 +164,14 @@ def _finite_or_none(x):
     return arr.tolist()
 
 
+def _instance(res: object, module: str, name: str) -> bool:
+    """``isinstance(res, algorithms.registration.<module>.<name>)`` without importing the module
+    (a result of a class whose module was never loaded cannot be one): a fit from a start
+    does not load the global searches, the symmetric or the hybrid fits."""
+    home = sys.modules.get(f"algorithms.registration.{module}")
+    return home is not None and isinstance(res, getattr(home, name))
+
+
 def result_to_json(res) -> dict:
     """The JSON object printed by ``twin localize --json`` (metres, radians, seconds): the
     fields every registration result has, then those of its kind (global search, symmetric,
@@ -193,7 +201,7 @@ def result_to_json(res) -> dict:
         "n_outliers": int(res.n_outliers),
         "history_rmse_m": [float(h) for h in res.history],
     }
-    if isinstance(res, GlobalLocalizationResult):
+    if _instance(res, "global_search", "GlobalLocalizationResult"):
         d = res.diagnostics
         out["candidates"] = [{"T_world_workpiece": np.asarray(T).tolist(), "rmse_m": float(r)}
                              for T, r in res.candidates]
@@ -207,15 +215,16 @@ def result_to_json(res) -> dict:
             "polish": d.polish,
             "polish_status": d.polish_status.value,
         }
-    sym = res.symmetric if isinstance(res, HybridResult) else res
-    if isinstance(sym, SymmetricResult):
+    hybrid = _instance(res, "hybrid", "HybridResult")
+    sym = res.symmetric if hybrid else res
+    if _instance(sym, "symmetric", "SymmetricResult"):
         out.update({
             "feature": sym.feature,
             "symmetry_group": sym.group.describe(),
             "detection_tol": float(sym.detection_tol),
             "solution_rmse_m": [float(v) for v in sym.solution_rmse_m] if sym is res else [float(res.rmse_m)],
         })
-    if isinstance(res, HybridResult):
+    if hybrid:
         out.update({
             "feasible": bool(res.feasible),
             "min_allowance_m": {str(k): float(v) for k, v in res.min_allowance_m.items()},
@@ -255,6 +264,8 @@ def run(args: argparse.Namespace) -> int:
     symmetric = _symmetric_choice(args)
     found = None
     if search:
+        from algorithms.registration.global_search import global_localize
+
         found = global_localize(points, mesh, args.global_method, rng=np.random.default_rng(args.seed),
                                 noise_sigma_m=sigma, outlier=outlier, polish=args.method)
         init = found.T_world_workpiece

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 
+from twin.cli import COMMANDS
 from twin.cli.common import (
     EXIT_OK,
     EXIT_STAGE_FAILED,
@@ -39,7 +40,7 @@ HIT_COLUMNS = ("label", "hit", "target_x_m", "target_y_m", "target_z_m", "normal
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "locate", help="document 001: coarse laser pass, planned touch probing, T = T_fine T_coarse",
+        "locate", help=COMMANDS["locate"],
         description="Locate a part clamped far from its nominal pose, as document 001 does: a sparse laser pass "
                     "and a coarse pose from no prior orientation, the touch probe qualified on the cell's "
                     "reference sphere, fine probe points planned on the CAD model at the coarse pose (D-optimal "

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
+from twin.cli import COMMANDS
 from twin.cli.common import (
     EXIT_OK,
     EXIT_STAGE_FAILED,
@@ -36,7 +37,7 @@ PAGE_FILE = "report.html"
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "run", help="scan, localize, plan the process paths, solve IK, replay and verify",
+        "run", help=COMMANDS["run"],
         description="Scan the part, localize it, make a process path from the scan (document 004) "
                     "and one from the CAD model moved by the estimate (document 003), solve the joints "
                     "with mink, replay both in the true cell at 1 ms and write DIR/report.json. The "

@@ -7,6 +7,7 @@ import dataclasses
 import time
 
 from twin.cell import build_cell
+from twin.cli import COMMANDS
 from twin.cli.common import add_output_options, checked_outputs, number, print_result, reporting
 from twin.io import write_scan
 from twin.io.output import Staged
@@ -17,7 +18,7 @@ from twin.scenario import load_scenario
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "scan", help="simulate a scan of a scenario and write samples, points and metadata",
+        "scan", help=COMMANDS["scan"],
         description="Simulate the scenario's raster scan at 1 ms in the true cell and write "
                     "DIR/samples.parquet (t, q1..q6, d, valid, status, line), DIR/points.ply "
                     "(valid points, robot base frame, metres) and DIR/scan.json. The folder (and the "

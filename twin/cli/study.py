@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 
+from twin.cli import COMMANDS
 from twin.cli.common import add_print_options, positive_int, print_result
 from twin.studies.runner import progress_printer, run_study
 from twin.studies.spec import load_study
@@ -19,7 +20,7 @@ from twin.studies.spec import load_study
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "study", help="run a Monte Carlo / benchmark study (a grid of factors, trials per cell), resumable",
+        "study", help=COMMANDS["study"],
         description="Run the study file's trials (a grid of scenario and localization factors, trials per "
                     "cell) and write DIR/results.parquet, DIR/report.md and its plot. Results stream to "
                     "DIR/results/ in batches; --resume skips the finished trials. The same study gives the "

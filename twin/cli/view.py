@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 from urllib.parse import quote
 
+from twin.cli import COMMANDS
 from twin.errors import TwinError
 
 #: The first four bytes of a Rerun recording (``RRF2`` now; ``RRF0`` and ``RRF1`` in older releases).
@@ -36,7 +37,7 @@ def port_number(text: str) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "view", help="open a .rrd recording in the Rerun viewer",
+        "view", help=COMMANDS["view"],
         description="Open a recording written by twin scan, run, demo or locate (--rrd) in the Rerun viewer "
                     "(a window; with --web a viewer served to a browser on 127.0.0.1, whose address is printed). "
                     "Runs until the viewer is closed (--web: until Ctrl-C).",

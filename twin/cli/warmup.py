@@ -16,11 +16,12 @@ import json
 import numpy as np
 
 from algorithms.geometry.bvh_kernels import HAVE_NUMBA, compile_kernels, kernels_cached
+from twin.cli import COMMANDS
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "warmup", help="compile the closest-point kernels now (once per installation)",
+        "warmup", help=COMMANDS["warmup"],
         description="Compile the numba closest-point kernels into numba's on-disk cache, so that "
                     "the first twin localize or twin demo starts at once. Again: loads the cache.",
     )
