@@ -97,6 +97,7 @@ def test_every_writing_command_has_json_and_quiet(command, capsys):
     assert "--json" in text and "--quiet" in text
 
 
+@pytest.mark.slow
 def test_run_prints_its_headline_as_json_only(tmp_path):
     """A two-line run (some 15 s): stdout is the report's headline, nothing else; --quiet: no stderr."""
     scen = short_scenario(tmp_path)

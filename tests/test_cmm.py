@@ -49,10 +49,14 @@ def _plans(case: str):
 
 
 @cache
+def _run(case: str, planner: str):
+    setup, plans = _plans(case)
+    return execute(plans[planner].program, setup, np.random.default_rng(1))
+
+
 def _case(case: str):
     setup, plans = _plans(case)
-    runs = {m: execute(p.program, setup, np.random.default_rng(1)) for m, p in plans.items()}
-    return setup, plans, runs
+    return setup, plans, {m: _run(case, m) for m in plans}
 
 
 @pytest.mark.slow
@@ -81,8 +85,8 @@ def test_below_the_plane_the_document_planner_hits_the_post_and_full_check_does_
 
 
 def test_hits_measure_the_parts_displacement_from_its_alignment():
-    setup, _, runs = _case("through_hole")
-    run = runs["full_check"]
+    setup, _ = _plans("through_hole")
+    run = _run("through_hole", "full_check")
     T = inv_pose(setup.T_world_part_nominal) @ setup.T_world_part_true  # the true part in the program frame
     for h in run.hits:
         # the nominal point's true counterpart: where the displaced surface is along the normal
@@ -93,8 +97,9 @@ def test_hits_measure_the_parts_displacement_from_its_alignment():
 
 
 def test_path_length_and_cycle_time_are_the_programs():
-    setup, plans, runs = _case("inner_sphere")
-    for m, run in runs.items():
+    setup, plans = _plans("through_hole")
+    for m in ("document", "full_check"):
+        run = _run("through_hole", m)
         # the executed ball path is the program's straight moves (the probing moves end at the
         # trigger instead of the nominal touch: micrometres), followed by the servos
         planned = sum(mv.length_m for mv in program_moves(plans[m].program, setup.styli))

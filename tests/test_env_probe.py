@@ -78,6 +78,7 @@ def test_the_estimate_moves_toward_the_truth(env):
     assert env.unwrapped.episode["fit"].inliers.sum() >= 6
 
 
+@pytest.mark.slow
 def test_greedy_episode_reaches_the_tolerance_with_an_honest_uncertainty(env):
     policy = GreedyProbePolicy(env)
     obs, info = env.reset(seed=0)

@@ -178,7 +178,8 @@ def test_a_signal_swallowed_by_a_foreign_callback_is_still_an_interruption(tmp_p
     assert err.strip().splitlines() == ["twin scan: terminated (SIGTERM); nothing written"], err
 
 
-@pytest.mark.parametrize("sig, after_s", [(signal.SIGTERM, 0.5), (signal.SIGINT, 3.0)])
+@pytest.mark.parametrize("sig, after_s", [(signal.SIGTERM, 0.5),
+                                          pytest.param(signal.SIGINT, 3.0, marks=pytest.mark.slow)])
 def test_an_interrupted_run_leaves_nothing_that_looks_complete(tmp_path, sig, after_s):
     rc, err, out, rrd = _kill_at(tmp_path, sig, after_s)
     _check_after_kill(rc, err, out, rrd, tmp_path, sig)

@@ -239,6 +239,7 @@ def test_an_unknown_feature_is_bad_input(tmp_path, scenario, feature, words):
     assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()
 
 
+@pytest.mark.slow
 def test_the_tilt_freedom_spares_the_arm_its_discontinuities():
     # The bottle punch's CAD raster (12 mm between lines) crosses fillets where the normal turns
     # 15 deg from one contact point to the next: followed as it is, the wrist jumps there

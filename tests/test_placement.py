@@ -85,7 +85,8 @@ def _moved_base(tmp_path, xyz_yaw=("-0.6", "0.0", "0.0"), short=True):
     return load_scenario(path)
 
 
-@pytest.mark.parametrize("xyz_yaw", [("-0.6", "0.0", "0.0"), ("1.5", "0.5", "30.0")])
+@pytest.mark.parametrize("xyz_yaw", [("-0.6", "0.0", "0.0"),
+                                     pytest.param(("1.5", "0.5", "30.0"), marks=pytest.mark.slow)])
 def test_a_base_out_of_reach_is_placed_where_mink_reaches_every_scan_pose(tmp_path, xyz_yaw):
     from twin.cell import build_cell
     from twin.plan import plan_scan

@@ -154,6 +154,7 @@ def test_bad_probe_tables_are_refused(table, needle):
         load_scenario(LOCATE_SCENARIOS[0], {"probe": table})
 
 
+@pytest.mark.slow
 def test_too_few_plannable_points_fail_the_plan_stage_and_say_why(tmp_path):
     src = LOCATE_SCENARIOS[-1].read_text().replace("[probe]", "[probe]\ncandidate_spacing_m = 0.09")
     scen = tmp_path / "sparse.toml"

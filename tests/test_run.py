@@ -132,8 +132,8 @@ def test_bad_input_is_one_clear_line_and_no_report(tmp_path, edit, message):
 @pytest.mark.parametrize("edit, stage, message", [
     (lambda t: t.replace("max_lines = 2", "max_lines = 1"), "scan_path",
      "needs at least 2 lines with valid points, got 1 (scan line 0)"),
-    (lambda t: t + "\n[path]\ntool = { xyz = [0.0, 0.0, 2.0], rpy_deg = [180.0, 0.0, 0.0] }\n", "scan_path",
-     "unreachable"),
+    pytest.param(lambda t: t + "\n[path]\ntool = { xyz = [0.0, 0.0, 2.0], rpy_deg = [180.0, 0.0, 0.0] }\n",
+                 "scan_path", "unreachable", marks=pytest.mark.slow),
 ])
 def test_a_stage_that_fails_leaves_a_partial_report(tmp_path, edit, stage, message):
     out = tmp_path / "out"

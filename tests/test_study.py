@@ -157,6 +157,7 @@ def test_unreachable_scheduler(reference, tmp_path, capsys):
     assert time.monotonic() - t0 < 10 and out == "" and not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_a_random_subset_of_points_per_trial_whatever_the_workers(tmp_path):
     study = write_study(tmp_path, TINY.replace('"sensor.sigma_m" = [1e-6, 5e-6]', '"localize.points" = [150, 0]')
                         .replace("trials = 6", "trials = 3"))

@@ -81,6 +81,7 @@ def test_stages_global_methods_and_missing_peers(tmp_path, monkeypatch):
     assert rows["small_gicp"]["status"] == "not_installed" and math.isnan(rows["small_gicp"]["translation_error_um"])
 
 
+@pytest.mark.slow
 def test_several_scenarios_and_override_variants_in_one_grid(tmp_path):
     p = tmp_path / "v.toml"
     p.write_text(f'scenario = "{SCENARIOS / "hemisphere_punch.toml"}"\nkind = "points"\ntrials = 1\n'
