@@ -63,6 +63,7 @@ def test_same_seed_same_episode_bit_for_bit(env):
     assert not np.array_equal(a[1], c[1])
 
 
+@pytest.mark.slow
 def test_the_estimate_moves_toward_the_truth(env):
     obs, info = env.reset(seed=0)
     assert obs[OBSERVATION_LAYOUT["points"]][0] == 0

@@ -18,7 +18,7 @@ import pytest
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import transform_points
 from algorithms.registration import Status, localize
-from tests.helpers import ROOT, SCENARIOS, random_pose, sample_surface, tiered
+from tests.helpers import ROOT, SCENARIOS, random_pose, sample_surface
 from twin.cli import main
 from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNTRUSTED
 from twin.io import write_points_ply
@@ -312,7 +312,8 @@ def indexes():
     return {n: MeshIndex(make_workpiece(n)) for n in WORKPIECE_NAMES}
 
 
-@pytest.mark.parametrize("points_of", tiered(WORKPIECE_NAMES, ("bottle_punch",)))
+@pytest.mark.slow
+@pytest.mark.parametrize("points_of", WORKPIECE_NAMES)
 def test_every_pair_of_parts_is_told_apart(indexes, points_of):
     """Each part's points (2,000, 5 um noise) fitted to every other part's model, from the
     model's centre moved onto the points: a poor fit with and without sigma (poor_fit, or

@@ -135,6 +135,7 @@ def test_numerical_tolerance_and_stability_rule():
     assert not is_stable(drifting, 1)
 
 
+@pytest.mark.slow
 def test_adaptive_study_stops_when_stable_and_is_deterministic(tmp_path):
     body = ('[points]\ncount = 60\nnoise_sigma_m = 5e-6\nnoise_direction = "normal"\n' + A_REGION +
             '\n[adaptive]\ndigits = 1\nbatch = 10\n[grid]\n"points.noise_sigma_m" = [5e-6, 2e-5]\n')
