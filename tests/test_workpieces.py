@@ -482,3 +482,16 @@ def test_load_mesh_refuses_a_directory(tmp_path):
     folder = tmp_path / "folder.stl"
     folder.mkdir()
     assert "not a file" in _one_line_error(load_mesh, folder, "m")
+
+
+def test_a_part_built_again_is_the_same_part_and_a_copy_of_its_own():
+    # generated parts are built once per process: the second call returns an equal mesh, and
+    # changing what one caller got does not change what the next one gets
+    first = make_workpiece("through_hole")
+    first.vertices += 1.0
+    first.metadata["features"].clear()
+    again = make_workpiece("through_hole")
+    assert np.abs(again.vertices).max() < 0.5 and again.metadata["features"]
+    # other parameters, another part
+    wider = make_workpiece("through_hole", hole_diameter_m=0.03)
+    assert wider.volume < again.volume

@@ -128,15 +128,15 @@ def make_workpiece(name: str, **params: object) -> trimesh.Trimesh:
                 f"{', '.join(valid)}"
             )
     try:
-        key = (name, tuple(sorted((k, _frozen(v)) for k, v in params.items())))
-        hash(key)
+        cache_key = (name, tuple(sorted((k, _frozen(v)) for k, v in params.items())))
+        hash(cache_key)
     except TypeError:   # a parameter that cannot be a key: built every time
         return generator(**params)
-    if key not in _BUILT:
+    if cache_key not in _BUILT:
         if len(_BUILT) >= _BUILT_MAX:
             _BUILT.pop(next(iter(_BUILT)))
-        _BUILT[key] = generator(**params)
-    return _BUILT[key].copy()
+        _BUILT[cache_key] = generator(**params)
+    return _BUILT[cache_key].copy()
 
 
 #: Parts built in this process, by (name, frozen parameters): a generated part takes 0.1-1.5 s
