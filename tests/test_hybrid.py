@@ -168,6 +168,7 @@ def test_bad_input_is_refused(parts, synthetic):
         localize_hybrid(s["Y"], Z, fin, 0.001, init=s["T_nom"])
 
 
+@pytest.mark.slow
 def test_cast_blank_scan_through_the_cell_keeps_the_allowance_on_the_true_part(parts):
     from twin.scan import scan_scenario
 

@@ -129,6 +129,7 @@ def test_a_failed_stage_leaves_a_partial_report_and_recording(tmp_path):
     assert "stopped at scan" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_strict_run_fails_at_the_first_bad_stretch(tmp_path):
     # bore_and_face: the shank would come within the clearance of the bore's rim on some CAD
     # raster lines; by default those stretches are dropped and listed, with --strict the run

@@ -99,6 +99,7 @@ def test_workers_give_identical_tables(reference, tmp_path):
     assert (tmp_path / "two" / "report.md").is_file() and (tmp_path / "two" / "translation_error.png").is_file()
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_equals_local_run(reference, tmp_path):
     study, table = reference
     run_study(load_study(study), tmp_path / "dask", workers=2, scheduler="dask")
