@@ -159,6 +159,7 @@ def test_arm_commands_refuse_a_cmm_scenario_and_twin_cmm_an_arm_one(tmp_path):
 
 
 # ----------------------------------------------------------------------------- the command
+@pytest.mark.slow
 def test_twin_cmm_plan_then_run_each_program(tmp_path):
     r = run_cli("cmm", "plan", str(TEACH / "through_hole.toml"), str(CMM / "through_hole.toml"),
                  "--out", str(tmp_path / "plan"), "--json")
