@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 
 from algorithms.geometry.se3 import rotation_error_rad, transform_points, translation_error_m
-from tests.helpers import assert_pose_close, random_pose, sample_surface
+from tests.helpers import assert_pose_close, random_pose, run_cli, sample_surface
 from tests.test_localization import part
 from tests.tolerances import EXACT_FIT_M, RECOVER_M, RECOVER_RAD, SCAN_FIXED_M, SCAN_FIXED_RAD
-from twin import cli
 from twin.cli.localize import EXIT_UNTRUSTED
 from twin.io import write_points_ply
 
@@ -38,15 +37,14 @@ def scene(tmp_path_factory):
     return d, T
 
 
-def run_cli(capsys, *argv):
-    rc = cli.main(["localize", *map(str, argv)])
-    out, err = capsys.readouterr()
-    return rc, out, err
+def localize_cli(*argv):
+    r = run_cli("localize", *argv)
+    return r.returncode, r.stdout, r.stderr
 
 
-def test_json_output_recovers_the_pose(scene, capsys):
+def test_json_output_recovers_the_pose(scene):
     d, T = scene
-    rc, out, err = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply", "--json")
+    rc, out, err = localize_cli("--model", d / "part.stl", "--points", d / "points.ply", "--json")
     assert rc == 0, err
     lines = out.strip().splitlines()
     assert len(lines) == 1
@@ -64,42 +62,42 @@ def test_json_output_recovers_the_pose(scene, capsys):
     (d / "out.json").write_text(out)
 
 
-def test_output_seeds_the_next_run_and_bare_lists_work(scene, capsys):
+def test_output_seeds_the_next_run_and_bare_lists_work(scene):
     d, T = scene
-    rc, out, _ = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply", "--json")
+    rc, out, _ = localize_cli("--model", d / "part.stl", "--points", d / "points.ply", "--json")
     (d / "prev.json").write_text(out)
-    rc, out2, err = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply",
+    rc, out2, err = localize_cli("--model", d / "part.stl", "--points", d / "points.ply",
                             "--init", d / "prev.json", "--method", "tangent", "--sigma", "1e-6", "--json")
     assert rc == 0, err
     res = json.loads(out2)
     assert res["method"] == "tangent" and res["iterations"] <= 2
     assert translation_error_m(np.array(res["T_world_workpiece"]), T) < RECOVER_M
     (d / "bare.json").write_text(json.dumps(np.asarray(T).tolist()))
-    rc, out3, err = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply",
+    rc, out3, err = localize_cli("--model", d / "part.stl", "--points", d / "points.ply",
                             "--init", d / "bare.json", "--json")
     assert rc == 0, err
     assert json.loads(out3)["rmse_m"] < EXACT_FIT_M
 
 
-def test_millimetre_files(scene, capsys):
+def test_millimetre_files(scene):
     d, T = scene
-    rc, out, err = run_cli(capsys, "--model", d / "part_mm.stl", "--points", d / "points_mm.ply",
+    rc, out, err = localize_cli("--model", d / "part_mm.stl", "--points", d / "points_mm.ply",
                            "--units", "mm", "--json")
     assert rc == 0, err
     Te = np.array(json.loads(out)["T_world_workpiece"])   # always metres
     assert translation_error_m(Te, T) < RECOVER_M
 
 
-def test_human_readable_output(scene, capsys):
+def test_human_readable_output(scene):
     d, _ = scene
-    rc, out, _ = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply")
+    rc, out, _ = localize_cli("--model", d / "part.stl", "--points", d / "points.ply")
     assert rc == 0 and "T_world_workpiece" in out and "iterations" in out and "multistart: ok:" in out
 
 
 # ------------------------------------------------------------------ --init global
-def test_global_init_finds_the_pose_with_sigma(scene, capsys):
+def test_global_init_finds_the_pose_with_sigma(scene):
     d, T = scene
-    rc, out, err = run_cli(capsys, "--model", d / "part.stl", "--points", d / "points.ply",
+    rc, out, err = localize_cli("--model", d / "part.stl", "--points", d / "points.ply",
                            "--init", "global", "--sigma", "1e-6", "--json")
     assert rc == 0, err
     res = json.loads(out)
@@ -108,12 +106,12 @@ def test_global_init_finds_the_pose_with_sigma(scene, capsys):
     assert_pose_close(np.array(res["T_world_workpiece"]), T, RECOVER_M, RECOVER_RAD)
 
 
-def test_global_init_on_points_of_another_part_fails(scene, capsys):
+def test_global_init_on_points_of_another_part_fails(scene):
     # the hemisphere punch's points against the S-surface part's model: no pose explains
     # them within the stated noise, so no confident pose is printed
     d, _ = scene
     sigma = 1e-6
-    rc, out, err = run_cli(capsys, "--model", d / "other_part.stl", "--points", d / "points.ply",
+    rc, out, err = localize_cli("--model", d / "other_part.stl", "--points", d / "points.ply",
                            "--init", "global", "--sigma", sigma, "--json")
     assert rc == EXIT_UNTRUSTED, err
     res = json.loads(out)
@@ -143,11 +141,11 @@ def cube_scene(tmp_path_factory):
     return d, T
 
 
-def test_global_init_prints_every_equally_good_pose_of_a_symmetric_part(cube_scene, capsys):
+def test_global_init_prints_every_equally_good_pose_of_a_symmetric_part(cube_scene):
     d, T = cube_scene
     argv = ["--model", d / "cube.ply", "--points", d / "three_faces.ply", "--init", "global",
             "--sigma", CUBE_NOISE_M]
-    rc, out, err = run_cli(capsys, *argv, "--json")
+    rc, out, err = localize_cli(*argv, "--json")
     assert rc == EXIT_UNTRUSTED, err
     res = json.loads(out)
     assert res["status"] == "ambiguous" and "24 distinct poses" in res["message"]
@@ -158,7 +156,7 @@ def test_global_init_prints_every_equally_good_pose_of_a_symmetric_part(cube_sce
     assert err_rad[0] < SCAN_FIXED_RAD and err_rad[1] > np.radians(89.0)
     best = min(sols, key=lambda S: rotation_error_rad(S, T))
     assert translation_error_m(best, T) < SCAN_FIXED_M
-    rc, out, err = run_cli(capsys, *argv)
+    rc, out, err = localize_cli(*argv)
     assert rc == EXIT_UNTRUSTED, err
     assert "multistart: ambiguous:" in out and "equally good pose 24 of 24 [m]:" in out
 
@@ -176,12 +174,12 @@ def test_global_init_prints_every_equally_good_pose_of_a_symmetric_part(cube_sce
         (["--model", "{d}/part.stl", "--points", "{d}/points_mm.ply", "--init", "global"], "units look wrong"),
     ],
 )
-def test_errors_are_one_line_and_exit_2(scene, capsys, argv, message):
+def test_errors_are_one_line_and_exit_2(scene, argv, message):
     d, _ = scene
     (d / "garbage.json").write_text("{not json")
     scaled = np.eye(4)
     scaled[:3, :3] *= 1.1
     (d / "scaled.json").write_text(json.dumps(scaled.tolist()))
-    rc, out, err = run_cli(capsys, *[a.format(d=d) for a in argv])
+    rc, out, err = localize_cli(*[a.format(d=d) for a in argv])
     assert rc == 2 and out == ""
     assert len(err.strip().splitlines()) == 1 and message in err

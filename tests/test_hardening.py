@@ -18,8 +18,7 @@ import pytest
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import transform_points
 from algorithms.registration import Status, localize
-from tests.helpers import ROOT, SCENARIOS, random_pose, sample_surface
-from twin.cli import main
+from tests.helpers import ROOT, SCENARIOS, random_pose, run_cli, sample_surface
 from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM, EXIT_UNTRUSTED
 from twin.io import write_points_ply
 from twin.io.output import PARTIAL_MARK
@@ -29,10 +28,9 @@ IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
 NOISE_M = 5e-6
 
 
-def run_main(capsys, *argv) -> tuple[int, str, str]:
-    rc = main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
+def run_main(*argv) -> tuple[int, str, str]:
+    r = run_cli(*argv)
+    return r.returncode, r.stdout, r.stderr
 
 
 def one_line_refusal(rc: int, err: str) -> bool:
@@ -70,58 +68,58 @@ def files(tmp_path_factory):
 
 
 # ------------------------------------------------------------------ output locations
-def test_out_that_is_a_file_is_refused_before_any_work(tmp_path, capsys):
+def test_out_that_is_a_file_is_refused_before_any_work(tmp_path):
     target = tmp_path / "taken"
     target.write_text("x")
-    rc, out, err = run_main(capsys, "run", SCENARIOS / "s_surface.toml", "--out", target)
+    rc, out, err = run_main("run", SCENARIOS / "s_surface.toml", "--out", target)
     assert one_line_refusal(rc, err) and "is not a folder" in err and out == ""
     assert "[run]" not in err  # refused before the loop started
     assert target.read_text() == "x"
 
 
-def test_rrd_whose_parent_is_a_file_is_refused(tmp_path, capsys):
+def test_rrd_whose_parent_is_a_file_is_refused(tmp_path):
     (tmp_path / "file").write_text("x")
-    rc, _, err = run_main(capsys, "scan", short_scenario(tmp_path), "--out", tmp_path / "o",
+    rc, _, err = run_main("scan", short_scenario(tmp_path), "--out", tmp_path / "o",
                           "--rrd", tmp_path / "file" / "x.rrd")
     assert one_line_refusal(rc, err) and "is a file" in err
     assert not (tmp_path / "o").exists() and leftovers(tmp_path) == []
 
 
 @pytest.mark.skipif(IS_ROOT, reason="root writes into read-only folders")
-def test_read_only_folders_are_refused(tmp_path, capsys):
+def test_read_only_folders_are_refused(tmp_path):
     ro = tmp_path / "ro"
     ro.mkdir()
     ro.chmod(0o555)
     try:
         for target in (ro / "out", ro / "deeper" / "out"):
-            rc, _, err = run_main(capsys, "scan", short_scenario(tmp_path), "--out", target)
+            rc, _, err = run_main("scan", short_scenario(tmp_path), "--out", target)
             assert one_line_refusal(rc, err) and "not writable" in err
     finally:
         ro.chmod(0o755)
 
 
-def test_existing_out_is_refused_and_force_replaces_it_whole(tmp_path, capsys):
+def test_existing_out_is_refused_and_force_replaces_it_whole(tmp_path):
     sc = short_scenario(tmp_path)
     out = tmp_path / "scan"
     out.mkdir()
     (out / "report.json").write_text("{}")  # an older run's file
-    rc, _, err = run_main(capsys, "scan", sc, "--out", out)
+    rc, _, err = run_main("scan", sc, "--out", out)
     assert one_line_refusal(rc, err) and "--force" in err
-    rc, _, err = run_main(capsys, "scan", sc, "--out", out, "--force")
+    rc, _, err = run_main("scan", sc, "--out", out, "--force")
     assert rc == 0, err
     assert sorted(p.name for p in out.iterdir()) == ["points.ply", "samples.parquet", "scan.json",
                                                      "scan_deviation_map.png", "scan_residuals.png"]
     assert leftovers(tmp_path) == []
 
 
-def test_a_failing_recording_leaves_no_folder(tmp_path, capsys, monkeypatch):
+def test_a_failing_recording_leaves_no_folder(tmp_path, monkeypatch):
     import twin.viz
 
     def broken(*args, **kwargs):
         raise OSError(28, "No space left on device", str(tmp_path / "scan.rrd"))
 
     monkeypatch.setattr(twin.viz, "save_scan_recording", broken)
-    rc, out, err = run_main(capsys, "scan", short_scenario(tmp_path), "--out", tmp_path / "scan",
+    rc, out, err = run_main("scan", short_scenario(tmp_path), "--out", tmp_path / "scan",
                             "--rrd", tmp_path / "scan.rrd")
     assert one_line_refusal(rc, err) and "No space left on device" in err and out == ""
     assert not (tmp_path / "scan").exists() and not (tmp_path / "scan.rrd").exists()
@@ -157,7 +155,7 @@ def _check_after_kill(rc, err, out, rrd, tmp_path, sig):
         assert not out.exists() and not rrd.exists()
 
 
-def test_a_signal_swallowed_by_a_foreign_callback_is_still_an_interruption(tmp_path, capsys, monkeypatch):
+def test_a_signal_swallowed_by_a_foreign_callback_is_still_an_interruption(tmp_path, monkeypatch):
     """A signal landing while numba writes its cache through a ctypes callback: the raised
     exception is swallowed there, and numba then fails with an error of its own (CI, stop 23)."""
     import ctypes
@@ -173,7 +171,7 @@ def test_a_signal_swallowed_by_a_foreign_callback_is_still_an_interruption(tmp_p
         raise RuntimeError("no compiled object yet")  # what the library says next
 
     monkeypatch.setattr(twin.cli.scan, "run", run_in_a_library)
-    rc, out, err = run_main(capsys, "scan", short_scenario(tmp_path), "--out", tmp_path / "scan")
+    rc, out, err = run_main("scan", short_scenario(tmp_path), "--out", tmp_path / "scan")
     assert rc == EXIT_SIGTERM and out == ""
     assert err.strip().splitlines() == ["twin scan: terminated (SIGTERM); nothing written"], err
 
@@ -220,8 +218,8 @@ def test_a_closed_pipe_ends_quietly(files):
     (["scan"], ["scenario"]),
     (["fly"], ["fly", "scan"]),
 ])
-def test_argument_errors_are_one_line(capsys, argv, names):
-    rc, out, err = run_main(capsys, *argv)
+def test_argument_errors_are_one_line(argv, names):
+    rc, out, err = run_main(*argv)
     assert one_line_refusal(rc, err) and out == ""
     assert all(n in err for n in names), err
 
@@ -234,18 +232,18 @@ def _ascii_ply(points, declared: int | None = None) -> str:
 
 
 @pytest.mark.parametrize("declared_delta", [-5, +5])
-def test_a_ply_whose_count_disagrees_with_its_body_is_refused(files, capsys, declared_delta):
+def test_a_ply_whose_count_disagrees_with_its_body_is_refused(files, declared_delta):
     d, _ = files
     from twin.io import read_points_ply
 
     pts = read_points_ply(d / "points.ply")[:200]
     bad = d / f"count{declared_delta}.ply"
     bad.write_text(_ascii_ply(pts, len(pts) + declared_delta))
-    rc, _, err = run_main(capsys, "localize", "--model", d / "part.stl", "--points", bad, "--init", d / "init.json")
+    rc, _, err = run_main("localize", "--model", d / "part.stl", "--points", bad, "--init", d / "init.json")
     assert one_line_refusal(rc, err) and "declares" in err and bad.name in err
 
 
-def test_nan_vertices_of_a_mesh_are_refused_before_processing(tmp_path, files, capsys):
+def test_nan_vertices_of_a_mesh_are_refused_before_processing(tmp_path, files):
     d, _ = files
     mesh = make_workpiece("cube")
     v = mesh.vertices.copy()
@@ -254,7 +252,7 @@ def test_nan_vertices_of_a_mesh_are_refused_before_processing(tmp_path, files, c
             f"property double z\nelement face {len(mesh.faces)}\nproperty list uchar int vertex_indices\nend_header\n")
     body = "".join(f"{a} {b} {c}\n" for a, b, c in v) + "".join(f"3 {a} {b} {c}\n" for a, b, c in mesh.faces)
     (tmp_path / "nan.ply").write_text(head + body)
-    rc, _, err = run_main(capsys, "localize", "--model", tmp_path / "nan.ply", "--points", d / "points.ply")
+    rc, _, err = run_main("localize", "--model", tmp_path / "nan.ply", "--points", d / "points.ply")
     assert one_line_refusal(rc, err) and "vertex 3" in err and "non-finite" in err
 
 
@@ -263,10 +261,10 @@ def test_nan_vertices_of_a_mesh_are_refused_before_processing(tmp_path, files, c
     ([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]], "4x4"),
     ([[1, 0, 0, "x"], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "16 numbers"),
 ])
-def test_init_must_hold_16_numbers(tmp_path, files, capsys, content, message):
+def test_init_must_hold_16_numbers(tmp_path, files, content, message):
     d, _ = files
     (tmp_path / "init.json").write_text(json.dumps(content))
-    rc, _, err = run_main(capsys, "localize", "--model", d / "part.stl", "--points", d / "points.ply",
+    rc, _, err = run_main("localize", "--model", d / "part.stl", "--points", d / "points.ply",
                           "--init", tmp_path / "init.json")
     assert one_line_refusal(rc, err) and message in err
 
@@ -279,17 +277,17 @@ def test_init_must_hold_16_numbers(tmp_path, files, capsys, content, message):
                                         "f 2 4 3\n"), "bad model"),
     ("holey.obj", lambda p: p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n"), "does not exist"),
 ])
-def test_bad_models_are_named_as_such(tmp_path, files, capsys, name, write, message):
+def test_bad_models_are_named_as_such(tmp_path, files, name, write, message):
     d, _ = files
     write(tmp_path / name)
-    rc, _, err = run_main(capsys, "localize", "--model", tmp_path / name, "--points", d / "points.ply")
+    rc, _, err = run_main("localize", "--model", tmp_path / name, "--points", d / "points.ply")
     assert one_line_refusal(rc, err) and message in err, err
 
 
 # ------------------------------------------------------------------ honest verdicts
-def test_default_start_is_the_global_search_not_the_identity(files, capsys):
+def test_default_start_is_the_global_search_not_the_identity(files):
     d, T = files
-    rc, out, err = run_main(capsys, "localize", "--model", d / "part.stl", "--points", d / "points.ply", "--json")
+    rc, out, err = run_main("localize", "--model", d / "part.stl", "--points", d / "points.ply", "--json")
     assert rc == 0, err
     res = json.loads(out)
     Te = np.asarray(res["T_world_workpiece"])
@@ -297,10 +295,10 @@ def test_default_start_is_the_global_search_not_the_identity(files, capsys):
 
 
 @pytest.mark.parametrize("sigma", [None, NOISE_M])
-def test_points_of_another_part_are_a_poor_fit_on_the_command_line(files, capsys, sigma):
+def test_points_of_another_part_are_a_poor_fit_on_the_command_line(files, sigma):
     d, _ = files
     extra = [] if sigma is None else ["--sigma", sigma]
-    rc, out, err = run_main(capsys, "localize", "--model", d / "other.stl", "--points", d / "points.ply",
+    rc, out, err = run_main("localize", "--model", d / "other.stl", "--points", d / "points.ply",
                             "--json", *extra)
     assert rc == EXIT_UNTRUSTED, err
     res = json.loads(out)
