@@ -31,6 +31,19 @@ def test_help_lists_every_command_without_loading_the_numerics():
         assert name in r.stdout and help_text[:40] in " ".join(r.stdout.split())
 
 
+def test_localize_loads_neither_trimesh_nor_scipy_spatial(tmp_path):
+    # the start-up of `twin localize` (benchmarks/results_startup.md): a local fit with a stated
+    # sigma reads the mesh with numpy and needs neither trimesh nor scipy.spatial
+    from benchmarks.bench_startup import _problem
+
+    argv = _problem(tmp_path)
+    code = ("import sys, contextlib, io; from twin.cli import main\n"
+            f"with contextlib.redirect_stdout(io.StringIO()) as out: rc = main({argv!r})\n"
+            "print(rc, [m for m in ('trimesh', 'scipy.spatial') if m in sys.modules])")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.stdout.startswith("0 []"), r.stdout + r.stderr
+
+
 def write_scenario(tmp_path, text, name="bad.toml"):
     p = tmp_path / name
     base = (SCENARIOS / "s_surface.toml").read_text()

@@ -7,7 +7,7 @@ import trimesh
 
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.bvh_kernels import HAVE_NUMBA
-from algorithms.geometry.mesh_index import MeshIndex, closest_points_on_triangles
+from algorithms.geometry.mesh_index import MeshIndex, _corner_normals, closest_points_on_triangles
 from tests.tolerances import (
     BACKEND_DISTANCE_M,
     BACKEND_FOOT_M,
@@ -167,6 +167,47 @@ def test_smooth_normals_are_radial_on_a_tessellated_cylinder():
     cap = np.nonzero(mesh.face_normals[:, 2] > 0.99)[0][:5]
     nc = idx.smooth_normals(cap, mesh.triangles[cap].mean(axis=1))
     assert np.allclose(nc, [0, 0, 1])
+
+
+def test_smooth_normals_of_a_few_faces_are_those_of_the_whole_mesh():
+    # the index fills its per-corner normals face by face, as the queries need them: the
+    # values must be exactly those computed for every face at once, whatever the order asked
+    mesh = heightfield(n=30)
+    rng = np.random.default_rng(8)
+    idx = MeshIndex(mesh)
+    whole = _corner_normals(idx.vertices, idx.faces, idx.face_normals)
+    for _ in range(3):
+        f = rng.choice(len(mesh.faces), 40)
+        u = rng.uniform(0.0, 0.5, size=(40, 2))
+        t = mesh.triangles[f]
+        foot = t[:, 0] + u[:, :1] * (t[:, 1] - t[:, 0]) + u[:, 1:] * (t[:, 2] - t[:, 0])
+        n = idx.smooth_normals(f, foot)
+        assert np.array_equal(idx._smooth[f], whole[f])
+        ref = MeshIndex(mesh)
+        ref._smooth, ref._smooth_done = whole, np.ones(len(whole), dtype=bool)
+        assert np.array_equal(n, ref.smooth_normals(f, foot))
+    assert not idx._smooth_done.all()  # only what was asked was computed
+
+
+def test_rotation_vector_is_scipys():
+    # se3.rotation_vector replaces scipy's Rotation.from_matrix(R).as_rotvec() on the pose code's
+    # path: the same vectors, also at 0, across the series' switch at 1e-3 rad and at pi
+    from scipy.spatial.transform import Rotation
+
+    from algorithms.geometry.se3 import rotation_vector
+
+    rng = np.random.default_rng(3)
+    axes = rng.normal(size=(12, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = [0.0, 1e-12, 1e-6, 0.999e-3, 1.001e-3, 0.5, 3.0, np.pi - 1e-6, np.pi]
+    rotations = [*Rotation.random(200, random_state=4).as_matrix(),
+                 *(Rotation.from_rotvec(a * ax).as_matrix() for a in angles for ax in axes)]
+    for R in rotations:
+        expected = Rotation.from_matrix(R).as_rotvec()
+        got = rotation_vector(R)
+        if np.linalg.norm(expected) > np.pi - 1e-9:  # at pi, w and -w are the same rotation
+            got = got if got @ expected > 0 else -got
+        assert np.allclose(got, expected, rtol=0.0, atol=1e-14)
 
 
 def test_bad_input_is_refused():

@@ -9,6 +9,7 @@ import pytest
 import trimesh
 
 from twin.errors import TwinError
+from twin.formats import read_mesh
 from twin.parts import (
     MESH_EXTENSIONS,
     WORKPIECE_NAMES,
@@ -423,6 +424,28 @@ def test_load_mesh_round_trips_with_scaling(tmp_path, small_part, ext, units):
     assert np.allclose(mesh.bounds, small_part.bounds, rtol=0, atol=ROUND_TRIP_M)
     assert mesh.is_watertight
     assert mesh.volume == pytest.approx(small_part.volume, rel=1e-5)
+
+
+@pytest.mark.parametrize("fmt", ["stl", "stl_ascii", "ply", "obj"])
+@pytest.mark.parametrize("units", ["m", "mm"])
+def test_read_mesh_holds_what_trimesh_processing_holds(tmp_path, small_part, fmt, units):
+    # twin.formats.read_mesh parses STL and PLY with numpy and merges vertices itself: the
+    # arrays must be exactly those of trimesh's load and merge (same vertices, same order, same faces)
+    scale = 1e3 if units == "mm" else 1.0
+    stored = small_part.copy()
+    stored.apply_scale(scale)
+    path = tmp_path / f"part.{fmt[:3]}"
+    if fmt == "stl_ascii":
+        path.write_text(trimesh.exchange.stl.export_stl_ascii(stored))
+    else:
+        stored.export(path)
+    as_stored = trimesh.load(path, process=False)
+    expected = trimesh.Trimesh(np.asarray(as_stored.vertices) * (1e-3 if units == "mm" else 1.0), as_stored.faces,
+                               process=True)
+    got = read_mesh(path, units)
+    assert len(got.vertices) < 3 * len(got.faces)  # merged
+    assert np.array_equal(got.vertices, expected.vertices)
+    assert np.array_equal(got.faces, expected.faces)
 
 
 def test_load_mesh_concatenates_a_scene(tmp_path):

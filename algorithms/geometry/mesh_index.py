@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from algorithms.arraytypes import ArrayLike, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
@@ -236,6 +235,8 @@ class MeshIndex:
         m = np.maximum(1, np.ceil(r_face / target - 1e-12)).astype(np.int64)
         m = np.minimum(m, 64)  # a huge face among tiny ones: cap the sample count
         samples, sample_face = _subdivision_centroids(tri, m)
+        from scipy.spatial import cKDTree  # here: the numba backend never loads scipy.spatial
+
         self.radius = float(np.max(r_face / m)) * (1.0 + 1e-9) + 1e-300
         self._sample_face = sample_face
         self._tree = cKDTree(samples, leafsize=16)
@@ -467,9 +468,16 @@ class MeshIndex:
             face: (N,) face indices.
             foot: (N, 3) points on those faces.
         """
-        if self._smooth is None:
-            self._smooth = _corner_normals(self.vertices, self.faces, self.face_normals)
         face = np.asarray(face, dtype=np.int64)
+        if self._smooth is None:  # filled face by face: a fit touches few of a dense mesh's faces
+            self._smooth = np.zeros((self.n_faces, 3, 3))
+            self._smooth_done = np.zeros(self.n_faces, dtype=bool)
+            self._incidence = _vertex_incidence(self.faces, len(self.vertices))
+        todo = np.unique(face[~self._smooth_done[face]])
+        if len(todo):
+            self._smooth[todo] = _corner_normals(self.vertices, self.faces, self.face_normals, which=todo,
+                                                 incidence=self._incidence)
+            self._smooth_done[todo] = True
         v, w = self._barycentric(face, foot)
         v, w = np.clip(v, 0.0, 1.0), np.clip(w, 0.0, 1.0)
         cn = self._smooth[face]  # (N, 3 corners, 3)
@@ -574,46 +582,51 @@ def _subdivision_centroids(tri: np.ndarray, m: np.ndarray):
     return np.concatenate(samples), np.concatenate(owners)
 
 
-def _corner_normals(vertices, faces, face_normals, crease_deg: float = 30.0):
-    """(F, 3, 3) per-corner normals: angle-weighted, crease-limited vertex normals."""
-    tri = vertices[faces]
-    # interior angle at each corner
-    ang = np.empty((len(faces), 3))
-    for c in range(3):
-        e1 = tri[:, (c + 1) % 3] - tri[:, c]
-        e2 = tri[:, (c + 2) % 3] - tri[:, c]
-        cosang = np.einsum("ij,ij->i", e1, e2) / np.maximum(
-            np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300
-        )
-        ang[:, c] = np.arccos(np.clip(cosang, -1.0, 1.0))
-    # incidence: (vertex, face, corner) sorted by vertex
-    vert = faces.reshape(-1)
-    fidx = np.repeat(np.arange(len(faces)), 3)
-    order = np.argsort(vert, kind="stable")
-    vert_s = vert[order]
-    f_s = fidx[order]
-    starts = np.searchsorted(vert_s, np.arange(len(vertices)))
-    ends = np.searchsorted(vert_s, np.arange(len(vertices)), side="right")
-    deg = ends - starts
-    # all pairs (corner owner face f, neighbour face g) sharing the vertex
-    pair_vert = np.repeat(vert_s, deg[vert_s])
-    pair_f = np.repeat(f_s, deg[vert_s])
-    run_start = np.cumsum(deg[vert_s]) - deg[vert_s]   # each (vertex, f)'s first pair
-    offs = np.arange(len(pair_vert)) - np.repeat(run_start, deg[vert_s])
-    incidence = starts[pair_vert] + offs          # position of (vertex, g) in the sorted list
-    pair_g = f_s[incidence]
-    cos_crease = np.cos(np.radians(crease_deg))
-    keep = np.einsum("ij,ij->i", face_normals[pair_f], face_normals[pair_g]) >= cos_crease
-    # angle of face g at this vertex (element i of faces.reshape(-1) is corner i % 3)
-    wgt = ang.reshape(-1)[order[incidence]] * keep
-    # the pairs of one (vertex, f) are contiguous: sum each run
-    acc = np.add.reduceat(wgt[:, None] * face_normals[pair_g], run_start, axis=0)
-    # back to (face, corner) order
-    corner_of_f = order % 3
-    out = np.zeros((len(faces), 3, 3))
-    out[f_s, corner_of_f] = acc
+def _vertex_incidence(faces: IntArray, n_vertices: int) -> tuple[IntArray, IntArray, IntArray]:
+    """The corners around each vertex: ``order`` (the flat corner indices ``3 f + c`` sorted by
+    vertex, stable), and vertex v's corners ``order[starts[v] : starts[v] + degree[v]]``."""
+    flat = faces.reshape(-1)
+    order = np.argsort(flat, kind="stable")
+    sorted_vertex = flat[order]
+    starts = np.searchsorted(sorted_vertex, np.arange(n_vertices))
+    degree = np.searchsorted(sorted_vertex, np.arange(n_vertices), side="right") - starts
+    return order, starts, degree
+
+
+def _corner_angles(vertices, faces, corner: IntArray) -> FloatArray:
+    """Interior angles [rad] at flat corners ``3 f + c``."""
+    f, c = corner // 3, corner % 3
+    p0 = vertices[faces[f, c]]
+    e1 = vertices[faces[f, (c + 1) % 3]] - p0
+    e2 = vertices[faces[f, (c + 2) % 3]] - p0
+    cosang = np.einsum("ij,ij->i", e1, e2) / np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1),
+                                                          1e-300)
+    return np.arccos(np.clip(cosang, -1.0, 1.0))
+
+
+def _corner_normals(vertices, faces, face_normals, crease_deg: float = 30.0, which=None, incidence=None):
+    """(len(which), 3, 3) per-corner normals of the faces ``which`` (default: all): at each
+    corner, the angle-weighted mean of the normals of the faces around its vertex within
+    ``crease_deg`` of the face's own normal. ``incidence``: :func:`_vertex_incidence`, if known."""
+    which = np.arange(len(faces)) if which is None else np.asarray(which, dtype=np.int64)
+    order, starts, degree = _vertex_incidence(faces, len(vertices)) if incidence is None else incidence
+    corner_vertex = faces[which].reshape(-1)        # the vertex of each wanted corner
+    n_around = degree[corner_vertex]
+    # all pairs (the corner's face f, a face g around its vertex), one run per corner
+    run_start = np.cumsum(n_around) - n_around
+    pair_f = np.repeat(np.repeat(which, 3), n_around)
+    offs = np.arange(int(n_around.sum())) - np.repeat(run_start, n_around)
+    corner_g = order[np.repeat(starts[corner_vertex], n_around) + offs]   # g's corner at the vertex
+    pair_g = corner_g // 3
+    keep = np.einsum("ij,ij->i", face_normals[pair_f], face_normals[pair_g]) >= np.cos(np.radians(crease_deg))
+    if len(corner_g) > faces.size:   # many pairs: each corner's angle once, then gathered
+        angle = _corner_angles(vertices, faces, np.arange(faces.size))[corner_g]
+    else:
+        angle = _corner_angles(vertices, faces, corner_g)
+    wgt = angle * keep
+    out = np.add.reduceat(wgt[:, None] * face_normals[pair_g], run_start, axis=0).reshape(len(which), 3, 3)
     norm = np.linalg.norm(out, axis=2, keepdims=True)
-    fallback = np.broadcast_to(face_normals[:, None, :], out.shape)
+    fallback = np.broadcast_to(face_normals[which][:, None, :], out.shape)
     return np.where(norm > 1e-300, out / np.maximum(norm, 1e-300), fallback)
 
 

@@ -6,8 +6,9 @@ into frame a. Twists are 6-vectors ``[omega, v]`` (angular part first) in radian
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from algorithms.arraytypes import ArrayLike, FloatArray, Pose
 from algorithms.errors import AlgorithmError
@@ -80,9 +81,37 @@ def exp_se3(xi: ArrayLike) -> Pose:
     return make_pose(R, V @ v)
 
 
+def rotation_vector(R: FloatArray) -> FloatArray:
+    """The rotation vector (axis times angle in [0, pi] [rad]) of a rotation matrix.
+
+    The algorithm of scipy's ``Rotation.from_matrix(R).as_rotvec()`` (the unit quaternion from
+    the largest of the trace and the diagonal, Markley's method; the angle from ``atan2``; a
+    series below 1e-3 rad), written out so that the pose code does not load ``scipy.spatial``
+    (a quarter second of every command's start-up, ``benchmarks/results_startup.md``).
+    """
+    R = np.asarray(R, dtype=np.float64)
+    trace = R[0, 0] + R[1, 1] + R[2, 2]
+    i = int(np.argmax([R[0, 0], R[1, 1], R[2, 2], trace]))
+    q = np.empty(4)  # x, y, z, w
+    if i == 3:
+        q[:] = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], 1.0 + trace
+    else:
+        j, k = (i + 1) % 3, (i + 2) % 3
+        q[i] = 1.0 - trace + 2.0 * R[i, i]
+        q[j] = R[j, i] + R[i, j]
+        q[k] = R[k, i] + R[i, k]
+        q[3] = R[k, j] - R[j, k]
+    q /= np.linalg.norm(q)
+    if q[3] < 0:
+        q = -q
+    angle = 2.0 * math.atan2(float(np.linalg.norm(q[:3])), float(q[3]))
+    scale = angle / math.sin(0.5 * angle) if angle > 1e-3 else 2.0 + angle**2 / 12.0 + 7.0 * angle**4 / 2880.0
+    return scale * q[:3]
+
+
 def log_se3(T: Pose) -> FloatArray:
     """Logarithm of a pose: the twist ``[omega, v]`` with ``exp_se3(xi) == T``."""
-    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    w = rotation_vector(T[:3, :3])
     theta = np.linalg.norm(w)
     W = hat(w)
     if theta < 1e-9:
@@ -96,7 +125,7 @@ def log_se3(T: Pose) -> FloatArray:
 def rotation_error_rad(T_est: Pose, T_true: Pose) -> float:
     """Document 000's rotation error: the angle of ``R_est^T R_true`` [rad]."""
     R = T_est[:3, :3].T @ T_true[:3, :3]
-    return float(np.linalg.norm(Rotation.from_matrix(R).as_rotvec()))
+    return float(np.linalg.norm(rotation_vector(R)))
 
 
 def translation_error_m(T_est: Pose, T_true: Pose) -> float:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from algorithms.arraytypes import ArrayLike, FloatArray
 
@@ -68,6 +67,8 @@ def white_noise_sigma_m(points_m: FloatArray, residuals_m: ArrayLike) -> float:
     if n < 2:
         return math.nan
     r = np.asarray(residuals_m, dtype=np.float64).reshape(n, -1)
+    from scipy.spatial import cKDTree  # here: a fit with a stated sigma never loads scipy.spatial
+
     _, j = cKDTree(points_m).query(points_m, k=2)
     diff = (r - r[j[:, 1]]).ravel()
     return float(_MAD_TO_SIGMA * np.median(np.abs(diff - np.median(diff))) / math.sqrt(2.0))

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import as_pose
 from algorithms.registration.local import DEFAULT_METHOD, METHODS, STOP_SIGMAS, localize
 from algorithms.registration.result import RegistrationResult, Status
@@ -38,6 +39,7 @@ from algorithms.registration.symmetric.groups import FEATURE_TYPES
 from twin.cli import COMMANDS
 from twin.cli.common import EXIT_UNTRUSTED, non_negative_int, positive_float, positive_int
 from twin.errors import TwinError
+from twin.formats.meshes import MeshArrays, read_mesh
 
 if TYPE_CHECKING:
     from algorithms.registration.hybrid import HybridResult
@@ -113,10 +115,11 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def _load_mesh(path: str, units: str):
-    from twin.parts import load_mesh
+def _as_trimesh(mesh: MeshArrays):
+    """The mesh as the trimesh the global search and the symmetric and hybrid fits take."""
+    import trimesh
 
-    return load_mesh(path, units)
+    return trimesh.Trimesh(vertices=mesh.vertices, faces=mesh.faces, process=False)
 
 
 def _load_points(path: str, units: str) -> np.ndarray:
@@ -250,7 +253,7 @@ def _exit_code(res, symmetric_asked: bool) -> int:
 
 def run(args: argparse.Namespace) -> int:
     scale = UNIT_SCALE[args.units]
-    mesh = _load_mesh(args.model, args.units)
+    mesh = read_mesh(args.model, args.units)   # arrays: trimesh only where the method needs it
     points = _load_points(args.points, args.units)
     search = args.init is None or args.init == "global"
     init = None if search else read_init(args.init)
@@ -266,16 +269,16 @@ def run(args: argparse.Namespace) -> int:
     if search:
         from algorithms.registration.global_search import global_localize
 
-        found = global_localize(points, mesh, args.global_method, rng=np.random.default_rng(args.seed),
+        found = global_localize(points, _as_trimesh(mesh), args.global_method, rng=np.random.default_rng(args.seed),
                                 noise_sigma_m=sigma, outlier=outlier, polish=args.method)
         init = found.T_world_workpiece
     if symmetric != "none" or args.allowance is not None:
-        return _run_symmetric(args, mesh, points, init, sigma, outlier, symmetric, scale)
+        return _run_symmetric(args, _as_trimesh(mesh), points, init, sigma, outlier, symmetric, scale)
     res: RegistrationResult
     if found is not None:
         res = found
     else:
-        res = localize(points, mesh, method=args.method, init=init, sigma=sigma,
+        res = localize(points, method=args.method, init=init, sigma=sigma, index=MeshIndex(mesh),
                        max_iterations=args.max_iterations, tolerance=args.tolerance, outlier=outlier)
     _print(res, result_to_json(res), args.json)
     return _exit_code(res, symmetric_asked=False)

@@ -6,6 +6,7 @@ processing can drop or repair what is wrong, naming the file and the element or 
 """
 
 from twin.formats.mesh_files import check_obj, check_stl
+from twin.formats.meshes import MESH_EXTENSIONS, MeshArrays, read_mesh
 from twin.formats.ply import PlyData, read_ply
 
-__all__ = ["PlyData", "check_obj", "check_stl", "read_ply"]
+__all__ = ["MESH_EXTENSIONS", "MeshArrays", "PlyData", "check_obj", "check_stl", "read_mesh", "read_ply"]
