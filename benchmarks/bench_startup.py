@@ -76,6 +76,40 @@ def _largest_imports(module: str, n: int = 12) -> list[tuple[str, float]]:
     return sorted(rows, key=lambda r: -r[1])[:n]
 
 
+_STAGES = """
+import sys, time, json
+import numpy as np
+t = [time.perf_counter()]
+import numba, scipy.linalg.cython_blas  # what numba loads itself at its first compiled call
+t.append(time.perf_counter())
+import twin.cli.localize as cli
+t.append(time.perf_counter())
+mesh = cli.read_mesh(sys.argv[1], "m")
+points = cli._load_points(sys.argv[2], "m")
+t.append(time.perf_counter())
+from algorithms.geometry.bvh_kernels import compile_kernels
+compile_kernels(announce=False)
+t.append(time.perf_counter())
+index = cli.MeshIndex(mesh)
+t.append(time.perf_counter())
+cli.localize(points, index=index, init=np.eye(4), sigma=float(sys.argv[3]))
+t.append(time.perf_counter())
+print(json.dumps(np.diff(t).tolist()))
+"""
+STAGE_NAMES = ("import numba (with scipy.linalg, which numba loads at its first call)",
+               "import twin.cli.localize (the rest)", "read the mesh and the points",
+               "numba's first call: its registries, the kernels from its cache", "build the mesh index",
+               "the fit (its first run in the process)")
+
+
+def _stages_s(folder: Path, repeats: int) -> list[float]:
+    """Median seconds of each stage of one localize run, in a fresh process each time."""
+    runs = [json.loads(subprocess.run([sys.executable, "-c", _STAGES, str(folder / "part.stl"),
+                                       str(folder / "points.ply"), str(NOISE_M)], capture_output=True, text=True,
+                                      check=True, cwd=ROOT).stdout) for _ in range(repeats)]
+    return [statistics.median(r[k] for r in runs) for k in range(len(STAGE_NAMES))]
+
+
 def _commit() -> str:
     rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
     dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
@@ -99,6 +133,7 @@ def main(argv: list[str] | None = None) -> int:
             "twin localize (1,000 points, --init)": [py, "-m", "twin.cli", *localize_args],
         }
         rows = {name: _wall_s(cmd, args.repeats) for name, cmd in commands.items()}
+        stages = _stages_s(Path(tmp), args.repeats)
         result = json.loads(subprocess.run(commands["twin localize (1,000 points, --init)"], capture_output=True,
                                            text=True, check=True, cwd=ROOT).stdout)
     imports = _largest_imports("twin.cli.localize")
@@ -122,6 +157,10 @@ def main(argv: list[str] | None = None) -> int:
         limit = LIMITS_S.get(name)
         tail = f"{limit:g} | {med / limit:.2f}" if limit else " | "
         text.append(f"| {name} | {med:.3f} | {min(times):.3f} | {tail} |")
+    text += ["", "Where a localize run's time goes (the same problem, each stage timed in a fresh process, "
+             f"median of {args.repeats}; the interpreter and NumPy as above):", "",
+             "| stage | [s] |", "|---|---|"]
+    text += [f"| {name} | {s:.3f} |" for name, s in zip(STAGE_NAMES, stages, strict=True)]
     text += ["", "Largest imports of `twin.cli.localize` and of the modules it imports itself "
              "(`python -X importtime -c 'import twin.cli.localize'`, cumulative, one run):", "",
              "| module | [s] |", "|---|---|"]
