@@ -17,17 +17,22 @@ makes:
 Moves 2 and 3 are :func:`twin.touch_probing.probing_move`, the arm its machine
 (:class:`_ArmProbingLine`).
 
-The moves are Cartesian straight lines, solved by mink IK on the NOMINAL cell every 10 ms
-and joined by a clamped cubic spline, then simulated in the TRUE cell (servos, gravity) at
-1 ms, one rollout continuing the last (:func:`twin.sim.simulate` from its final state). The
+The moves are Cartesian straight lines, solved on the NOMINAL cell every 10 ms and joined by
+a clamped cubic spline, then simulated in the TRUE cell (servos, gravity) at 1 ms, one rollout
+continuing the last (:func:`twin.sim.simulate` from its final state). The knots come from the
+UR closed form on the arm's branch, which is what mink converges to wherever mink's table
+avoidance does not act; a move the closed form cannot stand in for (a link near the table, a
+wrist flip, a joint limit) is solved by mink knot by knot (:class:`twin.ik.IKSolver`). The
 touch and the trigger come from the true ball-centre motion and the exact part
 (:func:`twin.sensors.touch_probe.find_trigger`); the hit is the ball centre from the joint
 encoders latched at the trigger (plus their noise) with the nominal kinematics.
 
 Checked on every move: the ball, the stylus and the probe body against the exact part,
 the reference sphere and the table (an unintended contact is a ball touch outside a probing
-move, or any touch of the stylus or the body); the arm and the laser housing against the
-part's height field and the table through MuJoCo's contact sensors
+move, or any touch of the stylus or the body; the distances are exact wherever they decide
+a contact or the smallest clearance, elsewhere bounded from the samples around them); the
+arm and the laser housing against the part's height field and the table through MuJoCo's
+contact sensors
 (:func:`twin.replay.add_collision_checks`).
 """
 
@@ -42,20 +47,20 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from algorithms.arraytypes import FloatArray
-from algorithms.geometry.kinematics import dh_forward, ur_inverse
+from algorithms.geometry.kinematics import dh_forward, ur_branch, ur_inverse
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, make_pose, transform_points
 from twin.cell import Cell, build_spec, compile_cell
 from twin.errors import TwinError
-from twin.ik import IKSolver, reachable
+from twin.ik import TABLE_DETECTION_DISTANCE_M, IKSolver, reachable
 from twin.realize import Realized
 from twin.replay import ContactRecord, add_collision_checks, contact_columns, contact_records
-from twin.robot import HOME_Q, UR5E_DH
+from twin.robot import HOME_Q, UR5E_DH, VELOCITY_LIMIT_RAD_S
 from twin.sensors.base import sensor_slice
 from twin.sensors.touch_probe import BALL_SITE, MODULE_SITE, Trigger, probe_spec
 from twin.sim import simulate
 from twin.touch_probing import probing_move
-from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
+from twin.trajectory import TABLE_CLEARANCE_M, TableCheck, site_in_flange
 
 IK_KNOT_STEPS = 10
 IK_POSITION_TOL_M = 1e-7
@@ -66,6 +71,8 @@ SPIN_RATE_RAD_S = 1.0
 PROBE_CHUNK_STEPS = 50
 # Contact checks sample the stylus and the body this densely along their axis [m].
 CONTACT_SAMPLE_M = 0.001
+# ... and compute every this many 1 ms samples first, to bound the others (ProbingProgram._gaps).
+CONTACT_STRIDE = 16
 # The probe moves straight down (its stylus along -z of the world).
 STYLUS_AXIS_WORLD = np.array([0.0, 0.0, -1.0])
 
@@ -171,6 +178,11 @@ class Obstacles:
     def distance(self, points_world: np.ndarray, reach_m: float = np.inf) -> np.ndarray:
         """(n,) smallest signed distance [m] to the part, the sphere and the table; the part
         is queried only where it is within ``reach_m`` of its bounding box (else +inf)."""
+        return self.distance_and_bound(points_world, reach_m)[0]
+
+    def distance_and_bound(self, points_world: np.ndarray, reach_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`distance`, and a lower bound of the true distance: the same, with the
+        distance to the part's bounding box where the part was not queried."""
         p = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
         d = np.minimum(p[:, 2], np.linalg.norm(p - self.sphere_centre, axis=1) - self.sphere_radius)
         pw = transform_points(self.T_workpiece_world, p)
@@ -178,7 +190,12 @@ class Obstacles:
         near = out < reach_m
         if near.any():
             d[near] = np.minimum(d[near], self.index.signed_distance(pw[near]))
-        return d
+        bound = d.copy()
+        far = ~near
+        if far.any():
+            to_box = np.linalg.norm(np.maximum(np.maximum(self.box_lo - pw[far], pw[far] - self.box_hi), 0.0), axis=1)
+            bound[far] = np.minimum(d[far], to_box)
+        return d, bound
 
 
 def line_profile(p0: np.ndarray, p1: np.ndarray, speed: float, accel: float, dt: float) -> np.ndarray:
@@ -240,6 +257,11 @@ class ProbingProgram:
         self.dt = float(cell.model.opt.timestep)
         self.solver = IKSolver(nominal.model, BALL_SITE, IK_POSITION_TOL_M, IK_ORIENTATION_TOL_RAD,
                                avoid_table=True)
+        # the closed-form IK's data: the ball site in the flange frame, the joint ranges, and
+        # where mink's table avoidance would act (_closed_form_knots)
+        self.T_ball_flange = inv_pose(site_in_flange(nominal, BALL_SITE))
+        self.joint_range = nominal.model.jnt_range[:6].copy()
+        self.near_table = TableCheck(nominal, TABLE_DETECTION_DISTANCE_M)
         self.spin = 0.0
         self.T_world_base = cell.T_world_base
         self.T_base_world = inv_pose(cell.T_world_base)
@@ -264,19 +286,15 @@ class ProbingProgram:
         knots = np.arange(0, k, IK_KNOT_STEPS)
         if knots[-1] != k - 1:
             knots = np.append(knots, k - 1)
-        q = np.empty((len(knots), 6))
         spin0 = self.spin
         spin1 = spin0 if spin_to is None else spin0 + np.angle(np.exp(1j * (spin_to - spin0)))
         travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P_world, axis=0), axis=1))])
         frac = travel / travel[-1] if travel[-1] > 0 else np.linspace(0.0, 1.0, k)
-        for i, j in enumerate(knots):
-            spin = spin0 + frac[j] * (spin1 - spin0)
-            pe, oe, _ = self.solver.solve(ball_pose(P_world[j], spin), dt=IK_KNOT_STEPS * self.dt, max_iterations=50)
-            if not reachable(pe, oe):
-                p = P_world[j]
-                raise TwinError(f"probing move unreachable: the ball centre at world ({p[0]:.4f}, {p[1]:.4f}, "
-                                f"{p[2]:.4f}) m stays {pe * 1e3:.2f} mm / {np.degrees(oe):.2f} deg off")
-            q[i] = self.solver.q
+        T_world_ball = np.stack([ball_pose(P_world[j], spin0 + frac[j] * (spin1 - spin0)) for j in knots])
+        q = self._closed_form_knots(T_world_ball)
+        if q is None:
+            q = self._mink_knots(T_world_ball)
+        self.solver.set_q(q[-1])
         self.spin = spin1
         t = np.arange(k) * self.dt
         if len(knots) == 1:
@@ -284,6 +302,40 @@ class ProbingProgram:
         start = (1, np.zeros(6)) if qd_start is None else (1, qd_start)
         spline = CubicSpline(t[knots], q, axis=0, bc_type=(start, (1, np.zeros(6))))
         return spline(t), spline(t, 1)
+
+    def _closed_form_knots(self, T_world_ball: np.ndarray) -> np.ndarray | None:
+        """Joint angles (m, 6) of ball poses (m, 4, 4) from the UR closed form, on the branch the
+        arm is on, continuous from its configuration: what mink converges to (to its
+        tolerances, ``IK_POSITION_TOL_M``) where no link is within the table-avoidance
+        detection distance. None where the closed form cannot stand in for mink: a pose out of
+        reach or beyond the joint ranges, a joint that would move faster than its velocity
+        limit between knots (a wrist flip), a link near the table (mink's avoidance acts there)."""
+        q_now = self.solver.q
+        branch = ur_branch(q_now, UR5E_DH)
+        sol = ur_inverse(self.T_base_world @ T_world_ball @ self.T_ball_flange, UR5E_DH, branches=(branch,))
+        if not sol.valid[:, branch].all():
+            return None
+        q = np.unwrap(np.vstack([q_now, sol.q[:, branch]]), axis=0)
+        if np.any(np.abs(np.diff(q, axis=0)) > VELOCITY_LIMIT_RAD_S * IK_KNOT_STEPS * self.dt):
+            return None
+        q = q[1:]
+        if np.any((q < self.joint_range[:, 0]) | (q > self.joint_range[:, 1])):
+            return None
+        if any(self.near_table.nearest(qi) is not None for qi in q):
+            return None
+        return q
+
+    def _mink_knots(self, T_world_ball: np.ndarray) -> np.ndarray:
+        """Joint angles (m, 6) of ball poses (m, 4, 4) by mink, each from the last."""
+        q = np.empty((len(T_world_ball), 6))
+        for i, T in enumerate(T_world_ball):
+            pe, oe, _ = self.solver.solve(T, dt=IK_KNOT_STEPS * self.dt, max_iterations=50)
+            if not reachable(pe, oe):
+                p = T[:3, 3]
+                raise TwinError(f"probing move unreachable: the ball centre at world ({p[0]:.4f}, {p[1]:.4f}, "
+                                f"{p[2]:.4f}) m stays {pe * 1e3:.2f} mm / {np.degrees(oe):.2f} deg off")
+            q[i] = self.solver.q
+        return q
 
     def _n_logged(self) -> int:
         """How many 1 ms samples the program has logged so far."""
@@ -454,7 +506,10 @@ class ProbingProgram:
     def probe_contacts(self, t, ball_w, module_w, phase) -> tuple[list, float]:
         """Exact contacts of the ball (outside probing moves), the stylus and the body, over the
         samples ``t`` (n,) [s], ``ball_w`` and ``module_w`` (n, 3) (world frame) and ``phase``
-        (n,) (any stretch of :attr:`logs`), and the smallest clearance of the stylus and body [m]."""
+        (n,) (any stretch of :attr:`logs`), and the smallest clearance of the stylus and body [m].
+
+        The distances are exact where they decide anything (:meth:`_gaps`): at every sample
+        that could touch, and at every sample that could hold the smallest clearance."""
         p = self.spec
         axis = ball_w - module_w
         axis /= np.linalg.norm(axis, axis=1, keepdims=True)
@@ -463,14 +518,17 @@ class ProbingProgram:
         n_body = max(int(np.ceil(p.body_length_m / CONTACT_SAMPLE_M)), 2)
         out: list[ContactRecord] = []
         clearance = np.inf
-        parts = (("probe_ball", ball_w[:, None, :], p.ball_radius_m, phase == 0),
+        # (name, sample points (n, k, 3), radius, samples checked, farthest point from the module
+        # along the axis [m]: None for the ball, whose points are the centres themselves)
+        parts = (("probe_ball", ball_w[:, None, :], p.ball_radius_m, phase == 0, None),
                  ("probe_stylus", module_w[:, None, :] + axis[:, None, :] * np.linspace(0, stem, n_stem)[None, :, None],
-                  p.stylus_radius_m, np.ones(len(t), bool)),
+                  p.stylus_radius_m, np.ones(len(t), bool), stem),
                  ("probe_body", module_w[:, None, :] - axis[:, None, :]
-                  * np.linspace(0, p.body_length_m, n_body)[None, :, None], p.body_radius_m, np.ones(len(t), bool)))
-        for name, pts, radius, check in parts:
-            k = pts.shape[1]
-            d = self.obstacles.distance(pts.reshape(-1, 3), reach_m=radius + 0.01).reshape(-1, k).min(axis=1) - radius
+                  * np.linspace(0, p.body_length_m, n_body)[None, :, None], p.body_radius_m, np.ones(len(t), bool),
+                  p.body_length_m))
+        for name, pts, radius, check, reach_along in parts:
+            d = self._gaps(pts, radius, check, ball_w, module_w, axis, reach_along,
+                           need_min=name != "probe_ball")
             if name != "probe_ball":
                 clearance = min(clearance, float(d.min()))
             bad = check & (d < 0)
@@ -481,6 +539,44 @@ class ProbingProgram:
                 out.append(ContactRecord(name, "part, sphere or table (exact)", False, float(t[idx[0]]),
                                          float(t[idx[-1]]), int(len(idx)), float(-d[j]), tuple(where)))
         return out, clearance
+
+    def _gaps(self, pts, radius, check, ball_w, module_w, axis, reach_along, need_min: bool) -> np.ndarray:
+        """(n,) the gap [m] of each sample's points (n, k, 3) to the obstacles, exact wherever
+        it is negative on a checked sample or (``need_min``) could be the smallest; +inf at
+        samples shown to be farther than that.
+
+        The gap is 1-Lipschitz in each point, and a point of the probe at ``s`` from the module
+        along the axis (at most ``reach_along``; None: the ball's centre) moves by at most
+        ``|dm| + s |da|`` between two samples (dm the module's move, da the axis's change; the
+        ball's centre moves by |db|). So lower bounds of the gaps every ``CONTACT_STRIDE``
+        samples (exact near the part, the distance to its bounding box beyond) bound the
+        others from below, and only the samples whose bound is under the threshold (0, or with
+        ``need_min`` the smallest gap of the strided samples, if larger) are computed."""
+        n, k = pts.shape[:2]
+        if n == 0:
+            return np.zeros(0)
+
+        def gap(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            d, bound = self.obstacles.distance_and_bound(pts[rows].reshape(-1, 3), reach_m=radius + 0.01)
+            return d.reshape(-1, k).min(axis=1) - radius, bound.reshape(-1, k).min(axis=1) - radius
+
+        strided = np.unique(np.r_[np.arange(0, n, CONTACT_STRIDE), n - 1])
+        at = np.clip(np.searchsorted(strided, np.arange(n) - CONTACT_STRIDE // 2), 0, len(strided) - 1)
+        anchor = strided[at]
+        if reach_along is None:
+            moved = np.linalg.norm(ball_w - ball_w[anchor], axis=1)
+        else:
+            moved = (np.linalg.norm(module_w - module_w[anchor], axis=1)
+                     + reach_along * np.linalg.norm(axis - axis[anchor], axis=1))
+        d = np.full(n, np.inf)
+        d[strided], bound = gap(strided)    # d as every sample is reported: the part near its box
+        lower = bound[at] - moved - 1e-9
+        threshold = max(0.0, float(d[strided].min())) if need_min else 0.0
+        todo = np.flatnonzero((lower < threshold) & (check | need_min))
+        todo = todo[~np.isin(todo, strided)]
+        if len(todo):
+            d[todo] = gap(todo)[0]
+        return d
 
 
 class _ArmProbingLine:

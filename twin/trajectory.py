@@ -220,18 +220,22 @@ class TableCheck:
         self.model.geom_margin[obstacles] = self.limit_m[obstacles]
         self.data = mujoco.MjData(self.model)
         self.adr = cell.qpos_adr
-        self.standing = np.array([g for g in range(self.model.ngeom)
-                                  if self.model.body(self.model.geom_bodyid[g]).name in ("base", "shoulder_pan_link")])
+        # the geoms of the bodies that stand on the table (by geom id)
+        self.standing = np.array([self.model.body(self.model.geom_bodyid[g]).name in ("base", "shoulder_pan_link")
+                                  for g in range(self.model.ngeom)])
 
     def nearest(self, q: np.ndarray) -> tuple[str, float] | None:
         """(geom name, distance [m]) of the link nearest an obstacle within its clearance, or None."""
         self.data.qpos[self.adr] = q
-        mujoco.mj_fwdPosition(self.model, self.data)
+        mujoco.mj_kinematics(self.model, self.data)   # the geoms' poses: all the collision needs
+        mujoco.mj_collision(self.model, self.data)
+        if self.data.ncon == 0:
+            return None
         c = self.data.contact[: self.data.ncon]
         first = np.isfinite(self.limit_m[c.geom1])
         obstacle, other = np.where(first, c.geom1, c.geom2), np.where(first, c.geom2, c.geom1)
         hit = np.isfinite(self.limit_m[obstacle]) & ~np.isfinite(self.limit_m[other]) \
-            & ~np.isin(other, self.standing) & (c.dist < self.limit_m[obstacle])
+            & ~self.standing[other] & (c.dist < self.limit_m[obstacle])
         if not hit.any():
             return None
         k = int(np.flatnonzero(hit)[np.argmin(c.dist[hit])])

@@ -212,6 +212,15 @@ def ur_inverse(T_base_flange: ArrayLike, dh: DHTable, branches: Iterable[int] | 
     return out
 
 
+def ur_branch(q: ArrayLike, dh: DHTable) -> int:
+    """The :func:`ur_inverse` branch a configuration lies on: the branch whose solution of its
+    own flange pose is nearest it (angles compared modulo 2 pi)."""
+    q = np.asarray(q, dtype=np.float64)
+    sol = ur_inverse(dh_forward(q, dh), dh)
+    dq = np.abs(wrap_angle(sol.q[0] - q))
+    return int(np.nanargmin(np.where(sol.valid[0], np.nanmax(dq, axis=1), np.inf)))
+
+
 def _check_branches(branches: Iterable[int] | None) -> set[int]:
     wanted = set(range(UR_BRANCHES)) if branches is None else {int(b) for b in branches}
     if not wanted <= set(range(UR_BRANCHES)):
