@@ -20,7 +20,15 @@ from tests.helpers import run_cli, tiered
 from twin import evaluate
 from twin.cell import build_cell
 from twin.errors import TwinError
-from twin.probing import ProbeTarget, ProbingProgram, build_probe_cell, safe_height_world
+from twin.probing import (
+    IK_KNOT_STEPS,
+    ProbeTarget,
+    ProbingProgram,
+    ball_pose,
+    build_probe_cell,
+    line_profile,
+    safe_height_world,
+)
 from twin.qualification import qualification_targets, qualify
 from twin.realize import realize
 from twin.scenario import load_scenario
@@ -126,6 +134,77 @@ def test_a_miss_is_reported_as_a_miss(cube_probe):
                     safe_height_world(realized, realized.truth.T_world_workpiece))
     assert not hit.hit and "no trigger" in hit.miss and np.all(np.isnan(hit.centre))
     assert prog.log((hit,)).contacts == ()
+
+
+def test_the_closed_form_knots_are_what_mink_converges_to(cube_probe):
+    # ProbingProgram solves a move's IK knots in closed form on the arm's branch where mink's
+    # table avoidance does not act: the joints must be mink's, to its tolerances
+    realized, nominal, cell = cube_probe
+    prog = ProbingProgram(realized, nominal, cell, np.random.default_rng(0))
+    prog.start()
+    here = prog.ball_world()
+    P = line_profile(here, here + np.array([0.06, -0.04, -0.05]), 0.25, 1.0, prog.dt)[::IK_KNOT_STEPS]
+    T_world_ball = np.stack([ball_pose(p, prog.spin + 0.3 * i / len(P)) for i, p in enumerate(P)])
+    q_start = prog.solver.q
+    closed = prog._closed_form_knots(T_world_ball)
+    prog.solver.set_q(q_start)
+    mink = prog._mink_knots(T_world_ball)
+    assert closed is not None
+    assert np.abs(closed - mink).max() < 2e-6          # rad: mink stops at 1e-7 m / 1e-6 rad
+
+
+def test_the_contact_gaps_are_exact_where_they_decide(cube_probe):
+    # probe_contacts computes the gaps exactly only where a contact or the smallest clearance
+    # could be, bounding the others: its contacts and clearance must be those of every sample
+    # computed exactly, here on a real move lowered until the stylus and the body cut the cube
+    realized, nominal, cell = cube_probe
+    mesh = realized.workpiece.mesh
+    T = realized.T_base_workpiece_true
+    p_wp = np.array([mesh.bounds[:, 0].mean(), mesh.bounds[:, 1].mean(), mesh.bounds[1, 2]])
+    prog = ProbingProgram(realized, nominal, cell, np.random.default_rng(0))
+    prog.run([ProbeTarget(transform_points(T, p_wp[None])[0], T[:3, 2], "top")],
+             safe_height_world(realized, realized.truth.T_world_workpiece))
+    t = np.concatenate(prog.logs["t"])
+    phase = np.concatenate(prog.logs["phase"])
+    for drop_m in (0.0, 0.012, 0.03):
+        ball = np.vstack(prog.logs["ball"]) - [0.0, 0.0, drop_m]
+        module = np.vstack(prog.logs["module"]) - [0.0, 0.0, drop_m]
+        got = prog.probe_contacts(t, ball, module, phase)
+        expected = _every_sample_exactly(prog, t, ball, module, phase)
+        assert got == expected
+    assert len(expected[0]) >= 2                        # the deepest drop touches with stylus and body
+
+
+def _every_sample_exactly(prog, t, ball_w, module_w, phase):
+    """probe_contacts with every sample's gap computed (the reference)."""
+    from twin.probing import CONTACT_SAMPLE_M
+    from twin.replay import ContactRecord
+
+    p = prog.spec
+    axis = (ball_w - module_w) / np.linalg.norm(ball_w - module_w, axis=1, keepdims=True)
+    stem = p.stylus_length_m - p.ball_radius_m
+    n_stem = max(int(np.ceil(stem / CONTACT_SAMPLE_M)), 2)
+    n_body = max(int(np.ceil(p.body_length_m / CONTACT_SAMPLE_M)), 2)
+    parts = (("probe_ball", ball_w[:, None, :], p.ball_radius_m, phase == 0),
+             ("probe_stylus", module_w[:, None, :] + axis[:, None, :] * np.linspace(0, stem, n_stem)[None, :, None],
+              p.stylus_radius_m, np.ones(len(t), bool)),
+             ("probe_body", module_w[:, None, :]
+              - axis[:, None, :] * np.linspace(0, p.body_length_m, n_body)[None, :, None],
+              p.body_radius_m, np.ones(len(t), bool)))
+    out, clearance = [], np.inf
+    for name, pts, radius, check in parts:
+        k = pts.shape[1]
+        d = prog.obstacles.distance(pts.reshape(-1, 3), reach_m=radius + 0.01).reshape(-1, k).min(axis=1) - radius
+        if name != "probe_ball":
+            clearance = min(clearance, float(d.min()))
+        bad = check & (d < 0)
+        if bad.any():
+            idx = np.flatnonzero(bad)
+            j = idx[np.argmin(d[idx])]
+            where = transform_points(prog.T_base_world, ball_w[j][None])[0]
+            out.append(ContactRecord(name, "part, sphere or table (exact)", False, float(t[idx[0]]),
+                                     float(t[idx[-1]]), int(len(idx)), float(-d[j]), tuple(where)))
+    return out, clearance
 
 
 def test_qualification_finds_the_effective_radius():
