@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from algorithms.paths.tilt import clear_axes, clearance_m, foot_gap_m, steer_axes, tool_profile
+from algorithms.paths.tilt import clear_axes, clearance_m, foot_gap_m, profile_gaps_m, steer_axes, tool_profile
 from algorithms.paths.toolpath import ToolSettings, build_path
 from tests.tolerances import ORTHONORMAL
 
@@ -30,6 +30,26 @@ def floor_and_wall(p):
 def _floor_line(x_m):
     contacts = np.column_stack([x_m, np.zeros_like(x_m), np.zeros_like(x_m)])
     return contacts, np.tile([0.0, 0.0, 1.0], (len(x_m), 1))
+
+
+def test_gaps_under_a_limit_are_exact_and_the_others_bounded_by_it():
+    # profile_gaps_m with a limit computes every PROFILE_STRIDE-th sample up the tool and only
+    # the samples their Lipschitz bound cannot clear: under the limit the gaps (and so each
+    # row's minimum) are the exact ones, elsewhere at least the limit
+    rng = np.random.default_rng(2)
+    centres = np.column_stack([rng.uniform(-0.05, 0.05, 400), rng.uniform(-0.05, 0.05, 400),
+                               rng.uniform(0.002, 0.05, 400)])
+    axes = rng.normal(size=(400, 3)) + [0.0, 0.0, 2.0]
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    exact = profile_gaps_m(centres, axes, PROFILE, floor_and_wall)
+    for limit in (MIN_GAP_M, 0.02):
+        got = profile_gaps_m(centres, axes, PROFILE, floor_and_wall, limit)
+        under = exact < limit
+        assert 0 < under.sum() < under.size
+        assert np.array_equal(got[under], exact[under])
+        assert np.all(got[~under] >= limit) and np.all(got <= exact)
+        assert np.array_equal(clearance_m(centres, axes, PROFILE, floor_and_wall, limit) < limit,
+                              exact.min(axis=1) < limit)
 
 
 def test_the_holder_clears_a_wall_by_tilting_away_from_it():

@@ -92,7 +92,7 @@ def clearance_problems(path: ProcessPath, scenario: Scenario, T_base_workpiece: 
     T_wb = inv_pose(T_base_workpiece)
     T = T_wb @ path.T_tool
     centre = T[:, :3, 3] + p.tip_radius_m * T[:, :3, 2]
-    short = profile_gaps_m(centre, T[:, :3, 2], profile, index.signed_distance)
+    short = profile_gaps_m(centre, T[:, :3, 2], profile, index.signed_distance, CLEARANCE_M)
     bad = np.flatnonzero(np.min(short, axis=1) < CLEARANCE_M)
     out = []
     # the ball itself on moves in the air (approach, retract, transit): never into the part

@@ -62,21 +62,47 @@ def tool_profile(reach_m: float, tip_radius_m: float, shank_radius_m: float, hol
     return ToolProfile(s, r, tip_radius_m, shank_radius_m, step_m)
 
 
+#: With a limit, the tool's profile is first computed every this many samples (profile_gaps_m).
+PROFILE_STRIDE = 8
+
+
 def profile_gaps_m(centres: FloatArray, axes: FloatArray, profile: ToolProfile,
-                   signed_distance: Callable[[FloatArray], FloatArray]) -> FloatArray:
+                   signed_distance: Callable[[FloatArray], FloatArray], limit_m: float | None = None) -> FloatArray:
     """(N, S) gap [m] between the part and the tool at each profile sample (along ``axes``
-    from the ball ``centres``)."""
+    from the ball ``centres``).
+
+    With ``limit_m`` only the gaps under it are exact; the others are lower bounds of at least
+    ``limit_m`` (each row's minimum is exact wherever it is under the limit). The signed
+    distance is 1-Lipschitz, so the exact distances every ``PROFILE_STRIDE`` samples up the
+    axis bound the samples between them (``d(s) >= d(s0) - |s - s0|``), and only the samples
+    whose bound falls under the limit are computed: most of a tool far from the part is not.
+    """
+    n_poses, n_samples = len(centres), len(profile.distance_m)
     samples = centres[:, None, :] + profile.distance_m[None, :, None] * axes[:, None, :]
-    d = signed_distance(samples.reshape(-1, 3)).reshape(len(centres), len(profile.distance_m))
-    return d - profile.radius_m[None, :]
+    radius = profile.radius_m[None, :]
+    if limit_m is None or n_samples <= PROFILE_STRIDE:
+        return signed_distance(samples.reshape(-1, 3)).reshape(n_poses, n_samples) - radius
+    strided = np.unique(np.r_[np.arange(0, n_samples, PROFILE_STRIDE), n_samples - 1])
+    exact = signed_distance(samples[:, strided].reshape(-1, 3)).reshape(n_poses, len(strided))
+    at = np.clip(np.searchsorted(strided, np.arange(n_samples) - PROFILE_STRIDE // 2), 0, len(strided) - 1)
+    apart = np.abs(profile.distance_m - profile.distance_m[strided[at]])
+    gaps = exact[:, at] - apart[None, :] - radius - 1e-12
+    gaps[:, strided] = exact - radius[:, strided]
+    todo = gaps < limit_m
+    todo[:, strided] = False
+    rows, cols = np.nonzero(todo)
+    if len(rows):
+        gaps[rows, cols] = signed_distance(samples[rows, cols]) - profile.radius_m[cols]
+    return gaps
 
 
 def clearance_m(centres: FloatArray, axes: FloatArray, profile: ToolProfile,
-                signed_distance: Callable[[FloatArray], FloatArray]) -> FloatArray:
-    """(N,) smallest gap [m] between the tool (along ``axes`` from the ball ``centres``) and the part."""
+                signed_distance: Callable[[FloatArray], FloatArray], limit_m: float | None = None) -> FloatArray:
+    """(N,) smallest gap [m] between the tool (along ``axes`` from the ball ``centres``) and the
+    part; with ``limit_m`` exact where it is under the limit, else a value of at least the limit."""
     if len(centres) == 0 or len(profile.distance_m) == 0:
         return np.full(len(centres), np.inf)
-    return np.min(profile_gaps_m(centres, axes, profile, signed_distance), axis=1)
+    return np.min(profile_gaps_m(centres, axes, profile, signed_distance, limit_m), axis=1)
 
 
 FOOT_AZIMUTHS = 12
@@ -146,7 +172,7 @@ def clear_axes(contacts: FloatArray, normals: FloatArray, tip_radius_m: float, p
     t1 = _tangent_towards(n, np.asarray(up, dtype=np.float64))
     t2 = np.cross(n, t1)
     tilt = np.zeros((len(n), 2))
-    todo = np.flatnonzero(clearance_m(centres, n, profile, signed_distance) < min_clearance_m)
+    todo = np.flatnonzero(clearance_m(centres, n, profile, signed_distance, min_clearance_m) < min_clearance_m)
     if len(todo) == 0:
         return n.copy()
     # the directions around the normal, "up" first, then alternately either side of it
@@ -159,7 +185,7 @@ def clear_axes(contacts: FloatArray, normals: FloatArray, tip_radius_m: float, p
         dirs = np.cos(psi)[None, :, None] * t1[todo][:, None, :] + np.sin(psi)[None, :, None] * t2[todo][:, None, :]
         cand = np.cos(theta) * n[todo][:, None, :] + np.sin(theta) * dirs            # (T, A, 3)
         gap = clearance_m(np.repeat(centres[todo], len(psi), axis=0), cand.reshape(-1, 3), profile,
-                          signed_distance).reshape(len(todo), len(psi))
+                          signed_distance, min_clearance_m).reshape(len(todo), len(psi))
         ok = gap >= min_clearance_m
         if min_foot_gap_m > 0 and ok.any():
             t, a = np.nonzero(ok)
@@ -266,8 +292,8 @@ def steer_axes(contacts: FloatArray, normals: FloatArray, axes: FloatArray, lo: 
         if not c < best_cost:
             continue
         changed = np.flatnonzero(np.any(np.abs(cand - axes) > 1e-12, axis=1))
-        if np.min(clearance_m(centres[changed], cand[changed], profile, signed_distance), initial=np.inf) \
-                < min_clearance_m:
+        if np.min(clearance_m(centres[changed], cand[changed], profile, signed_distance, min_clearance_m),
+                  initial=np.inf) < min_clearance_m:
             continue
         tilted = changed[np.sum(cand[changed] * n[changed], axis=1) < np.cos(1e-6)]
         if min_foot_gap_m > 0 and len(tilted) and np.min(
