@@ -15,6 +15,7 @@ and redone.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -89,19 +90,28 @@ def _segment_profile(qs: FloatArray, T: FloatArray, v_seg: float, a_path: float,
         )
     h = np.diff(s)
 
-    def a_avail(i, v):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            a_j = (share * amax - d2[i] * v * v) / d1[i]
-        a_j = np.where(np.isfinite(a_j), a_j, np.inf)
-        return max(0.0, min(a_path, float(np.min(a_j))))
+    # the passes run on Python floats (the same IEEE operations as numpy's, a tenth of the time)
+    limit = (share * amax).tolist()
+    d1_rows, d2_rows = d1.tolist(), d2.tolist()
 
-    v = v_lim.copy()
-    v[0] = 0.0
-    v[-1] = 0.0
+    def a_avail(i: int, v: float) -> float:
+        """The path acceleration the joints leave at grid point i and speed v (a joint with
+        q' = 0 sets no limit)."""
+        best = a_path
+        for lim, c1, c2 in zip(limit, d1_rows[i], d2_rows[i], strict=True):
+            if c1 != 0.0:
+                best = min(best, (lim - c2 * v * v) / c1)
+        return max(0.0, best)
+
+    speeds = v_lim.tolist()
+    speeds[0] = 0.0
+    speeds[-1] = 0.0
+    steps = h.tolist()
     for i in range(m):
-        v[i + 1] = min(v[i + 1], np.sqrt(v[i] ** 2 + 2.0 * a_avail(i, v[i]) * h[i]))
+        speeds[i + 1] = min(speeds[i + 1], math.sqrt(speeds[i] ** 2 + 2.0 * a_avail(i, speeds[i]) * steps[i]))
     for i in range(m, 0, -1):
-        v[i - 1] = min(v[i - 1], np.sqrt(v[i] ** 2 + 2.0 * a_avail(i, v[i]) * h[i - 1]))
+        speeds[i - 1] = min(speeds[i - 1], math.sqrt(speeds[i] ** 2 + 2.0 * a_avail(i, speeds[i]) * steps[i - 1]))
+    v = np.array(speeds)
     # A grid point where the limits allow no speed at all would stall the profile.
     floor = 1e-6
     v[1:-1] = np.maximum(v[1:-1], floor)
