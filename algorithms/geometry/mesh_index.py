@@ -470,9 +470,9 @@ class MeshIndex:
         """
         face = np.asarray(face, dtype=np.int64)
         if self._smooth is None:  # filled face by face: a fit touches few of a dense mesh's faces
-            self._smooth = np.zeros((self.n_faces, 3, 3))
-            self._smooth_done = np.zeros(self.n_faces, dtype=bool)
             self._incidence = _vertex_incidence(self.faces, len(self.vertices))
+            self._smooth_done = np.zeros(self.n_faces, dtype=bool)
+            self._smooth = np.zeros((self.n_faces, 3, 3))  # last: another thread may be reading
         todo = np.unique(face[~self._smooth_done[face]])
         if len(todo):
             self._smooth[todo] = _corner_normals(self.vertices, self.faces, self.face_normals, which=todo,

