@@ -149,6 +149,9 @@ def speed_section(env_kind: str, scenario: str, steps: int) -> str:
     """Steps per second on one core (this process pinned to CPU 0), policy time excluded."""
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {0})
+    import importlib
+
+    importlib.import_module("twin.env.active_probe" if env_kind == "probe" else "twin.env.active_scan")
     builds = []
     for _ in range(2):  # the first instance in the process, then another (its part already generated)
         t0 = time.perf_counter()
