@@ -19,13 +19,14 @@ model the fit uses:
 Each scan is fitted at full density, with the table cropped as a cell crops its known table
 (the points within ``TABLE_CROP_M`` of its plane dropped), as a ``VOXEL_M`` voxel subset (the
 first point of each voxel), and as ``SMALL_N`` points drawn from it (the free-form 150-point
-case). Ours:
-``algorithms.registration.localize`` (its default method and robust rule, the noise sigma
-given); the peer: small_gicp GICP against a dense sample of the model (0.5 mm, normals and
-covariances from 20 neighbours, prepared once), the source's covariances estimated in each
-call, correspondences up to ``PEER_MAX_CORRESPONDENCE_M``. Times are the fits' own (the model
-index and the peer's target prepared before), median over the views; errors against the true
-pose. small_gicp is optional (``pip install small_gicp``); without it only ours is timed.
+case). Both methods run as the studies run them (:func:`twin.studies.methods.run_method`):
+ours, ``algorithms.registration.localize`` (its default method and robust rule, the noise
+sigma given); the peer, small_gicp GICP against a dense sample of the model (0.5 mm, normals
+and covariances from 20 neighbours, prepared once), the source's covariances estimated in each
+call, correspondences up to 3x the start's distance, run to convergence. Times are the fits'
+own (the model index and the peer's target prepared before), medians over the views; errors
+against the true pose. small_gicp is optional (``pip install small_gicp``); without it only
+ours is timed.
 
     python -m benchmarks.bench_dense_scans [--views 10] [--out benchmarks/results_dense_scans.md]
 """
@@ -33,10 +34,10 @@ pose. small_gicp is optional (``pip install small_gicp``); without it only ours 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -45,11 +46,13 @@ import numpy as np
 
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.raycast import raycast_parallel
-from algorithms.geometry.se3 import exp_se3, inv_pose, rotation_error_rad, transform_points, translation_error_m
-from algorithms.registration.local import localize
+from algorithms.geometry.se3 import exp_se3, rotation_error_rad, transform_points, translation_error_m
+from algorithms.registration.local import DEFAULT_METHOD
+from tests.helpers import ROOT, commit_stamp
 from twin.parts import make_workpiece
+from twin.realize import Workpiece
+from twin.studies.methods import Outcome, run_method
 
-ROOT = Path(__file__).resolve().parents[1]
 PART = "bottle_punch"
 MODEL_RESOLUTION_M = 0.0006
 TRUTH_RESOLUTION_M = 0.0004
@@ -63,8 +66,6 @@ START_M = 0.005
 VOXEL_M = 0.001
 TABLE_CROP_M = 0.0005
 SMALL_N = 150
-PEER_SPACING_M = 5e-4
-PEER_MAX_CORRESPONDENCE_M = 0.015
 
 
 def _view_directions(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -112,44 +113,25 @@ def random_start(T_true: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return T_true @ exp_se3(xi)
 
 
-class Peer:
-    """small_gicp GICP against a dense sample of the model, prepared once."""
-
-    def __init__(self, mesh) -> None:
-        import small_gicp
-        import trimesh
-
-        self.sg = small_gicp
-        n = int(mesh.area / PEER_SPACING_M**2)
-        pts, _ = trimesh.sample.sample_surface_even(mesh, n, seed=0)
-        self.target = small_gicp.PointCloud(np.asarray(pts))
-        self.tree = small_gicp.KdTree(self.target)
-        small_gicp.estimate_normals_covariances(self.target, self.tree, num_neighbors=20)
-
-    def fit(self, points: np.ndarray, T_init: np.ndarray) -> tuple[np.ndarray, float]:
-        t0 = time.perf_counter()
-        src = self.sg.PointCloud(points)
-        self.sg.estimate_covariances(src, num_neighbors=min(20, len(points) - 1))
-        res = self.sg.align(self.target, src, self.tree, init_T_target_source=inv_pose(T_init),
-                            registration_type="GICP", max_correspondence_distance=PEER_MAX_CORRESPONDENCE_M,
-                            max_iterations=100)
-        return inv_pose(np.asarray(res.T_target_source)), time.perf_counter() - t0
+def _fit(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np.ndarray) -> Outcome:
+    """One fit as the studies run it (``twin.studies.methods.run_method``)."""
+    out = run_method(method, points, workpiece, T_init, NOISE_M, np.random.default_rng(0), START_M)
+    if isinstance(out, str):
+        raise RuntimeError(f"{method}: {out}")
+    return out
 
 
-def _ours(points: np.ndarray, index: MeshIndex, T_init: np.ndarray) -> tuple[np.ndarray, float, str]:
-    res = localize(points, index=index, init=T_init, sigma=NOISE_M)
-    return res.T_world_workpiece, res.time_s, res.status.value
+def _errors(who: str, out: Outcome, T_true: np.ndarray) -> dict:
+    return {f"{who}_um": translation_error_m(out.T_world_workpiece, T_true) * 1e6,
+            f"{who}_urad": rotation_error_rad(out.T_world_workpiece, T_true) * 1e6}
 
 
 def run(views: int, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     model = make_workpiece(PART, resolution_m=MODEL_RESOLUTION_M)
     truth = make_workpiece(PART, resolution_m=TRUTH_RESOLUTION_M)
-    index = MeshIndex(model)
-    try:
-        peer: Peer | None = Peer(model)
-    except ImportError:
-        peer = None
+    workpiece = Workpiece(model, MeshIndex(model))
+    has_peer = importlib.util.find_spec("small_gicp") is not None
     names = ("full density", "table cropped", f"{VOXEL_M * 1e3:g} mm voxels", f"{SMALL_N} points")
     rows: dict[str, list[dict]] = {name: [] for name in names}
     for direction in _view_directions(views, rng):
@@ -161,22 +143,13 @@ def run(views: int, seed: int) -> dict:
                                 scan[rng.choice(len(scan), SMALL_N, replace=False)]), strict=True))
         T_init = random_start(T_true, rng)
         for name, pts in sets.items():
-            row = {"n": len(pts)}
-            T, row["ours_s"], row["status"] = _ours(pts, index, T_init)
-            row["ours_um"], row["ours_urad"] = translation_error_m(T, T_true) * 1e6, rotation_error_rad(T, T_true) * 1e6
-            if peer is not None:
-                T, row["peer_s"] = peer.fit(pts, T_init)
-                row["peer_um"] = translation_error_m(T, T_true) * 1e6
-                row["peer_urad"] = rotation_error_rad(T, T_true) * 1e6
+            ours = _fit(DEFAULT_METHOD, pts, workpiece, T_init)
+            row = {"n": len(pts), "ours_s": ours.time_s, "status": ours.status, **_errors("ours", ours, T_true)}
+            if has_peer:
+                peer = _fit("small_gicp", pts, workpiece, T_init)
+                row |= {"peer_s": peer.time_s, **_errors("peer", peer, T_true)}
             rows[name].append(row)
-    return {"rows": rows, "model_faces": len(model.faces), "truth_faces": len(truth.faces), "peer": peer is not None}
-
-
-def _commit() -> str:
-    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                           text=True, cwd=ROOT).stdout.strip()
-    return rev.stdout.strip() + (" with uncommitted changes" if dirty else "")
+    return {"rows": rows, "model_faces": len(model.faces), "truth_faces": len(truth.faces), "peer": has_peer}
 
 
 def report(out: dict, views: int, seed: int, wall_s: float) -> str:
@@ -184,7 +157,7 @@ def report(out: dict, views: int, seed: int, wall_s: float) -> str:
     lines = [
         "# Dense partial scans and 150-point sets: ours against small_gicp GICP",
         "",
-        f"Command: `python -m benchmarks.bench_dense_scans --views {views} --seed {seed}`; commit {_commit()}; "
+        f"Command: `python -m benchmarks.bench_dense_scans --views {views} --seed {seed}`; commit {commit_stamp()}; "
         f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; {wall_s:.0f} s.",
         "",
         f"{PART}: model {out['model_faces']:,} triangles, truth {out['truth_faces']:,}; {views} views, "

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from algorithms.geometry.se3 import transform_points
-from tests.helpers import ROOT, random_pose, sample_surface
+from tests.helpers import ROOT, commit_stamp, random_pose, sample_surface
 from twin.io import write_points_ply
 from twin.parts import make_workpiece
 
@@ -110,13 +110,6 @@ def _stages_s(folder: Path, repeats: int) -> list[float]:
     return [statistics.median(r[k] for r in runs) for k in range(len(STAGE_NAMES))]
 
 
-def _commit() -> str:
-    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                           text=True, cwd=ROOT).stdout.strip()
-    return rev.stdout.strip() + (" with uncommitted changes" if dirty else "")
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=7)
@@ -140,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     text = [
         "# Start-up of the command line",
         "",
-        f"Command: `python -m benchmarks.bench_startup --repeats {args.repeats}`; commit {_commit()}; "
+        f"Command: `python -m benchmarks.bench_startup --repeats {args.repeats}`; commit {commit_stamp()}; "
         f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
         f"load average {os.getloadavg()[0]:.2f} at the end.",
         "",

@@ -22,7 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import ROOT, commit_stamp
+
 STUDY = ROOT / "studies" / "robot_errors.toml"
 COMMITTED = ROOT / "studies" / "reports" / "robot_errors" / "report.md"
 # the report's timing columns and sentences: left out of the comparison
@@ -31,13 +32,6 @@ _TIMING = re.compile(r"median (localization )?time [0-9.e+]+ ms|\| [0-9.e+]+ \|$
 
 def _without_timings(text: str) -> list[str]:
     return [_TIMING.sub("", line) for line in text.splitlines()]
-
-
-def _commit() -> str:
-    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                           text=True, cwd=ROOT).stdout.strip()
-    return rev.stdout.strip() + (" with uncommitted changes" if dirty else "")
 
 
 def _study(workers: int) -> tuple[float, int, list[str]]:
@@ -88,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     text = [
         "# Full trials of studies/robot_errors.toml",
         "",
-        f"Command: `python -m benchmarks.bench_trials --workers {args.workers}`; commit {_commit()}; "
+        f"Command: `python -m benchmarks.bench_trials --workers {args.workers}`; commit {commit_stamp()}; "
         f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
         f"load average {os.getloadavg()[0]:.2f} at the end.",
         "",

@@ -6,6 +6,7 @@ Benchmarks run as modules from the repository root (``python -m benchmarks.NAME`
 
 from __future__ import annotations
 
+import subprocess
 import tomllib
 from pathlib import Path
 
@@ -69,6 +70,15 @@ def assert_pose_close(T_est, T_ref, tol_m: float, tol_rad: float, what: str = "p
         f"{what}: translation error {et:.3e} m (tolerance {tol_m:.1e} m), "
         f"rotation error {er:.3e} rad (tolerance {tol_rad:.1e} rad)"
     )
+
+
+def commit_stamp() -> str:
+    """The checkout's short commit, with a note when tracked files differ from it (the stamp a
+    benchmark's results file carries)."""
+    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                           text=True, cwd=ROOT).stdout.strip()
+    return rev.stdout.strip() + (" with uncommitted changes" if dirty else "")
 
 
 def tiered(values, default, ids=str) -> list:

@@ -177,33 +177,13 @@ def test_the_contact_gaps_are_exact_where_they_decide(cube_probe):
 
 def _every_sample_exactly(prog, t, ball_w, module_w, phase):
     """probe_contacts with every sample's gap computed (the reference)."""
-    from twin.probing import CONTACT_SAMPLE_M
-    from twin.replay import ContactRecord
-
-    p = prog.spec
-    axis = (ball_w - module_w) / np.linalg.norm(ball_w - module_w, axis=1, keepdims=True)
-    stem = p.stylus_length_m - p.ball_radius_m
-    n_stem = max(int(np.ceil(stem / CONTACT_SAMPLE_M)), 2)
-    n_body = max(int(np.ceil(p.body_length_m / CONTACT_SAMPLE_M)), 2)
-    parts = (("probe_ball", ball_w[:, None, :], p.ball_radius_m, phase == 0),
-             ("probe_stylus", module_w[:, None, :] + axis[:, None, :] * np.linspace(0, stem, n_stem)[None, :, None],
-              p.stylus_radius_m, np.ones(len(t), bool)),
-             ("probe_body", module_w[:, None, :]
-              - axis[:, None, :] * np.linspace(0, p.body_length_m, n_body)[None, :, None],
-              p.body_radius_m, np.ones(len(t), bool)))
     out, clearance = [], np.inf
-    for name, pts, radius, check in parts:
+    for name, pts, radius, check, _ in prog.probe_samples(ball_w, module_w, phase)[1]:
         k = pts.shape[1]
         d = prog.obstacles.distance(pts.reshape(-1, 3), reach_m=radius + 0.01).reshape(-1, k).min(axis=1) - radius
         if name != "probe_ball":
             clearance = min(clearance, float(d.min()))
-        bad = check & (d < 0)
-        if bad.any():
-            idx = np.flatnonzero(bad)
-            j = idx[np.argmin(d[idx])]
-            where = transform_points(prog.T_base_world, ball_w[j][None])[0]
-            out.append(ContactRecord(name, "part, sphere or table (exact)", False, float(t[idx[0]]),
-                                     float(t[idx[-1]]), int(len(idx)), float(-d[j]), tuple(where)))
+        out += prog.contact_of(name, t, d, check, ball_w)
     return out, clearance
 
 

@@ -410,12 +410,17 @@ def small_part() -> trimesh.Trimesh:
     return through_hole(resolution_m=0.003)
 
 
+def _in_units(part: trimesh.Trimesh, units: str) -> trimesh.Trimesh:
+    """A copy of the part with its coordinates in ``units`` ("m" or "mm")."""
+    stored = part.copy()
+    stored.apply_scale(1e3 if units == "mm" else 1.0)
+    return stored
+
+
 @pytest.mark.parametrize("ext", [".stl", ".ply", ".obj", ".STL"])
 @pytest.mark.parametrize("units", ["m", "mm"])
 def test_load_mesh_round_trips_with_scaling(tmp_path, small_part, ext, units):
-    scale = 1e3 if units == "mm" else 1.0
-    stored = small_part.copy()
-    stored.apply_scale(scale)
+    stored = _in_units(small_part, units)
     path = tmp_path / f"part{ext}"
     stored.export(path, file_type=ext[1:].lower())
     mesh = load_mesh(path, units)
@@ -431,9 +436,7 @@ def test_load_mesh_round_trips_with_scaling(tmp_path, small_part, ext, units):
 def test_read_mesh_holds_what_trimesh_processing_holds(tmp_path, small_part, fmt, units):
     # twin.formats.read_mesh parses STL and PLY with numpy and merges vertices itself: the
     # arrays must be exactly those of trimesh's load and merge (same vertices, same order, same faces)
-    scale = 1e3 if units == "mm" else 1.0
-    stored = small_part.copy()
-    stored.apply_scale(scale)
+    stored = _in_units(small_part, units)
     path = tmp_path / f"part.{fmt[:3]}"
     if fmt == "stl_ascii":
         path.write_text(trimesh.exchange.stl.export_stl_ascii(stored))

@@ -510,35 +510,45 @@ class ProbingProgram:
 
         The distances are exact where they decide anything (:meth:`_gaps`): at every sample
         that could touch, and at every sample that could hold the smallest clearance."""
+        axis, parts = self.probe_samples(ball_w, module_w, phase)
+        out: list[ContactRecord] = []
+        clearance = np.inf
+        for name, pts, radius, check, reach_along in parts:
+            d = self._gaps(pts, radius, check, ball_w, module_w, axis, reach_along,
+                           need_min=name != "probe_ball")
+            if name != "probe_ball":
+                clearance = min(clearance, float(d.min()))
+            out += self.contact_of(name, t, d, check, ball_w)
+        return out, clearance
+
+    def contact_of(self, name: str, t, gap, check, ball_w) -> list[ContactRecord]:
+        """The one contact record of a part over the samples whose ``gap`` (n,) [m] is negative
+        where ``check`` (n,) holds (none: an empty list), at its deepest sample."""
+        bad = check & (gap < 0)
+        if not bad.any():
+            return []
+        idx = np.flatnonzero(bad)
+        j = idx[np.argmin(gap[idx])]
+        where = transform_points(self.T_base_world, ball_w[j][None])[0]
+        return [ContactRecord(name, "part, sphere or table (exact)", False, float(t[idx[0]]), float(t[idx[-1]]),
+                              int(len(idx)), float(-gap[j]), tuple(where))]
+
+    def probe_samples(self, ball_w, module_w, phase) -> tuple[np.ndarray, tuple]:
+        """The probe's stylus axis (n, 3) and its parts as :meth:`probe_contacts` checks them:
+        (name, sample points (n, k, 3), radius, samples checked, farthest point from the module
+        along the axis [m]: None for the ball, whose points are the centres themselves)."""
         p = self.spec
         axis = ball_w - module_w
         axis /= np.linalg.norm(axis, axis=1, keepdims=True)
         stem = p.stylus_length_m - p.ball_radius_m
         n_stem = max(int(np.ceil(stem / CONTACT_SAMPLE_M)), 2)
         n_body = max(int(np.ceil(p.body_length_m / CONTACT_SAMPLE_M)), 2)
-        out: list[ContactRecord] = []
-        clearance = np.inf
-        # (name, sample points (n, k, 3), radius, samples checked, farthest point from the module
-        # along the axis [m]: None for the ball, whose points are the centres themselves)
-        parts = (("probe_ball", ball_w[:, None, :], p.ball_radius_m, phase == 0, None),
-                 ("probe_stylus", module_w[:, None, :] + axis[:, None, :] * np.linspace(0, stem, n_stem)[None, :, None],
-                  p.stylus_radius_m, np.ones(len(t), bool), stem),
-                 ("probe_body", module_w[:, None, :] - axis[:, None, :]
-                  * np.linspace(0, p.body_length_m, n_body)[None, :, None], p.body_radius_m, np.ones(len(t), bool),
-                  p.body_length_m))
-        for name, pts, radius, check, reach_along in parts:
-            d = self._gaps(pts, radius, check, ball_w, module_w, axis, reach_along,
-                           need_min=name != "probe_ball")
-            if name != "probe_ball":
-                clearance = min(clearance, float(d.min()))
-            bad = check & (d < 0)
-            if bad.any():
-                idx = np.flatnonzero(bad)
-                j = idx[np.argmin(d[idx])]
-                where = transform_points(self.T_base_world, ball_w[j][None])[0]
-                out.append(ContactRecord(name, "part, sphere or table (exact)", False, float(t[idx[0]]),
-                                         float(t[idx[-1]]), int(len(idx)), float(-d[j]), tuple(where)))
-        return out, clearance
+        every = np.ones(len(phase), bool)
+        stylus = module_w[:, None, :] + axis[:, None, :] * np.linspace(0, stem, n_stem)[None, :, None]
+        body = module_w[:, None, :] - axis[:, None, :] * np.linspace(0, p.body_length_m, n_body)[None, :, None]
+        return axis, (("probe_ball", ball_w[:, None, :], p.ball_radius_m, phase == 0, None),
+                      ("probe_stylus", stylus, p.stylus_radius_m, every, stem),
+                      ("probe_body", body, p.body_radius_m, every, p.body_length_m))
 
     def _gaps(self, pts, radius, check, ball_w, module_w, axis, reach_along, need_min: bool) -> np.ndarray:
         """(n,) the gap [m] of each sample's points (n, k, 3) to the obstacles, exact wherever
