@@ -9,7 +9,8 @@ input checks (:mod:`.inputs`) and outlier rules (:mod:`.robust`), and the method
 observability) and ``subsampling`` (Algorithm 4).
 
 The local module never imports the global search; the global search polishes with the local
-module; the symmetric and hybrid methods start from a given pose.
+module; ``review`` (the package's ``localize``) reviews a local fit's rejected points with the
+global search; the symmetric and hybrid methods start from a given pose.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from algorithms.registration.global_search import GlobalLocalizationResult, global_localize
     from algorithms.registration.hybrid import HybridResult, localize_hybrid
-    from algorithms.registration.local import localize
     from algorithms.registration.result import RegistrationResult, Status
+    from algorithms.registration.review import localize
     from algorithms.registration.symmetric import SymmetricResult, localize_symmetric
 
 #: Where each name of the package lives; a method's module is imported on first use, so that
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
 _HOMES = {
     "GlobalLocalizationResult": "global_search", "global_localize": "global_search",
     "HybridResult": "hybrid", "localize_hybrid": "hybrid",
-    "localize": "local",
+    "localize": "review",
     "RegistrationResult": "result", "Status": "result",
     "SymmetricResult": "symmetric", "localize_symmetric": "symmetric",
 }

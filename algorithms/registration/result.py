@@ -94,6 +94,9 @@ class RegistrationResult:
         time_s: wall time of the call [s].
         poor_fit_reason: why the noise cannot explain the fit
             (:func:`algorithms.registration.fit_check.poor_fit_reason`), or None.
+        rejection_review: what the review of the points the outlier rule rejected found
+            (:mod:`algorithms.registration.review`: ``confirmed``, ``wrong minimum``,
+            ``ambiguous`` or ``unconfirmed``, with the numbers), or None when none was needed.
     """
 
     T_world_workpiece: Pose
@@ -117,6 +120,7 @@ class RegistrationResult:
     time_s: float
     poor_fit_reason: str | None = None
     pose_history: tuple[Pose, ...] = field(default=(), repr=False)
+    rejection_review: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.status, Status):

@@ -33,8 +33,9 @@ import numpy as np
 
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import as_pose
-from algorithms.registration.local import DEFAULT_METHOD, METHODS, STOP_SIGMAS, localize
+from algorithms.registration.local import DEFAULT_METHOD, METHODS, STOP_SIGMAS
 from algorithms.registration.result import RegistrationResult, Status
+from algorithms.registration.review import localize
 from algorithms.registration.symmetric.groups import FEATURE_TYPES
 from twin.cli import COMMANDS
 from twin.cli.common import EXIT_UNTRUSTED, non_negative_int, positive_float, positive_int
@@ -184,6 +185,7 @@ def result_to_json(res) -> dict:
         "status": res.status.value,
         "message": res.message,
         "trusted": bool(res.trusted),
+        "rejection_review": res.rejection_review,
         "method": res.method,
         "rmse_m": float(res.rmse_m),
         "iterations": int(res.iterations),

@@ -66,6 +66,7 @@ def localization_report(result) -> dict:
         "determined_directions": [[round(float(v), 6) for v in w] for w in loc.determined_directions],
         "solutions": len(loc.solutions),
         "poor_fit": loc.poor_fit_reason,
+        "rejection_review": loc.rejection_review,
         "iterations": int(loc.iterations),
         "rmse_um": float(loc.rmse_m * UM),
         "sigma_um": float(loc.sigma_m * UM),

@@ -1,0 +1,269 @@
+"""The points a robust fit rejected, reviewed: outlier rejection may never be what makes a wrong
+pose look right.
+
+A local fit from a poor start can converge to a wrong pose where most points still lie on the
+model and the few that would show the error are far from it: the outlier rule then rejects
+exactly those, the remaining residual is consistent with the noise, and the fit check sees
+nothing (document 000's workpiece A from 45 deg: the dome fits at a pose turned 90 deg about
+its axis, and the side-face points that fix that rotation are rejected). What sets such points
+apart from gross errors is not their count but what they would say about the pose, so the
+review asks two questions of the rejected set R against the kept set K, at the fit's pose:
+
+1. **Would they matter?** The information the rejected points would carry if they were sound,
+   against the kept points', in the direction where the ratio is largest:
+   ``lambda = max eig(I_K^-1 I_R)``, ``I = sum g_i g_i^T`` over each set's rows
+   ``g_i = [p_i x n_i, n_i]`` (feet and normals at the fit; the ratio does not depend on how
+   the twist is scaled). Below ``REVIEW_INFORMATION`` the rejected points could not have
+   changed which directions are determined and the fit stands as it is.
+2. **Does another pose explain them?** A global search
+   (:func:`algorithms.registration.global_search.global_localize`, Algorithm 5's multistart
+   with the same sigma, outlier rule and local method) on every point. Its answer decides:
+
+   * one of its poses is the fit's (not distinct, :func:`.global_search.verify.is_distinct`):
+     **confirmed**; the fit keeps its verdict.
+   * a trusted pose elsewhere that keeps more points: the fit was in a wrong minimum; the
+     search's result is returned (``method`` the local method; the message says so).
+   * a trusted pose elsewhere that keeps as many points: two poses explain the points
+     equally well: **AMBIGUOUS**, both in ``solutions``.
+   * a pose elsewhere keeping fewer points: the search found nothing better; confirmed.
+   * no trusted pose: **unconfirmed**; when the rejected points would carry at least
+     ``LOAD_BEARING_INFORMATION`` of the kept points' information in some direction, an
+     ``OK`` fit becomes ``POOR_FIT`` (its reason names the points and the direction).
+
+3. **Is it a surface the model lacks?** Whatever the search found, a trusted answer whose
+   rejected points form a coherent patch (:func:`coherent_fraction`: side by side, at similar
+   distances from the model, as the points of a missing feature, a fixture or a mirrored part
+   lie; spurious returns scatter in both) becomes ``POOR_FIT``, its reason naming the patch.
+
+The review (:func:`localize`) runs on fits that would be trusted, with the outlier rule on and
+at least one point rejected; its outcome is the result's ``rejection_review``. The local
+module stays the documents' local fit and never calls it (the global search polishes with it).
+A pose whose kept points leave a direction free is already ``UNOBSERVABLE`` (its directions are
+computed on the kept points), so "removing the rejected points changes which directions are
+determined" is covered there. The symmetric pipeline (the loop's localization, from the
+nominal pose) calls the local fit without the review. The false-alarm
+rate of the rule on sound fits and its misses on wrong ones are measured by
+``benchmarks/bench_verdicts.py`` (``benchmarks/results_verdicts.md``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from algorithms.arraytypes import ArrayLike, FloatArray, Pose
+from algorithms.geometry.se3 import inv_pose, rotation_error_rad, transform_points, translation_error_m
+from algorithms.registration.inputs import finite_rows, mesh_index
+from algorithms.registration.local import DEFAULT_METHOD
+from algorithms.registration.local import localize as local_localize
+from algorithms.registration.result import RegistrationResult, Status
+from algorithms.registration.robust import OutlierConfig, outlier_config
+from algorithms.registration.uncertainty import information_rows
+
+if TYPE_CHECKING:
+    import trimesh
+
+    from algorithms.geometry.mesh_index import MeshIndex
+
+__all__ = ["LOAD_BEARING_INFORMATION", "REVIEW_INFORMATION", "RejectedInformation", "localize",
+           "rejected_information", "review_rejected"]
+
+#: The rejected points are reviewed when, were they sound, they would add at least this
+#: fraction of the kept points' information in some direction.
+REVIEW_INFORMATION = 0.05
+#: An unconfirmed fit is not trusted when the rejected points would add at least this fraction.
+LOAD_BEARING_INFORMATION = 0.25
+#: A rejected set is a coherent patch when at least this fraction of its points has a rejected
+#: neighbour (within ``PATCH_SPACING`` typical point spacings) whose distance to the model is
+#: within ``PATCH_SIMILARITY`` of its own, and it holds at least ``PATCH_MIN_POINTS`` points
+#: (benchmarks/results_verdicts.md: sound fits with spurious returns stay below, the fits of a
+#: mirrored part that looked good lie above).
+PATCH_FRACTION = 0.12
+PATCH_SPACING = 3.0
+PATCH_SIMILARITY = 0.2
+PATCH_MIN_POINTS = 10
+#: The global search's random stream (the review is deterministic).
+REVIEW_SEED = 0
+
+
+@dataclass(frozen=True)
+class RejectedInformation:
+    """What the rejected points would say about the pose, were they sound.
+
+    Attributes:
+        n_rejected: finite points the outlier rule rejected.
+        ratio: ``max eig(I_K^-1 I_R)`` (0 when nothing was rejected; inf when the kept points
+            leave a direction free that the rejected ones would fix).
+        direction: (6,) the unit twist ``[omega, v]`` (workpiece frame, about its origin)
+            where the ratio is largest; zeros when nothing was rejected.
+        centroid_m: (3,) the rejected points' mean, workpiece frame [m] (NaN when none).
+        coherent_fraction: the fraction of rejected points with a near rejected neighbour at
+            a similar distance from the model (:func:`coherent_fraction`).
+    """
+
+    n_rejected: int
+    ratio: float
+    direction: FloatArray
+    centroid_m: FloatArray
+    coherent_fraction: float = 0.0
+
+    @property
+    def patch(self) -> bool:
+        """The rejected points form a coherent patch (a surface the model lacks, not noise)."""
+        return self.n_rejected >= PATCH_MIN_POINTS and self.coherent_fraction >= PATCH_FRACTION
+
+
+def localize(points: ArrayLike, mesh: trimesh.Trimesh | None = None, method: str = DEFAULT_METHOD,
+             init: ArrayLike | None = None, sigma: float | None = None, max_iterations: int | None = None,
+             tolerance: float | None = None, outlier: OutlierConfig = "mad",
+             index: MeshIndex | None = None) -> RegistrationResult:
+    """:func:`algorithms.registration.local.localize` (same arguments, same result), its
+    rejected points reviewed when it would be trusted (module docstring): the localization
+    ``algorithms.registration.localize`` and ``twin localize`` give. The local fit alone, as
+    the documents print it, stays :func:`algorithms.registration.local.localize`."""
+    index = mesh_index(mesh, index)
+    result = local_localize(points, method=method, init=init, sigma=sigma, max_iterations=max_iterations,
+                            tolerance=tolerance, outlier=outlier, index=index)
+    cfg = outlier_config(outlier)
+    if cfg is None or result.n_outliers == 0 or not result.trusted:
+        return result
+    P, rows = finite_rows(points)
+    return review_rejected(result, P[rows], rows, index, sigma=sigma, outlier_cfg=cfg, method=method)
+
+
+def rejected_information(Y: FloatArray, kept: np.ndarray, T_world_workpiece: Pose,
+                         index: MeshIndex) -> RejectedInformation:
+    """The information ratio of the rejected points (module docstring, question 1).
+
+    Args:
+        Y: (M, 3) finite points, world frame [m].
+        kept: (M,) bool, the fit's inliers among them.
+        T_world_workpiece: the fit's pose.
+        index: the model's mesh index.
+    """
+    rejected = ~kept
+    m = int(rejected.sum())
+    if m == 0:
+        return RejectedInformation(0, 0.0, np.zeros(6), np.full(3, np.nan))
+    X = transform_points(inv_pose(T_world_workpiece), Y)
+    cp = index.query(X)
+    signed = np.einsum("ij,ij->i", X - cp.foot, cp.normal)
+    G = information_rows(cp.foot, cp.normal)
+    I_kept, I_rejected = G[kept].T @ G[kept], G[rejected].T @ G[rejected]
+    # generalized symmetric eigenproblem I_R u = lambda I_K u, by whitening with I_K's eigenbasis
+    w, V = np.linalg.eigh(I_kept)
+    if w[0] <= 1e-12 * max(w[-1], 1e-300):
+        ratio, direction = np.inf, V[:, 0]
+    else:
+        W = V / np.sqrt(w)
+        lam, U = np.linalg.eigh(W.T @ I_rejected @ W)
+        ratio, direction = float(lam[-1]), W @ U[:, -1]
+    return RejectedInformation(m, float(ratio), direction / np.linalg.norm(direction), X[rejected].mean(axis=0),
+                               coherent_fraction(X, rejected, signed))
+
+
+def coherent_fraction(X: FloatArray, rejected: np.ndarray, signed_m: FloatArray) -> float:
+    """The fraction of rejected points whose nearest rejected neighbour lies within
+    ``PATCH_SPACING`` typical spacings (the median nearest-neighbour distance of all points) and
+    differs in signed distance to the model by at most ``PATCH_SIMILARITY`` of the larger one.
+
+    Points of a surface the model lacks (a feature, a fixture, another part) sit side by side at
+    similar distances; spurious returns and mixed pixels scatter in both.
+    """
+    if int(rejected.sum()) < 2:
+        return 0.0
+    from scipy.spatial import cKDTree  # here: only a review loads scipy.spatial
+
+    spacing = float(np.median(cKDTree(X).query(X, k=2)[0][:, 1]))
+    R, d = X[rejected], signed_m[rejected]
+    dist, j = cKDTree(R).query(R, k=2)
+    near = dist[:, 1] <= PATCH_SPACING * max(spacing, 1e-12)
+    similar = np.abs(d - d[j[:, 1]]) <= PATCH_SIMILARITY * np.maximum(np.abs(d), np.abs(d[j[:, 1]]))
+    return float(np.mean(near & similar))
+
+
+def review_rejected(result: RegistrationResult, Y: FloatArray, rows: np.ndarray, index: MeshIndex, *,
+                    sigma: float | None, outlier_cfg: OutlierConfig, method: str) -> RegistrationResult:
+    """The fit after the review of its rejected points (module docstring): the global search's
+    answer (:func:`_searched`), then not trusted while the model leaves a coherent patch of
+    points unexplained."""
+    info = rejected_information(Y, result.inliers[rows], result.T_world_workpiece, index)
+    if info.n_rejected == 0 or info.ratio < REVIEW_INFORMATION:
+        return result
+    reviewed = _searched(result, info, Y, index, sigma=sigma, outlier_cfg=outlier_cfg, method=method)
+    if reviewed.T_world_workpiece is not result.T_world_workpiece:
+        info = rejected_information(Y, reviewed.inliers[rows], reviewed.T_world_workpiece, index)
+    if reviewed.trusted and info.patch:
+        reason = (f"the model leaves a coherent patch unexplained: {_rejected_words(info)}, "
+                  f"{info.coherent_fraction:.0%} of them side by side at similar distances "
+                  "(a feature the model lacks, a fixture, or another part)")
+        return replace(reviewed, status=Status.POOR_FIT, poor_fit_reason=reason,
+                       message=f"{reviewed.message}; poor fit: {reason}")
+    return reviewed
+
+
+def _searched(result: RegistrationResult, info: RejectedInformation, Y: FloatArray, index: MeshIndex, *,
+              sigma: float | None, outlier_cfg: OutlierConfig, method: str) -> RegistrationResult:
+    """The global search's answer on the fit (module docstring, question 2).
+
+    Args:
+        result: the local fit (its ``inliers`` over the input rows); info: its rejected points.
+        Y: (M, 3) the finite points it used, world frame [m].
+        index: the model's mesh index.
+        sigma: the given noise sigma [m] or None; outlier_cfg: the checked outlier rule.
+        method: the local method (the global search polishes with it).
+    """
+    # here, not at the top: a fit whose rejected points need no review never loads the search
+    from algorithms.registration.global_search import global_localize
+    from algorithms.registration.global_search.verify import is_distinct
+
+    found = global_localize(Y, _trimesh_of(index), index=index, noise_sigma_m=sigma, outlier=outlier_cfg,
+                            polish=method, rng=np.random.default_rng(REVIEW_SEED))
+    T = result.T_world_workpiece
+    what = _rejected_words(info)
+    if any(not is_distinct(S, T, index.extent) for S in found.solutions):
+        return replace(result, rejection_review=f"confirmed: {what}; a global search found this pose too")
+    away = (f"{np.degrees(rotation_error_rad(found.T_world_workpiece, T)):.3g} deg / "
+            f"{1e3 * translation_error_m(found.T_world_workpiece, T):.3g} mm away")
+    if found.status in (Status.OK, Status.AMBIGUOUS) and found.n_points_used > result.n_points_used:
+        note = (f"wrong minimum: {what} at the pose from the start; a global search found a pose {away} "
+                f"that keeps {found.n_points_used - result.n_points_used} more point(s)")
+        base = {f.name: getattr(found, f.name) for f in fields(RegistrationResult)}
+        base.update(method=method, message=f"{note}; {found.message}", rejection_review=note,
+                    time_s=result.time_s + found.time_s)
+        return RegistrationResult(**base)
+    if found.trusted and found.n_points_used == result.n_points_used and result.trusted:
+        note = f"ambiguous: {what}; a global search found another pose {away} that keeps as many points"
+        return replace(result, status=Status.AMBIGUOUS, message=f"{note}; {result.message}", rejection_review=note,
+                       solutions=(T, found.T_world_workpiece))
+    if found.status in (Status.OK, Status.AMBIGUOUS):
+        return replace(result, rejection_review=f"confirmed: {what}; a global search found no pose that keeps more "
+                                                f"points (its best, {away}, keeps {found.n_points_used})")
+    note = f"unconfirmed: {what}; a global search found no trusted pose ({found.status.value})"
+    if result.trusted and info.ratio >= LOAD_BEARING_INFORMATION:
+        reason = f"the outlier rule {what}, and {note.split('; ', 1)[1]}"
+        return replace(result, status=Status.POOR_FIT, poor_fit_reason=reason,
+                       message=f"{result.message}; poor fit: {reason}", rejection_review=note)
+    return replace(result, rejection_review=note)
+
+
+def _rejected_words(info: RejectedInformation) -> str:
+    """"rejected N points (near x, y, z mm) that would carry R x the kept points' information
+    along [omega; v]"."""
+    c = ", ".join(f"{1e3 * v:.1f}" for v in info.centroid_m)
+    u = ", ".join(f"{v:+.2f}" for v in info.direction)
+    ratio = "more than all" if not np.isfinite(info.ratio) else f"{info.ratio:.2g} x"
+    return (f"rejected {info.n_rejected} point(s) (around [{c}] mm, workpiece frame) that would carry {ratio} "
+            f"the kept points' information along the twist [{u}]")
+
+
+def _trimesh_of(index: MeshIndex):
+    """The index's mesh as a trimesh (the global search's coarse field samples its surface)."""
+    import trimesh
+
+    mesh = index.mesh
+    if isinstance(mesh, trimesh.Trimesh):
+        return mesh
+    return trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
