@@ -44,6 +44,31 @@ def test_the_battery_larger():
     assert sum(o.false_alarm for o in out) <= 0.01 * len(sound)
 
 
+def test_a_replaced_fit_keeps_its_inliers_over_the_input_rows():
+    """NaN rows in the input: the global search's pose replaces a wrong minimum, and its inliers
+    still index the rows the caller gave."""
+    from algorithms.geometry.se3 import exp_se3
+    from algorithms.registration.global_search.multistart import model_centroid
+    from benchmarks.verdict_battery import _dome_points
+
+    mesh = make_workpiece("hemisphere_punch")
+    index = MeshIndex(mesh)
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        x, _ = _dome_points(mesh, rng)
+        Y = x + 5e-6 * rng.standard_normal(x.shape)
+        Y = np.vstack([np.full((2, 3), np.nan), Y])
+        axis = rng.standard_normal(3)
+        T0 = exp_se3(np.r_[np.radians(45.0) * axis / np.linalg.norm(axis), 0, 0, 0])
+        T0[:3, 3] = np.nanmean(Y, axis=0) - T0[:3, :3] @ model_centroid(mesh)
+        r = localize(Y, index=index, init=T0, sigma=5e-6)
+        if r.rejection_review is not None and r.rejection_review.startswith("wrong minimum"):
+            assert len(r.inliers) == len(Y) and not r.inliers[:2].any() and r.n_dropped_nonfinite == 2
+            assert r.inliers.sum() == r.n_points_used
+            return
+    pytest.fail("no wrong minimum among the starts")
+
+
 def test_a_mirrored_part_is_not_ok():
     """A left-hand part's points against the right-hand model: most faces fit at some pose, the
     mirrored bore does not. The rejected points form a coherent patch, so the fit is not ok."""

@@ -192,7 +192,7 @@ def review_rejected(result: RegistrationResult, Y: FloatArray, rows: np.ndarray,
     info = rejected_information(Y, result.inliers[rows], result.T_world_workpiece, index)
     if info.n_rejected == 0 or info.ratio < REVIEW_INFORMATION:
         return result
-    reviewed = _searched(result, info, Y, index, sigma=sigma, outlier_cfg=outlier_cfg, method=method)
+    reviewed = _searched(result, info, Y, rows, index, sigma=sigma, outlier_cfg=outlier_cfg, method=method)
     if reviewed.T_world_workpiece is not result.T_world_workpiece:
         info = rejected_information(Y, reviewed.inliers[rows], reviewed.T_world_workpiece, index)
     if reviewed.trusted and info.patch:
@@ -204,13 +204,14 @@ def review_rejected(result: RegistrationResult, Y: FloatArray, rows: np.ndarray,
     return reviewed
 
 
-def _searched(result: RegistrationResult, info: RejectedInformation, Y: FloatArray, index: MeshIndex, *,
+def _searched(result: RegistrationResult, info: RejectedInformation, Y: FloatArray, rows: np.ndarray,
+              index: MeshIndex, *,
               sigma: float | None, outlier_cfg: OutlierConfig, method: str) -> RegistrationResult:
     """The global search's answer on the fit (module docstring, question 2).
 
     Args:
         result: the local fit (its ``inliers`` over the input rows); info: its rejected points.
-        Y: (M, 3) the finite points it used, world frame [m].
+        Y: (M, 3) the finite points it used, world frame [m]; ``rows``: their input rows.
         index: the model's mesh index.
         sigma: the given noise sigma [m] or None; outlier_cfg: the checked outlier rule.
         method: the local method (the global search polishes with it).
@@ -231,8 +232,10 @@ def _searched(result: RegistrationResult, info: RejectedInformation, Y: FloatArr
         note = (f"wrong minimum: {what} at the pose from the start; a global search found a pose {away} "
                 f"that keeps {found.n_points_used - result.n_points_used} more point(s)")
         base = {f.name: getattr(found, f.name) for f in fields(RegistrationResult)}
-        base.update(method=method, message=f"{note}; {found.message}", rejection_review=note,
-                    time_s=result.time_s + found.time_s)
+        inliers = np.zeros(len(result.inliers), dtype=bool)  # over the input rows, as the fit's
+        inliers[rows] = found.inliers
+        base.update(method=method, message=f"{note}; {found.message}", rejection_review=note, inliers=inliers,
+                    n_dropped_nonfinite=result.n_dropped_nonfinite, time_s=result.time_s + found.time_s)
         return RegistrationResult(**base)
     if found.trusted and found.n_points_used == result.n_points_used and result.trusted:
         note = f"ambiguous: {what}; a global search found another pose {away} that keeps as many points"
