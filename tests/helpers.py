@@ -113,3 +113,20 @@ def run_cli_process(*args):
     import sys
 
     return subprocess.run([sys.executable, "-m", "twin.cli", *map(str, args)], capture_output=True, text=True)
+
+
+def with_path_keys(text: str, keys: dict) -> str:
+    """The scenario text with ``keys`` set in its [path] table (added when missing)."""
+    out, in_path = [], False
+    for ln in text.splitlines():
+        stripped = ln.strip()
+        if stripped.startswith("["):
+            in_path = stripped == "[path]"
+        if in_path and stripped.split("=")[0].strip() in keys:
+            continue
+        out.append(ln)
+        if stripped == "[path]":
+            out += [f"{k} = {v}" for k, v in keys.items()]
+    if "[path]" not in text:
+        out += ["", "[path]"] + [f"{k} = {v}" for k, v in keys.items()]
+    return "\n".join(out) + "\n"

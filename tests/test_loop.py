@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from algorithms.paths.regions import ProcessRegion, RegionError, chain_pieces, split_runs
-from tests.helpers import run_cli, tiered
-from twin.cli.common import EXIT_STAGE_FAILED
+from tests.helpers import run_cli, tiered, with_path_keys
+from twin.cli.common import EXIT_OK, EXIT_STAGE_FAILED, EXIT_UNTRUSTED
 from twin.errors import TwinError
 from twin.scenario import load_scenario
 
@@ -39,23 +39,6 @@ def _laser(path: Path) -> bool:
     tens of millimetres and degrees off its nominal pose for ``twin locate``: tests/test_probe.py)."""
     sc = load_scenario(path)
     return sc.sensor.kind in ("point", "line") and sc.probe is None
-
-
-def with_path_keys(text: str, keys: dict) -> str:
-    """The scenario text with ``keys`` set in its [path] table (added when missing)."""
-    out, in_path = [], False
-    for ln in text.splitlines():
-        stripped = ln.strip()
-        if stripped.startswith("["):
-            in_path = stripped == "[path]"
-        if in_path and stripped.split("=")[0].strip() in keys:
-            continue
-        out.append(ln)
-        if stripped == "[path]":
-            out += [f"{k} = {v}" for k, v in keys.items()]
-    if "[path]" not in text:
-        out += ["", "[path]"] + [f"{k} = {v}" for k, v in keys.items()]
-    return "\n".join(out) + "\n"
 
 
 def _write_short(src: Path, folder: Path) -> Path:
@@ -80,17 +63,40 @@ def short_run(tmp_path_factory):
             folder = tmp_path_factory.mktemp(scenario.stem)
             out = folder / "out"
             r = run_cli("run", str(_write_short(scenario, folder)), "--out", str(out))
-            report = json.loads((out / "report.json").read_text()) if r.returncode == 0 else None
+            report = json.loads((out / "report.json").read_text()) if r.returncode in (0, 3) else None
             done[scenario.stem] = (r, report)
         return done[scenario.stem]
 
     return run
 
 
+#: The checks each shipped scenario fails as CI runs it (twin.verdicts): the arm cannot follow
+#: the whole process region
+#: of six parts (stretches dropped as colliding or discontinuous, the sphere's plate left
+#: undetermined by its symmetric scan), and the bottle punch's replay drives the ball 0.72 mm
+#: into the part. Every other check passes on every scenario.
+FAILS_AS_RUN = {
+    "bottle_punch": {"scan_path: coverage", "scan_path: tip penetration", "cad_path: coverage"},
+    "bore_and_face": {"cad_path: coverage"},
+    "bracket": {"cad_path: coverage"},
+    "cast_blank": {"scan_path: coverage", "cad_path: coverage"},
+    "hemisphere_punch": {"scan_path: coverage", "cad_path: coverage"},
+    "inner_sphere": {"scan_path: coverage", "cad_path: coverage"},
+    "sphere": {"cad_path: coverage"},
+}
+
+
 @pytest.mark.parametrize("scenario", tiered([s for s in SCENARIOS if _laser(s)], SMOKE, ids=lambda p: p.stem))
 def test_every_scenario_closes_the_loop(short_run, scenario):
+    """Every laser scenario finishes with a trusted localization, and its verdict names exactly
+    what it did not do (exit 3) or passes (exit 0)."""
     r, report = short_run(scenario)
-    assert r.returncode == 0, r.stderr
+    assert r.returncode in (EXIT_OK, EXIT_UNTRUSTED), r.stderr
+    failed = {c["name"] for c in report["checks"] if c["decides"] and not c["passed"]}
+    assert failed == FAILS_AS_RUN.get(scenario.stem, set()), [c for c in report["checks"] if not c["passed"]]
+    assert r.returncode == (EXIT_OK if not failed else EXIT_UNTRUSTED) and report["passed"] == (not failed)
+    if failed:
+        assert r.stdout.startswith("verdict") and all(name in r.stdout.splitlines()[0] for name in failed)
     assert report["complete"] and report["trusted"]
     loc = report["localization"]
     assert loc["max_error_sigmas"] <= 3.0, loc["determined_error_sigmas"]
@@ -107,7 +113,7 @@ def test_every_scenario_closes_the_loop(short_run, scenario):
 
 def test_free_directions_of_symmetric_parts_are_listed(short_run):
     r, report = short_run(ROOT / "scenarios" / "sphere.toml")
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == EXIT_UNTRUSTED and report["trusted"], r.stderr   # half its CAD raster undetermined
     loc = report["localization"]
     assert not loc["observable"] and len(loc["free_directions"]) == 3
     assert loc["rotation_error_deg"] == "free"

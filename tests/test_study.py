@@ -169,3 +169,22 @@ def test_a_random_subset_of_points_per_trial_whatever_the_workers(tmp_path):
     cells, n = a.column("cell").to_pylist(), a.column("n_points").to_pylist()
     assert all(v == 150 for c, v in zip(cells, n, strict=True) if c == 0)
     assert all(v > 1000 for c, v in zip(cells, n, strict=True) if c == 1)
+
+
+def test_sigkill_leaves_no_worker_behind(tmp_path):
+    """SIGKILL of ``twin study --workers 2``: its workers end with it (they would otherwise run
+    on for minutes, holding the command's stdout and stderr open: a ``| tee`` or a CI step would
+    wait for them). The pipes reach end-of-file as soon as every holder is gone."""
+    study = write_study(tmp_path, TINY.replace("trials = 6", "trials = 200"))
+    out = tmp_path / "killed"
+    argv = [sys.executable, "-m", "twin.cli", "study", str(study), "--out", str(out), "--workers", "2"]
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while not batch_files(out) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    assert batch_files(out), "the study must have started its batches"
+    os.kill(proc.pid, signal.SIGKILL)
+    t0 = time.monotonic()
+    proc.communicate(timeout=60)   # returns when the last holder of the pipes is gone
+    assert time.monotonic() - t0 < 10.0, "the workers outlived the command"
+    assert sum(pq.read_table(p).num_rows for p in batch_files(out)) < 400   # the study was cut short

@@ -304,6 +304,8 @@ class ReplayLog:
             "rms_tracking_error_mm": float(np.sqrt(np.mean(self.tracking_error_m**2)) * 1e3),
             "tip_surface_error_max_mm": float(np.max(np.abs(tip_on)) * 1e3) if len(tip_on) else None,
             "tip_surface_error_rms_mm": float(np.sqrt(np.mean(tip_on**2)) * 1e3) if len(tip_on) else None,
+            # how deep the ball end went into the true part on the process lines (0: never)
+            "tip_penetration_max_mm": float(max(0.0, -np.min(tip_on)) * 1e3) if len(tip_on) else None,
             "tip_min_clearance_transit_mm": float(np.min(self.tip_surface_m[transit]) * 1e3) if transit.any() else None,
             "contacts": [c.to_dict() for c in self.contacts],
             "unintended_contacts": len(self.unintended_contacts),

@@ -523,6 +523,32 @@ class CmmSpec:
         return np.array([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), -np.cos(a)])
 
 
+@dataclass(frozen=True)
+class ToleranceSpec:
+    """What a finished command must meet to pass (``[tolerances]``, every key optional). A
+    command that finishes outside them exits 3 and names the failed check (``twin run``:
+    :mod:`twin.verdicts`).
+
+    Attributes:
+        min_process_coverage: ``twin run``: the fraction of each process path's planned contact
+            points that must be kept (not dropped as unreachable, singular, discontinuous or
+            colliding) [0-1].
+        max_replay_deviation_m: ``twin run``: the largest distance of the replayed tool centre
+            from its planned path on the process lines [m].
+        max_tip_penetration_m: ``twin run``: the deepest the replayed ball end may go into the
+            true part on the process lines [m].
+        max_position_uncertainty_m: ``twin locate``: the largest expanded uncertainty (k = 2)
+            of the final pose along a translation axis [m].
+        max_rotation_uncertainty_rad: ``twin locate``: the same about a rotation axis [rad].
+    """
+
+    min_process_coverage: float = 0.95
+    max_replay_deviation_m: float = 0.5e-3
+    max_tip_penetration_m: float = 0.3e-3
+    max_position_uncertainty_m: float = 10e-6
+    max_rotation_uncertainty_rad: float = 2e-4
+
+
 MACHINES = ("arm", "cmm")
 COARSE_METHODS = ("multistart", "ga", "ga_restarts")
 PROBE_PLANNERS = ("d_optimal", "spread", "random")
@@ -544,6 +570,7 @@ class Scenario:
     locate: LocateSpec = field(default_factory=LocateSpec)
     machine: str = "arm"
     cmm: CmmSpec | None = None
+    tolerances: ToleranceSpec = field(default_factory=ToleranceSpec)
 
     def to_dict(self) -> dict:
         """A JSON-ready copy (numpy arrays as nested lists)."""
@@ -608,6 +635,7 @@ def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = No
     probe = None if probe_table is None else _parse_probe(_Section(probe_table, "probe"))
     locate = _parse_locate(_Section(top.table_value("locate"), "locate"))
     machine = str(top.choice("machine", "arm", MACHINES))
+    tolerances = _parse_tolerances(_Section(top.table_value("tolerances"), "tolerances"))
     cmm_table = top._get("cmm", None)
     top.done()
     cmm = None
@@ -618,7 +646,7 @@ def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = No
     elif cmm_table is not None:
         raise TwinError('[cmm] applies to machine = "cmm" only; this scenario\'s machine is the arm')
     return Scenario(title, seed, wp, T_world_base, sensor, noise, scan, source, raw, path, probe, locate,
-                    machine, cmm)
+                    machine, cmm, tolerances)
 
 
 def _parse_workpiece(s: _Section, base_dir: Path | None) -> WorkpieceSpec:
@@ -936,6 +964,21 @@ def _parse_probe(s: _Section) -> ProbeSpec:
 
 #: The head's A range (tilt from straight down) [deg], as a PH10M indexes (models/cmm/README.md).
 HEAD_A_RANGE_DEG = (0.0, 105.0)
+
+
+def _parse_tolerances(s: _Section) -> ToleranceSpec:
+    d = ToleranceSpec()
+    spec = ToleranceSpec(
+        min_process_coverage=s.number("min_process_coverage", d.min_process_coverage, 0.0, 1.0),
+        max_replay_deviation_m=s.number("max_replay_deviation_m", d.max_replay_deviation_m, 0.0, 0.1),
+        max_tip_penetration_m=s.number("max_tip_penetration_m", d.max_tip_penetration_m, 0.0, 0.1),
+        max_position_uncertainty_m=s.number("max_position_uncertainty_m", d.max_position_uncertainty_m, 0.0, 0.1,
+                                            lo_open=True),
+        max_rotation_uncertainty_rad=s.number("max_rotation_uncertainty_rad", d.max_rotation_uncertainty_rad, 0.0,
+                                              0.5, lo_open=True),
+    )
+    s.done()
+    return spec
 
 
 def _parse_cmm(s: _Section) -> CmmSpec:

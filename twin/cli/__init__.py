@@ -29,6 +29,7 @@ from types import FrameType, ModuleType
 from algorithms.errors import AlgorithmError
 from twin.cli.common import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM, OneLineParser
 from twin.errors import TwinError
+from twin.io import output
 
 #: Subcommands and their one-line help; each is the module of its name with "-" as "_"
 #: (``export-mesh``: ``export_mesh.py``). Only the module of the command being run is imported:
@@ -49,12 +50,6 @@ COMMANDS = {
 
 class Terminated(BaseException):
     """SIGTERM, raised where the program is, so that every staged output is cleaned up."""
-
-
-#: The signal received, if any. A signal can land inside a foreign callback (numba writing its
-#: cache through ctypes): there the raised exception is swallowed and the library fails later
-#: with an error of its own, which is then the interruption, not a fault of the program.
-_received: int | None = None
 
 
 def command_module(name: str) -> ModuleType:
@@ -80,11 +75,20 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
-    global _received
-    # one interrupt is enough: the clean-up that follows must not be interrupted in turn
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _received = signum
+    """Note the signal (:func:`twin.io.output.note_signal`) and raise it where the program is.
+
+    A library can swallow the raised exception: a signal landing while a compiled module is
+    imported, or inside a foreign callback (numba writing its cache through ctypes). The note
+    stays, so nothing is committed or printed afterwards (the library may also fail later with
+    an error of its own, which is then the interruption, not a fault), and a later signal
+    raises again. Only while the clean-up of the first interruption runs is a later one
+    ignored: that clean-up must not be interrupted in turn.
+    """
+    cleaning_up = output.signal_received() is not None and isinstance(
+        sys.exc_info()[1], (KeyboardInterrupt, Terminated, output.Interrupted))
+    output.note_signal(signum)
+    if cleaning_up:
+        return
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
@@ -97,7 +101,7 @@ def _quiet_unraisable(unraisable: sys.UnraisableHookArgs) -> None:
 
 
 def _interrupted(command: str) -> int:
-    if _received == signal.SIGTERM:
+    if output.signal_received() == signal.SIGTERM:
         print(f"{command}: terminated (SIGTERM); {_left_behind(command)}", file=sys.stderr)
         return EXIT_SIGTERM
     print(f"{command}: interrupted (SIGINT); {_left_behind(command)}", file=sys.stderr)
@@ -140,8 +144,7 @@ def _failed(command: str, exc: Exception) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global _received
-    _received = None
+    output.clear_signal()
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     unraisable_hook = sys.unraisablehook
     in_main_thread = True
@@ -162,18 +165,30 @@ def main(argv: list[str] | None = None) -> int:
         command = f"twin {args.command}"
         code = int(args.run(args) or 0)
         sys.stdout.flush()
+        output.raise_if_interrupted()  # a swallowed signal and a command that wrote nothing
         return code
     except (KeyboardInterrupt, Terminated):
         return _interrupted(command)
     except Exception as exc:
-        if _received is not None:  # a library failing on the interruption it swallowed
+        if output.signal_received() is not None:  # a library failing on the interruption it swallowed
             return _interrupted(command)
         return _failed(command, exc)
     finally:
         if in_main_thread:
-            for s, h in handlers.items():
-                signal.signal(s, h)
+            _restore(handlers)
             sys.unraisablehook = unraisable_hook
+
+
+def _restore(handlers: dict) -> None:
+    """Put the caller's signal handlers back. An interruption a library swallowed can surface
+    here, late: the command has already ended and said so, so it is not raised again."""
+    for s, h in handlers.items():
+        for _ in range(3):
+            try:
+                signal.signal(s, h)
+                break
+            except (KeyboardInterrupt, Terminated):
+                continue
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, NoReturn, TextIO
 
 from twin.errors import TwinError
-from twin.io.output import check_output_file, check_output_folder
+from twin.io.output import check_output_file, check_output_folder, raise_if_interrupted
 
 #: Exit statuses of every command (README, "Exit status").
 EXIT_OK, EXIT_BAD_INPUT, EXIT_UNTRUSTED, EXIT_STAGE_FAILED = 0, 2, 3, 4
@@ -188,6 +188,7 @@ class Progress:
             self._thread.start()
 
     def __call__(self, msg: str) -> None:
+        raise_if_interrupted()  # a signal a library swallowed ends the command at its next step
         if self.quiet:
             return
         text = " ".join(str(msg).split())
@@ -304,7 +305,8 @@ def reporting(args: argparse.Namespace, command: str, defer: bool = False) -> It
 def print_result(args: argparse.Namespace, data: dict, rows: Sequence[tuple[str, str]],
                  indent: int | None = None) -> None:
     """``data`` as JSON with ``--json`` (and nothing else on stdout), else ``rows``
-    (label, text) as aligned lines for a reader."""
+    (label, text) as aligned lines for a reader; refused once a signal has been received."""
+    raise_if_interrupted()
     if getattr(args, "json", False):
         print(json.dumps(data, indent=indent))
         return

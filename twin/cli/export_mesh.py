@@ -19,7 +19,7 @@ import numpy as np
 from twin.cli import COMMANDS
 from twin.cli.common import add_print_options, print_result
 from twin.errors import TwinError
-from twin.io.output import PARTIAL_MARK, check_output_file
+from twin.io.output import PARTIAL_MARK, check_output_file, new_file_mode, raise_if_interrupted
 from twin.parts import MESH_EXTENSIONS
 from twin.realize import load_workpiece_mesh
 from twin.scenario import load_scenario
@@ -64,13 +64,12 @@ def write_mesh_atomically(mesh, out: Path) -> None:
     tmp = Path(name)
     try:
         # mkstemp makes the file private (0600); the mesh gets a new file's usual permissions
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
+        os.fchmod(fd, new_file_mode())
         with os.fdopen(fd, "wb") as fh:
             mesh.export(fh, file_type=suffix[1:], **EXPORT_OPTIONS[suffix])
             fh.flush()
             os.fsync(fh.fileno())
+        raise_if_interrupted()
         os.replace(tmp, out)
     except BaseException:
         with contextlib.suppress(OSError):

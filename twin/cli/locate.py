@@ -22,7 +22,7 @@ from twin.cli.common import (
     reporting,
     yes_no,
 )
-from twin.cli.run import exit_code
+from twin.cli.run import exit_code, verdict_row
 from twin.io.output import Staged
 from twin.io.report import locate_headline, locate_report, write_json
 from twin.io.scan_files import write_points_ply
@@ -48,9 +48,11 @@ def add_parser(sub) -> None:
                     f"Writes DIR/{REPORT_FILE} (every stage's error against the truth, the covariance, hits, "
                     f"misses, contacts, times), DIR/{HITS_FILE} and DIR/{COARSE_POINTS_FILE}. stdout: a short "
                     "summary, or with --json the report's headline as one JSON object; progress goes to stderr.",
-        epilog=f"exit status: {EXIT_OK} a trusted pose; 2 bad input; {EXIT_UNTRUSTED} finished but not trusted "
-               f"(fine fit not ok, or an unintended contact); {EXIT_STAGE_FAILED} a stage failed (what the "
-               "finished stages made is written, the report says complete: false)",
+        epilog=f"exit status: {EXIT_OK} a trusted pose within the scenario's [tolerances]; 2 bad input; "
+               f"{EXIT_UNTRUSTED} finished but a check failed (fine fit not ok, a planned point missed, an "
+               "unintended contact, or the final uncertainty beyond tolerances.max_position_uncertainty_m / "
+               f"max_rotation_uncertainty_rad: the checks in report.json); {EXIT_STAGE_FAILED} a stage failed "
+               "(what the finished stages made is written, the report says complete: false)",
     )
     p.add_argument("scenario", help="scenario TOML file with a [probe] table")
     add_output_options(p, "output folder (created; refused if it exists, unless --force)")
@@ -77,7 +79,8 @@ def write_hits(path, hits) -> None:
 
 def summary_rows(h: dict) -> list[tuple[str, str]]:
     """The summary of ``twin locate`` for a reader, from its headline ``h``."""
-    rows = [("complete", "yes" if h["complete"] else f"no: stopped at {h.get('failed_stage')}: {h.get('failure')}"),
+    rows = [verdict_row(h),
+            ("complete", "yes" if h["complete"] else f"no: stopped at {h.get('failed_stage')}: {h.get('failure')}"),
             ("trusted", yes_no(h["trusted"]))]
     c = h.get("coarse")
     if c is not None:
@@ -132,14 +135,14 @@ def run(args: argparse.Namespace) -> int:
             save_locate_recording(stage.file(rrd), result, build_probe_cell(realized), report)
             say("wrote the recording")
             report["recording"] = str(rrd)
-        from twin.io.figures import locate_checks, locate_figures, report_page
+        from twin.io.figures import locate_figures, report_page
         from twin.sensors.laser import sensor_sigma_m
 
         figures = locate_figures(result, sensor_sigma_m(scenario), stage.folder)
         report["figures"] = [f.name for f in figures]
         report["wall_s"] = round(time.perf_counter() - t_all, 2)
         report["report"] = str(stage.out / REPORT_FILE)
-        report_page(report, figures, locate_checks(report), stage.folder / PAGE_FILE, f"twin locate: {scenario.name}")
+        report_page(report, figures, stage.folder / PAGE_FILE, f"twin locate: {scenario.name}")
         write_json(stage.folder / REPORT_FILE, report)
         stage.commit()
     h = locate_headline(report)

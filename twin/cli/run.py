@@ -44,6 +44,11 @@ def add_parser(sub) -> None:
                     "folder (and the recording) appear when everything is written. stdout: a short "
                     "summary, or with --json the report's headline as one JSON object; progress goes "
                     "to stderr.",
+        epilog=f"exit status: {EXIT_OK} every check passed: complete, a trusted localization, and each path "
+               "within the scenario's [tolerances] (min_process_coverage, max_replay_deviation_m, "
+               f"max_tip_penetration_m) without an unintended contact; 2 bad input; {EXIT_UNTRUSTED} finished "
+               "but a check failed (named on stdout and in report.json's checks); "
+               f"{EXIT_STAGE_FAILED} a stage failed (what the finished stages made is written)",
     )
     p.add_argument("scenario", help="scenario TOML file")
     add_output_options(p, "output folder for report.json (created; refused if it exists, unless --force)")
@@ -99,27 +104,37 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
         say("wrote the recording")
         report["timings_s"]["recording_s"] = round(time.perf_counter() - t0, 3)
         report["recording"] = str(rrd)
-    from twin.io.figures import report_page, run_checks, run_figures
+    from twin.io.figures import report_page, run_figures
 
     figures = run_figures(result, sensor_sigma_m(realized.scenario), stage.folder)
     report["figures"] = [f.name for f in figures]
     report["wall_s"] = round(time.perf_counter() - t_all, 2)
     report["report"] = str(stage.out / REPORT_FILE)
-    report_page(report, figures, run_checks(report), stage.folder / PAGE_FILE, f"twin {command}: {scenario.name}")
+    report_page(report, figures, stage.folder / PAGE_FILE, f"twin {command}: {scenario.name}")
     write_json(stage.folder / REPORT_FILE, report)
     return result, report
 
 
 def exit_code(report: dict) -> int:
-    """0 trusted and complete; 3 finished but not trusted; 4 a stage failed (evidence written)."""
+    """0 complete and every deciding check passed (:mod:`twin.verdicts`: trusted, and within the
+    scenario's tolerances); 3 finished but a check failed; 4 a stage failed (evidence written)."""
     if not report["complete"]:
         return EXIT_STAGE_FAILED
-    return EXIT_OK if report["trusted"] else EXIT_UNTRUSTED
+    return EXIT_OK if report["passed"] else EXIT_UNTRUSTED
+
+
+def verdict_row(h: dict) -> tuple[str, str]:
+    """The verdict line for a reader: pass, or FAIL with each failed check."""
+    failed = h.get("failed_checks", [])
+    if h.get("passed"):
+        return ("verdict", "pass")
+    return ("verdict", "FAIL: " + "; ".join(f"{c['name']}: {c['detail']}" for c in failed))
 
 
 def summary_rows(h: dict, files: str | None = None) -> list[tuple[str, str]]:
     """The summary of ``twin run`` and ``twin demo`` for a reader, from the headline ``h``."""
-    rows = [("complete", "yes" if h["complete"] else f"no: stopped at {h.get('failed_stage')}: {h.get('failure')}")]
+    rows = [verdict_row(h),
+            ("complete", "yes" if h["complete"] else f"no: stopped at {h.get('failed_stage')}: {h.get('failure')}")]
     loc = h.get("localization")
     loc_note = f" (localization {loc['status']})" if loc is not None and loc["status"] != "ok" else ""
     rows.append(("trusted", yes_no(h["trusted"]) + loc_note))

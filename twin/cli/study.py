@@ -29,7 +29,8 @@ def add_parser(sub) -> None:
     p.add_argument("study", help="study TOML file (studies/README.md documents its keys)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--workers", type=positive_int, default=1,
-                   help="worker processes (default 1: this process; with --scheduler dask the cluster's size)")
+                   help="worker processes (default 1: this process; with --scheduler dask the cluster's size); "
+                        "no more are started than the machine has cores or trials are left")
     p.add_argument("--scheduler", default="local",
                    help="local (a process pool, default), dask (start a Dask LocalCluster) or "
                         "tcp://HOST:PORT (a running Dask scheduler)")

@@ -177,12 +177,14 @@ def locate_figures(result, sigma_m: float, folder: Path) -> list[Path]:
     return out
 
 
-def report_page(report: dict, figures: list[Path], checks: list[tuple[str, bool, str]], path: Path,
-                title: str) -> Path:
-    """``report.html``: the pass/fail table, the headline numbers and the figures (relative links)."""
-    rows = "\n".join(f"<tr><td>{html.escape(name)}</td><td class={'pass' if ok else 'fail'}>"
-                     f"{'pass' if ok else 'FAIL'}</td><td>{html.escape(detail)}</td></tr>"
-                     for name, ok, detail in checks)
+def report_page(report: dict, figures: list[Path], path: Path, title: str) -> Path:
+    """``report.html``: the verdict and its checks (:mod:`twin.verdicts`: the deciding ones
+    first, then those against the truth, shown only), the headline numbers and the figures."""
+    checks = sorted(report.get("checks", []), key=lambda c: not c["decides"])
+    rows = "\n".join(f"<tr><td>{html.escape(c['name'])}</td><td class={'pass' if c['passed'] else 'fail'}>"
+                     f"{'pass' if c['passed'] else 'FAIL'}</td><td>{html.escape(c['detail'])}</td>"
+                     f"<td>{'decides' if c['decides'] else 'shown only'}</td></tr>" for c in checks)
+    verdict = "PASS" if report.get("passed") else "FAIL"
     imgs = "\n".join(f'<figure><img src="{html.escape(p.name)}" alt="{html.escape(p.stem)}"></figure>'
                      for p in figures)
     head = "\n".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>"
@@ -193,54 +195,10 @@ def report_page(report: dict, figures: list[Path], checks: list[tuple[str, bool,
 .pass{{color:#1a7f37;font-weight:bold}} .fail{{color:#c62828;font-weight:bold}}
 figure{{display:inline-block;margin:6px}} img{{max-width:520px}}</style></head>
 <body><h1>{html.escape(title)}</h1>
-<h2>Checks</h2><table>{rows}</table>
+<h2>Verdict: <span class={verdict.lower()}>{verdict}</span></h2><table>{rows}</table>
 <h2>Headline</h2><table>{head}</table>
 <h2>Figures</h2>{imgs}
 <p>All numbers in <code>report.json</code>; units are in the field names.</p></body></html>
 """
     path.write_text(page)
     return path
-
-
-def run_checks(report: dict) -> list[tuple[str, bool, str]]:
-    """Pass/fail of a run's report: complete, trusted, errors within 3 reported standard
-    deviations, no unintended contact, the CAD path's surface error within its bound."""
-    loc = report.get("localization", {})
-    pv = report.get("path_verification", {})
-    cad = report.get("cad_path", {})
-    out = [("complete", bool(report.get("complete")), report.get("failure", "")),
-           ("trusted", bool(report.get("trusted")), loc.get("message", ""))]
-    if loc.get("max_error_sigmas") is not None:
-        out.append(("localization error within 3 sigma", loc["max_error_sigmas"] <= 3.0,
-                    f"max {loc['max_error_sigmas']} sigma along the determined directions"))
-    if pv:
-        out.append(("no unintended contact", pv["unintended_contacts"] == 0, f"{pv['unintended_contacts']} contact(s)"))
-    if "max_surface_error_mm" in cad and "surface_error_bound_mm" in cad:
-        out.append(("CAD path on the true surface", cad["max_surface_error_mm"] <= cad["surface_error_bound_mm"],
-                    f"{cad['max_surface_error_mm'] * 1e3:.2f} um against a bound of "
-                    f"{cad['surface_error_bound_mm'] * 1e3:.2f} um"))
-    return out
-
-
-def locate_checks(report: dict) -> list[tuple[str, bool, str]]:
-    """Pass/fail of a locate report against issue's bar: coarse within 1 mm and 1 deg, the
-    qualified radius within 0.1 um of its truth, the final error within 3 standard deviations,
-    every planned point hit, no unintended contact."""
-    out = [("complete", bool(report.get("complete")), report.get("failure", "")),
-           ("trusted", bool(report.get("trusted")), "")]
-    if "coarse" in report:
-        c = report["coarse"]
-        out.append(("coarse within 1 mm and 1 deg", c["within_1mm_1deg"],
-                    f"{c['rotation_error_deg']:.4f} deg, {c['translation_error_mm']:.4f} mm"))
-    if "qualification" in report:
-        e = report["qualification"]["effective_radius_error_um"]
-        out.append(("effective radius within 0.1 um", abs(e) <= 0.1, f"{e:+.3f} um"))
-    if "probing" in report:
-        p = report["probing"]
-        out.append(("every planned point hit", not p["misses"], f"{p['hits']} of {p['points']}"))
-        out.append(("no unintended contact", p["unintended_contacts"] == 0, f"{p['unintended_contacts']} contact(s)"))
-    if "fine" in report:
-        f = report["fine"]
-        out.append(("final error within 3 sigma", f["max_error_sigmas"] <= 3.0,
-                    f"max {f['max_error_sigmas']} sigma (Mahalanobis {f['mahalanobis']})"))
-    return out

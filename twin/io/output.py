@@ -11,6 +11,12 @@
    old and new files never mix, and a folder that exists under the target's name is complete.
 3. **Nothing left behind.** Leaving the ``with`` block without :meth:`Staged.commit` (an error, an
    interrupt, SIGTERM: the command line turns it into an exception) removes every temporary.
+4. **An interrupted command commits nothing.** The command line notes each SIGINT/SIGTERM here
+   (:func:`note_signal`) as well as raising it; a library can swallow the raised exception (a
+   signal landing while a compiled module is imported, or inside a callback), so every commit
+   and every result printed first calls :func:`raise_if_interrupted`.
+5. **A colleague can read the results.** Folders and files are given the permissions a new
+   folder or file gets under the user's umask (the temporaries' private 0700/0600 are not kept).
 """
 
 from __future__ import annotations
@@ -23,10 +29,56 @@ from types import TracebackType
 
 from twin.errors import TwinError
 
-__all__ = ["PARTIAL_MARK", "Staged", "check_output_file", "check_output_folder"]
+__all__ = ["PARTIAL_MARK", "Interrupted", "Staged", "check_output_file", "check_output_folder", "clear_signal",
+           "new_file_mode", "new_folder_mode", "note_signal", "raise_if_interrupted", "signal_received"]
 
 #: Part of the name of every temporary folder or file (hidden, beside the target).
 PARTIAL_MARK = ".partial-"
+
+
+class Interrupted(Exception):
+    """A signal was received, but the exception it raised was swallowed by a library."""
+
+
+_signal: list[int] = []  # the first SIGINT/SIGTERM the command received, if any
+
+
+def note_signal(signum: int) -> None:
+    """Remember a received signal (the first one counts)."""
+    if not _signal:
+        _signal.append(int(signum))
+
+
+def signal_received() -> int | None:
+    """The first signal received since :func:`clear_signal`, or None."""
+    return _signal[0] if _signal else None
+
+
+def clear_signal() -> None:
+    _signal.clear()
+
+
+def raise_if_interrupted() -> None:
+    """Raise :class:`Interrupted` when a signal has been received: nothing may be committed or
+    printed as a result after it."""
+    if _signal:
+        raise Interrupted(f"signal {_signal[0]} received")
+
+
+def _umask() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
+
+
+def new_file_mode() -> int:
+    """The permissions of a new file under the user's umask (mkstemp makes files 0600)."""
+    return 0o666 & ~_umask()
+
+
+def new_folder_mode() -> int:
+    """The permissions of a new folder under the user's umask (mkdtemp makes folders 0700)."""
+    return 0o777 & ~_umask()
 
 
 def _existing_ancestor(path: Path) -> Path:
@@ -122,12 +174,16 @@ class Staged:
         target.absolute().parent.mkdir(parents=True, exist_ok=True)
         fd, name = tempfile.mkstemp(prefix=f".{target.stem}{PARTIAL_MARK}", suffix=target.suffix,
                                    dir=target.absolute().parent)
+        os.fchmod(fd, new_file_mode())
         os.close(fd)
         self._files.append((Path(name), target))
         return Path(name)
 
     def commit(self) -> Path:
-        """Move the outside files, then the folder, into place (an existing folder is replaced)."""
+        """Move the outside files, then the folder, into place (an existing folder is replaced);
+        refused (:class:`Interrupted`) once a signal has been received."""
+        raise_if_interrupted()
+        os.chmod(self.folder, new_folder_mode())
         for tmp, target in self._files:
             os.replace(tmp, target)
         old = None

@@ -14,6 +14,7 @@ import numpy as np
 from algorithms.paths.toolpath import transform_path
 from twin import evaluate
 from twin.sensors.base import STATUS_NAMES
+from twin.verdicts import add_verdict, locate_checks, run_checks
 
 MM, UM = 1e3, 1e6
 # Added to the CAD path's 3-sigma surface bound: round-off of the ray casts and of the
@@ -108,7 +109,12 @@ def _run_blocks(run) -> dict:
         return {}
     on = run.path.process_mask()
     tilt = np.degrees(np.arccos(np.clip(np.sum(run.path.T_tool[on, :3, 2] * run.path.normal[on], axis=1), -1.0, 1.0)))
-    return {"dropped": [d.to_dict() for d in run.dropped], "ik": ik_report(run.ik, run.trajectory),
+    kept, planned = int(np.count_nonzero(on)), int(run.planned_points)
+    return {"dropped": [d.to_dict() for d in run.dropped],
+            # the planned contact points (before any stretch was dropped) and the share kept
+            "planned_points": planned, "kept_points": kept,
+            "coverage": round(kept / planned, 4) if planned else 0.0,
+            "ik": ik_report(run.ik, run.trajectory),
             # the tool axis against the surface normal at the processed points (lead, tilt, max_tilt_deg)
             "max_tool_tilt_deg": round(float(tilt.max()) if len(tilt) else 0.0, 3),
             "tilted_points": int(np.count_nonzero(tilt > 0.01)),
@@ -206,20 +212,28 @@ def run_report(result, sensor_sigma_m: float) -> dict:
     if "cad_path" in report:
         report["max_surface_error_mm"] = report["cad_path"]["max_surface_error_mm"]
     report["trusted"] = bool(result.complete and report.get("localization", {}).get("trusted", False))
+    add_verdict(report, run_checks(report, sc.tolerances))
     report["timings_s"] = {k: round(v, 3) for k, v in result.timings_s.items()}
     return report
 
 
 def headline(report: dict) -> dict:
     """The short JSON a command prints."""
-    keys = ("complete", "failed_stage", "failure", "trusted", "localization", "path_verification",
+    keys = ("complete", "failed_stage", "failure", "trusted", "passed", "localization", "path_verification",
             "max_surface_error_mm", "report", "recording", "wall_s")
     out = {k: report[k] for k in keys if k in report}
+    out["failed_checks"] = failed_checks(report)
     if "localization" in out:
         out["localization"] = {k: out["localization"][k]
                                for k in ("status", "observable", "max_error_sigmas", "rotation_error_deg",
                                          "translation_error_mm")}
     return out
+
+
+def failed_checks(report: dict) -> list[dict]:
+    """The deciding checks of a report that failed: name and detail."""
+    return [{"name": c["name"], "detail": c["detail"]} for c in report.get("checks", [])
+            if c["decides"] and not c["passed"]]
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -351,6 +365,7 @@ def locate_report(result) -> dict:
     fine_ok = result.fine is not None and result.fine.status.value == "ok" and not result.fine.poor_fit_reason
     report["trusted"] = bool(result.complete and fine_ok and report.get("probing", {}).get("unintended_contacts", 1)
                              == 0)
+    add_verdict(report, locate_checks(report, sc.tolerances))
     report["timings_s"] = {k: round(v, 3) for k, v in result.timings_s.items()}
     report["simulated_s"] = {k: round(v, 3) for k, v in result.stage_t_s.items()}
     return report
@@ -358,7 +373,8 @@ def locate_report(result) -> dict:
 
 def locate_headline(report: dict) -> dict:
     """The short JSON ``twin locate`` prints."""
-    out = {k: report[k] for k in ("complete", "failed_stage", "failure", "trusted") if k in report}
+    out = {k: report[k] for k in ("complete", "failed_stage", "failure", "trusted", "passed") if k in report}
+    out["failed_checks"] = failed_checks(report)
     if "coarse" in report:
         out["coarse"] = {k: report["coarse"][k] for k in ("method", "rotation_error_deg", "translation_error_mm",
                                                           "within_1mm_1deg")}

@@ -54,6 +54,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from twin.errors import TwinError
+from twin.io.output import new_file_mode
 from twin.studies.kinds import metric_columns, run_trial
 from twin.studies.spec import Study
 from twin.studies.trials import TWIST_COLUMNS
@@ -73,9 +74,23 @@ def batch_size(study: Study, workers: int) -> int:
     return max(1, min(16, study.n_trials // (4 * max(workers, 1)) or 1))
 
 
-def _ignore_sigint() -> None:
-    """Pool workers leave Ctrl-C to the command, which stops the study and keeps the finished batches."""
+def _worker_setup() -> None:
+    """Pool workers leave Ctrl-C to the command, which stops the study and keeps the finished
+    batches; and they end with it: on Linux each asks the kernel for SIGKILL when the command
+    dies (a SIGKILL of the command would otherwise leave them running for minutes, holding its
+    stdout and stderr open, so a ``| tee`` or a CI step waits for them)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        PR_SET_PDEATHSIG = 1
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+
+
+def pool_size(workers: int, trials: int) -> int:
+    """Worker processes for ``workers`` asked: no more than the trials to run nor than the
+    machine's cores (more only share the cores and pay their start-up)."""
+    return max(1, min(workers, trials, os.cpu_count() or 1))
 
 
 def run_batch(study: Study, ids: list[tuple[int, int]]) -> list[dict]:
@@ -116,17 +131,11 @@ def _read_manifest(out: Path) -> dict | None:
         return None
 
 
-def _umask_mode() -> int:
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
 def _write_atomic(path: Path, data: bytes) -> None:
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.partial-", dir=path.parent)
     try:
         # mkstemp makes the file private (0600); the result gets a new file's usual permissions
-        os.fchmod(fd, _umask_mode())
+        os.fchmod(fd, new_file_mode())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
@@ -145,7 +154,7 @@ def _write_table_atomic(path: Path, table: pa.Table) -> None:
         pq.write_table(table, name)
         with open(name, "rb+") as fh:
             os.fsync(fh.fileno())
-        os.chmod(name, _umask_mode())
+        os.chmod(name, new_file_mode())
         os.replace(name, path)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -199,7 +208,7 @@ def executor(scheduler: str, workers: int) -> Iterator[tuple[str, object]]:
         return
     if scheduler == "local":
         pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_ignore_sigint)
+                                   initializer=_worker_setup)
         try:
             yield "pool", pool
         except BaseException:
@@ -254,6 +263,8 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
     total = study.n_trials
     on_progress(state["count"], total)
     t0 = time.perf_counter()
+    if not scheduler.startswith("tcp://"):
+        workers = pool_size(workers, total - resumed)
     with executor(scheduler, workers) as (mode, ex):
 
         def run_ids(ids: list[tuple[int, int]]) -> None:

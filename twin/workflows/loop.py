@@ -81,6 +81,8 @@ class PathRun:
         t_offset_s: where the replay starts on the recording's timeline [s].
         normals_points, normals: (M, 3) contact points and the normals the path used, base frame.
         dropped: the stretches left out (unreachable, singular, discontinuous, colliding).
+        planned_points: the contact points planned in the process region, before any was
+            dropped or left undetermined by the scan (the coverage's denominator).
     """
 
     name: str
@@ -92,6 +94,7 @@ class PathRun:
     normals_points: np.ndarray = field(repr=False)
     normals: np.ndarray = field(repr=False)
     dropped: tuple = ()
+    planned_points: int = 0
 
 
 
@@ -149,14 +152,16 @@ def _timed(name: str, path: ProcessPath, ik: PathIK, dropped, realized: Realized
     return traj
 
 
-def _replayed(name: str, path: ProcessPath, ik: PathIK, traj: Trajectory, dropped, replay_cell: Cell,
-              realized: Realized, t_offset_s: float, timings: dict, say: Callable[[str], None]) -> PathRun:
+def _replayed(name: str, path: ProcessPath, ik: PathIK, traj: Trajectory, dropped, planned_points: int,
+              replay_cell: Cell, realized: Realized, t_offset_s: float, timings: dict,
+              say: Callable[[str], None]) -> PathRun:
     t0 = time.perf_counter()
     log = replay(replay_cell, traj, path, realized.workpiece.index)
     timings[f"{name}_replay_s"] = time.perf_counter() - t0
     say(f"{name}: replayed, {len(log.unintended_contacts)} unintended contact(s)")
     mask = path.process_mask()
-    return PathRun(name, path, ik, traj, log, t_offset_s, path.contact[mask], path.normal[mask], tuple(dropped))
+    return PathRun(name, path, ik, traj, log, t_offset_s, path.contact[mask], path.normal[mask], tuple(dropped),
+                   planned_points)
 
 
 # ------------------------------------------------------------------ the loop
@@ -270,8 +275,9 @@ def _scan_path(loop: _Loop, pool: ThreadPoolExecutor, scan: Scan, T_est: np.ndar
         path, ik, dropped = solve_with_drops("scan_path", sp.lines, sp.tool_normals, tool_settings(realized.scenario),
                                              T_est, loop.nominal, T_est, index, loop.strict)
         traj = _timed("scan_path", path, ik, dropped, realized, loop.say)
-    loop.pending = pool.submit(_replayed, "scan_path", path, ik, traj, dropped, loop.replay_cell, realized, t_offset,
-                               loop.runner.timings_s, loop.say)
+    planned = sum(len(line) for line in sp.lines)
+    loop.pending = pool.submit(_replayed, "scan_path", path, ik, traj, dropped, planned, loop.replay_cell, realized,
+                               t_offset, loop.runner.timings_s, loop.say)
     return t_offset + traj.duration_s + RECORDING_GAP_S
 
 
@@ -282,7 +288,9 @@ def _cad_path(loop: _Loop, loc: RegistrationResult, t_offset: float) -> None:
     T_est = loc.T_world_workpiece
     settings = tool_settings(realized.scenario)
     with loop.runner.stage("cad_path"):
-        lines_wp, normals_wp = determined_part(*cad_path_lines(realized), loc, index)
+        region_lines = cad_path_lines(realized)
+        planned = sum(len(line) for line in region_lines[0])
+        lines_wp, normals_wp = determined_part(*region_lines, loc, index)
         if not lines_wp:
             raise StageFailed("cad_path", "no CAD path point is determined by the scan: the free directions "
                                           "move every point of the process region off the part")
@@ -294,8 +302,8 @@ def _cad_path(loop: _Loop, loc: RegistrationResult, t_offset: float) -> None:
         traj = _timed("cad_path", path, ik, dropped, realized, loop.say)
     _collect(loop)
     with loop.runner.within("cad_path"):
-        loop.runs.append(_replayed("cad_path", path, ik, traj, dropped, loop.replay_cell, realized, t_offset,
-                                   loop.runner.timings_s, loop.say))
+        loop.runs.append(_replayed("cad_path", path, ik, traj, dropped, planned, loop.replay_cell, realized,
+                                   t_offset, loop.runner.timings_s, loop.say))
     loop.watch("run", loop.runs[-1])
 
 
