@@ -1,11 +1,13 @@
 """``twin study``: study files refused in one line, results independent of the worker count and
 the scheduler, resume after a real SIGKILL without a lost or repeated trial."""
 
+import io
 import os
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -188,3 +190,72 @@ def test_sigkill_leaves_no_worker_behind(tmp_path):
     proc.communicate(timeout=60)   # returns when the last holder of the pipes is gone
     assert time.monotonic() - t0 < 10.0, "the workers outlived the command"
     assert sum(pq.read_table(p).num_rows for p in batch_files(out)) < 400   # the study was cut short
+
+
+# ------------------------------------------------------------------ what --resume and --force never lose
+def _finished_copy(reference, tmp_path):
+    """A copy of the finished tiny study's folder: (study file, folder, its final files' bytes)."""
+    import shutil
+
+    study, _ = reference
+    src = Path(study).parent / "one"
+    out = tmp_path / "done"
+    shutil.copytree(src, out)
+    finals = {name: (out / name).read_bytes() for name in (RESULTS, "report.md")}
+    return study, out, finals
+
+
+@pytest.mark.parametrize("damage", ["truncated", "random bytes", "empty", "another table", "duplicated"])
+def test_a_damaged_batch_is_refused_and_nothing_is_deleted(reference, tmp_path, capsys, damage):
+    study, out, finals = _finished_copy(reference, tmp_path)
+    first = batch_files(out)[0]
+    if damage == "truncated":
+        first.write_bytes(first.read_bytes()[:-40])
+    elif damage == "random bytes":
+        first.write_bytes(np.random.default_rng(3).bytes(2000))
+    elif damage == "empty":
+        first.write_bytes(b"")
+    elif damage == "another table":
+        import pyarrow as pa
+
+        pq.write_table(pa.table({"x": [1.0, 2.0]}), first)
+    else:
+        (out / BATCH_DIR / "batch-999999.parquet").write_bytes(first.read_bytes())
+    rc, stdout, err = run_main(capsys, "study", study, "--out", out, "--resume")
+    assert one_line_refusal(rc, err) and stdout == "", err
+    assert first.name in err or "batch-999999" in err
+    assert {name: (out / name).read_bytes() for name in finals} == finals
+
+
+def test_an_interrupted_force_keeps_the_finished_study(reference, tmp_path):
+    study, out, finals = _finished_copy(reference, tmp_path)
+
+    def interrupt(done, total):
+        if done > 0:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_study(load_study(study), out, force=True, on_progress=interrupt)
+    assert {name: (out / name).read_bytes() for name in finals} == finals
+    assert [p.name for p in tmp_path.iterdir()] == ["done"]   # no staged folder left behind
+    run_study(load_study(study), out, force=True)              # and a whole forced run replaces it
+    assert_same_table(pq.read_table(out / RESULTS), pq.read_table(io.BytesIO(finals[RESULTS])))
+    assert [p.name for p in tmp_path.iterdir()] == ["done"]
+
+
+def test_resume_notices_a_replaced_mesh(tmp_path, capsys):
+    """The study's identity covers the files its scenario names: the mesh replaced by another
+    part's under the same name is refused (it used to mix two parts in one table)."""
+    from twin.parts import make_workpiece
+    from twin.studies.runner import prepare_folder
+
+    make_workpiece("s_surface").export(tmp_path / "part.stl")
+    text = (SCENARIOS / "s_surface.toml").read_text().replace('shape = "s_surface"', 'mesh = "part.stl"')
+    (tmp_path / "scenario.toml").write_text(text)
+    study = write_study(tmp_path, TINY.replace(str(SCENARIOS / "s_surface.toml"), str(tmp_path / "scenario.toml")))
+    out = tmp_path / "out"
+    prepare_folder(out, load_study(study), resume=False, force=False)
+    assert prepare_folder(out, load_study(study), resume=True, force=False) == out   # same inputs: resumable
+    make_workpiece("cube").export(tmp_path / "part.stl")
+    rc, _, err = run_main(capsys, "study", study, "--out", out, "--resume")
+    assert one_line_refusal(rc, err) and "part.stl has changed" in err, err

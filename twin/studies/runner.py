@@ -12,6 +12,13 @@ Layout of the output folder ``DIR``:
 * ``results.parquet``: the final table, every batch, sorted by (cell, trial); written last, so
   its presence says the study is complete.
 
+``--force`` over a finished study runs the new one in a hidden folder beside it and moves it
+into place when it is complete: finished results are never deleted before their replacement
+exists. ``--resume`` reads every batch file before anything runs: a damaged one, one of
+another table, or a trial in two files is refused in one line, and nothing is deleted. The
+study's identity (``study_hash``) covers the study, its scenarios' text and the bytes of the
+mesh files they name: a file replaced under the same name is another study.
+
 Columns of the tables (one row per trial):
 
 * ``cell`` (int): the grid cell (row-major over the grid's factors, the last fastest);
@@ -54,7 +61,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from twin.errors import TwinError
-from twin.io.output import new_file_mode
+from twin.io.output import new_file_mode, new_folder_mode
 from twin.studies.kinds import metric_columns, run_trial
 from twin.studies.spec import Study
 from twin.studies.trials import TWIST_COLUMNS
@@ -99,29 +106,63 @@ def run_batch(study: Study, ids: list[tuple[int, int]]) -> list[dict]:
 
 
 # ------------------------------------------------------------------ the folder
-def prepare_folder(out: Path, study: Study, resume: bool, force: bool) -> None:
-    """Check the output folder before any work and write the manifest (module docstring)."""
+def prepare_folder(out: Path, study: Study, resume: bool, force: bool) -> Path:
+    """Check the output folder before any work (module docstring); returns the folder to run in.
+
+    That is ``out`` itself (created), except with ``force`` over an existing study: then a
+    hidden folder beside it, which :func:`run_study` moves into place when the new study is
+    complete, so the finished results are never deleted before their replacement exists. With
+    ``resume`` every batch file is read first: a damaged one is refused before anything changes.
+    """
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise TwinError(f"--out {out} exists and is not a folder")
+    work = out
     if out.is_dir() and any(out.iterdir()):
         old = _read_manifest(out)
         same = old is not None and old.get("study_hash") == study.content_hash
         if resume and not same:
             what = "no study manifest" if old is None else f"a different study ({old.get('name')!r})"
-            raise TwinError(f"--out {out} holds {what}; --resume continues the same study only")
+            changed = _changed_input(old, study)
+            if changed:
+                what = f"the same study on another input: {changed} has changed since it began"
+            raise TwinError(f"--out {out} holds {what}; --resume continues the same study only "
+                            "(--force starts it over)")
         if not resume:
             if not force:
                 held = "" if same or old is None else f" (it holds a different study, {old.get('name')!r})"
                 raise TwinError(f"--out {out} exists{held}; pass --resume to continue the same study, "
                                 "or --force to replace it whole")
-            shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / BATCH_DIR).mkdir(exist_ok=True)
-    for stale in (out / RESULTS, out / "report.md"):
-        stale.unlink(missing_ok=True)  # the final files are remade; an old one must not look current
+            work = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.absolute().parent))
+            os.chmod(work, new_folder_mode())
+        else:
+            finished_ids(out, study)  # every batch readable and of this study, no trial twice
+    work.mkdir(parents=True, exist_ok=True)
+    (work / BATCH_DIR).mkdir(exist_ok=True)
     manifest = {"study_hash": study.content_hash, **study.settings()}
-    _write_atomic(out / MANIFEST, json.dumps(manifest, indent=2, default=str).encode())
+    _write_atomic(work / MANIFEST, json.dumps(manifest, indent=2, default=str).encode())
+    return work
+
+
+def _put_in_place(work: Path, out: Path) -> None:
+    """Move a finished forced study into place: the old folder aside, the new one in, the old
+    one removed (old and new files never mix)."""
+    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.absolute().parent))
+    os.replace(out, aside / out.name)
+    os.replace(work, out)
+    shutil.rmtree(aside, ignore_errors=True)
+
+
+def _changed_input(old: dict | None, study: Study) -> str | None:
+    """The first input file whose content differs from the manifest's record, or None."""
+    recorded = (old or {}).get("input_files")
+    if not isinstance(recorded, dict):
+        return None
+    now = dict(study.input_files)
+    for path in sorted(set(recorded) | set(now)):
+        if recorded.get(path) != now.get(path):
+            return path
+    return None
 
 
 def _read_manifest(out: Path) -> dict | None:
@@ -168,12 +209,31 @@ def batch_files(out: Path) -> list[Path]:
     return sorted(p for p in d.iterdir() if BATCH_RE.match(p.name)) if d.is_dir() else []
 
 
-def finished_ids(out: Path) -> set[tuple[int, int]]:
-    """(cell, trial) of every trial in the finished batch files."""
+def read_batch(path: Path, study: Study) -> pa.Table:
+    """One batch file, refused in one line when it is damaged (truncated, empty, not Parquet)
+    or holds another table than this study's."""
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowException) as exc:
+        raise TwinError(f"{path}: damaged batch file ({' '.join(str(exc).split())[:120]}); delete it and run "
+                        "--resume again to redo its trials") from None
+    expected = ["cell", "trial", *study.factors, *metric_columns(study.kind)]
+    if table.column_names != expected:
+        raise TwinError(f"{path}: not a batch of this study (columns {table.column_names[:4]}...); delete it and "
+                        "run --resume again to redo its trials")
+    return table
+
+
+def finished_ids(out: Path, study: Study) -> set[tuple[int, int]]:
+    """(cell, trial) of every trial in the finished batch files (each read whole and checked)."""
     done: set[tuple[int, int]] = set()
     for p in batch_files(out):
-        t = pq.read_table(p, columns=["cell", "trial"])
-        done.update(zip(t.column("cell").to_pylist(), t.column("trial").to_pylist(), strict=True))
+        t = read_batch(p, study)
+        ids = list(zip(t.column("cell").to_pylist(), t.column("trial").to_pylist(), strict=True))
+        if done & set(ids) or len(set(ids)) != len(ids):
+            raise TwinError(f"{p}: holds a trial another batch file holds too; delete the duplicated batch and "
+                            "run --resume again")
+        done.update(ids)
     return done
 
 
@@ -248,15 +308,33 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
 
     Returns a summary: trials run now and before, batches, seconds, the output files.
     """
-    from twin.studies.report import write_report
-
     out = Path(out)
     if scheduler not in ("local", "dask") and not scheduler.startswith("tcp://"):
         raise TwinError(f"--scheduler must be local, dask or a tcp://HOST:PORT address, got {scheduler!r}")
     if scheduler.startswith("tcp://"):
         _probe(scheduler)
-    prepare_folder(out, study, resume, force)
-    done = finished_ids(out)
+    work = prepare_folder(out, study, resume, force)
+    try:
+        summary = _run_in(work, study, workers, scheduler, on_progress)
+    except BaseException:
+        if work != out:  # a forced study that did not finish: the old one stays as it was
+            shutil.rmtree(work, ignore_errors=True)
+        raise
+    if work != out:
+        _put_in_place(work, out)
+    summary["out"] = str(out)
+    for key in ("results", "report"):
+        summary[key] = str(out / Path(summary[key]).name)
+    summary["plots"] = [str(out / Path(p).name) for p in summary["plots"]]
+    return summary
+
+
+def _run_in(out: Path, study: Study, workers: int, scheduler: str,
+            on_progress: Callable[[int, int], None]) -> dict:
+    """Run the study's missing trials in the prepared folder ``out`` and write its final files."""
+    from twin.studies.report import write_report
+
+    done = finished_ids(out, study)
     resumed = len(done)
     numbers = [_batch_number(p) for p in batch_files(out)]
     state = {"next": max(numbers, default=-1) + 1, "count": len(done)}

@@ -14,6 +14,7 @@ others against their allowed ranges.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -167,6 +168,9 @@ class Study:
         base_dir: the study file's folder (scenario files are relative to it).
         success: the report's tolerance (``SUCCESS_KEYS``): a trial whose rotation and
             translation errors are within it is counted "within tolerance".
+        input_files: (path, SHA-256 of its bytes) of every file the cells' scenarios read (the
+            workpiece meshes), for the content hash: a file replaced under the same name is a
+            different study.
     """
 
     name: str
@@ -185,6 +189,7 @@ class Study:
     adaptive: dict | None = None
     base_dir: Path = Path(".")
     success: dict = field(default_factory=lambda: {k: v[0] for k, v in SUCCESS_KEYS.items()})
+    input_files: tuple[tuple[str, str], ...] = ()
 
     @property
     def cells(self) -> list[dict]:
@@ -231,10 +236,12 @@ class Study:
 
     @property
     def content_hash(self) -> str:
-        """SHA-256 of the study's canonical content and its base scenario's text (not of the file's
-        layout or comments): two files meaning the same study have the same hash."""
+        """SHA-256 of the study's canonical content, its scenarios' text and the bytes of every file
+        they read (not of the study file's layout or comments): two files meaning the same study
+        on the same inputs have the same hash."""
         body = {k: v for k, v in self.raw.items() if k != "scenario"}
-        canon = json.dumps({"study": body, "scenario": self.scenario_text}, sort_keys=True, default=str)
+        canon = json.dumps({"study": body, "scenario": self.scenario_text, "files": self.input_files},
+                           sort_keys=True, default=str)
         return hashlib.sha256(canon.encode()).hexdigest()
 
     def settings(self) -> dict:
@@ -243,7 +250,7 @@ class Study:
                 "kind": self.kind, "overrides": self.overrides, "localize": self.localize,
                 "points": self.points, "normals": self.normals, "adaptive": self.adaptive, "success": self.success,
                 "grid": {k: list(v) for k, v in zip(self.factors, self.levels, strict=True)},
-                "cells": self.n_cells}
+                "cells": self.n_cells, "input_files": {path: digest for path, digest in self.input_files}}
 
 
 def load_study(path: str | Path) -> Study:
@@ -376,7 +383,19 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
         _check_cell(settings, kind)
         if kind == "points":
             _check_design(settings, designs)
-    return study
+    return dataclasses.replace(study, input_files=_input_files(study))
+
+
+def _input_files(study: Study) -> tuple[tuple[str, str], ...]:
+    """(path, SHA-256) of each mesh file a cell's scenario reads, sorted by path."""
+    meshes = {study.cell_scenario(c).workpiece.mesh for c in range(study.n_cells)} - {None}
+    out = []
+    for path in sorted(str(m) for m in meshes):
+        try:
+            out.append((path, hashlib.sha256(Path(path).read_bytes()).hexdigest()))
+        except OSError as exc:
+            raise TwinError(f"study input file unreadable: {path} ({exc.strerror})") from None
+    return tuple(out)
 
 
 def _check_design(cell: CellSettings, seen: set[str]) -> None:
