@@ -412,3 +412,34 @@ def test_every_pair_of_parts_is_told_apart(indexes, points_of):
             else:  # a fit that has not converged either says both
                 assert r.poor_fit_reason is not None and not r.trusted, (points_of, model, sigma, r.message)
                 assert r.status in (Status.POOR_FIT, Status.NOT_CONVERGED)
+
+
+def test_a_scan_that_measured_nothing_says_so(tmp_path):
+    """The part lies 50 mm above where the scan was planned: every beam falls short of the
+    sensor's window. The files are written (the evidence), the exit status is 3, no warning."""
+    text = short_scenario(tmp_path).read_text().replace("xyz = [0.452, 0.118, 0.0]", "xyz = [0.452, 0.118, 0.05]", 1)
+    scen = tmp_path / "above.toml"
+    scen.write_text(text)
+    out = tmp_path / "scan"
+    rc, stdout, err = run_main("scan", scen, "--out", out)
+    assert rc == EXIT_UNTRUSTED and "0 valid" in stdout and "measured no point" in err, err
+    assert "Warning" not in err and (out / "scan.json").is_file()
+
+
+def test_a_signal_after_the_output_is_in_place_says_so(tmp_path, monkeypatch):
+    import twin.cli.scan
+
+    def late_signal(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(twin.cli.scan, "print_result", late_signal)
+    out = tmp_path / "scan"
+    rc, stdout, err = run_main("scan", short_scenario(tmp_path), "--out", out)
+    assert rc == EXIT_SIGTERM and stdout == ""
+    assert err.strip().splitlines()[-1] == f"twin scan: terminated (SIGTERM); {out} had been written whole before it"
+    assert (out / "scan.json").is_file()
+
+
+def test_version():
+    rc, stdout, _ = run_main("--version")
+    assert rc == 0 and stdout.startswith("twin ") and stdout.split()[1][0].isdigit()

@@ -259,3 +259,37 @@ def test_resume_notices_a_replaced_mesh(tmp_path, capsys):
     make_workpiece("cube").export(tmp_path / "part.stl")
     rc, _, err = run_main(capsys, "study", study, "--out", out, "--resume")
     assert one_line_refusal(rc, err) and "part.stl has changed" in err, err
+
+
+@pytest.mark.slow
+def test_scheduler_addresses_that_are_not_a_dask_scheduler(reference, tmp_path, capsys):
+    """Something that accepts and never answers, an HTTP server, a scheduler without workers:
+    each refused in one line within twice the connect timeout, nothing written; a real
+    scheduler with a worker runs the study to the same table."""
+    import http.server
+    import socket
+    import threading
+
+    from distributed import LocalCluster
+
+    study, table = reference
+    silent = socket.create_server(("127.0.0.1", 0))
+    held = []
+    threading.Thread(target=lambda: held.append(silent.accept()), daemon=True).start()
+    web = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+    threading.Thread(target=web.serve_forever, daemon=True).start()
+    with LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None) as empty:
+        for address, words in [(f"tcp://127.0.0.1:{silent.getsockname()[1]}", "no Dask scheduler's answer"),
+                               (f"tcp://127.0.0.1:{web.server_address[1]}", "Dask scheduler"),
+                               (empty.scheduler_address, "no worker")]:
+            t0 = time.monotonic()
+            rc, out, err = run_main(capsys, "study", study, "--out", tmp_path / "x", "--scheduler", address)
+            assert one_line_refusal(rc, err) and words in err, err
+            assert time.monotonic() - t0 < 30 and not (tmp_path / "x").exists()
+    web.shutdown()
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp",
+                      dashboard_address=None) as cluster:
+        address = cluster.scheduler_address
+        rc, _, err = run_main(capsys, "study", study, "--out", tmp_path / "tcp", "--scheduler", address, "--quiet")
+    assert rc == 0, err
+    assert_same_table(table, pq.read_table(tmp_path / "tcp" / RESULTS))

@@ -64,6 +64,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         prog="twin",
         description="Digital twin for robotic laser scanning and CAD-based workpiece localization.",
     )
+    parser.add_argument("--version", action="version", version=f"twin {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
     wanted = set(COMMANDS) if argv is None else set(argv[:1]) & set(COMMANDS)
     for name, help_text in COMMANDS.items():
@@ -72,6 +73,16 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         else:
             sub.add_parser(name, help=help_text)
     return parser
+
+
+def _version() -> str:
+    """The installed package's version (``pyproject.toml``), without importing the package."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("scan-twin")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
@@ -109,9 +120,13 @@ def _interrupted(command: str) -> int:
 
 
 def _left_behind(command: str) -> str:
-    """What an interrupted command leaves: a study keeps its finished batches for --resume."""
+    """What an interrupted command leaves: a study keeps its finished batches for --resume; a
+    command whose output was already in place when the signal came leaves it whole."""
     if command == "twin study":
         return "the finished batches are kept (run again with --resume to finish the study)"
+    done = output.committed()
+    if done:
+        return f"{', '.join(str(p) for p in done)} had been written whole before it"
     return "nothing written"
 
 
@@ -145,6 +160,7 @@ def _failed(command: str, exc: Exception) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     output.clear_signal()
+    output.clear_committed()
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     unraisable_hook = sys.unraisablehook
     in_main_thread = True

@@ -8,7 +8,15 @@ import time
 
 from twin.cell import build_cell
 from twin.cli import COMMANDS
-from twin.cli.common import add_output_options, checked_outputs, number, print_result, reporting
+from twin.cli.common import (
+    EXIT_UNTRUSTED,
+    add_output_options,
+    checked_outputs,
+    number,
+    print_result,
+    progress,
+    reporting,
+)
 from twin.io import write_scan
 from twin.io.output import Staged
 from twin.realize import realize
@@ -25,6 +33,8 @@ def add_parser(sub) -> None:
                     "recording) appear when everything is written; an existing one is refused "
                     "unless --force. stdout: a short summary, or with --json one JSON object (out, "
                     "samples, valid, duration_s, wall_s, recording); progress goes to stderr.",
+        epilog="exit status: 0 a scan with valid points; 2 bad input; 3 the scan measured no point (every beam "
+               "missed or fell outside the sensor's window: the files are written and say so)",
     )
     p.add_argument("scenario", help="scenario TOML file (see scenarios/README.md)")
     add_output_options(p, "output folder (created; refused if it exists, unless --force)")
@@ -70,6 +80,10 @@ def run(args: argparse.Namespace) -> int:
     if rrd is not None:
         summary["recording"] = str(rrd)
     print_result(args, summary, scan_rows(summary))
+    if summary["valid"] == 0:
+        progress("scan", "the scan measured no point: every beam missed or fell outside the window "
+                         "(the files say so; nothing to localize)")
+        return EXIT_UNTRUSTED
     return 0
 
 

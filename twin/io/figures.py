@@ -38,7 +38,10 @@ def residual_histogram(residual_m: np.ndarray, sigma_m: float, path: Path, title
     r = np.asarray(residual_m, dtype=np.float64) * 1e6
     fig, ax = _figure(5.5, 3.6)
     lim = max(4 * sigma_m * 1e6, np.percentile(np.abs(r), 99.5) if len(r) else 1.0, 1e-3)
-    ax.hist(r, bins=80, range=(-lim, lim), density=True, color="#4c78a8", alpha=0.8, label=f"points (n = {len(r)})")
+    if np.any(np.abs(r) <= lim):
+        ax.hist(r, bins=80, range=(-lim, lim), density=True, color="#4c78a8", alpha=0.8, label=f"points (n = {len(r)})")
+    else:  # nothing measured on the part: say so instead of an empty (0/0) density
+        ax.text(0.5, 0.5, "no point on the part", transform=ax.transAxes, ha="center", va="center")
     # the sensor's combined standard uncertainty as a normal law (its linearity part is in
     # truth a smooth systematic curve, so the histogram need not be normal)
     s = sigma_m * 1e6

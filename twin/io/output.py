@@ -29,8 +29,9 @@ from types import TracebackType
 
 from twin.errors import TwinError
 
-__all__ = ["PARTIAL_MARK", "Interrupted", "Staged", "check_output_file", "check_output_folder", "clear_signal",
-           "new_file_mode", "new_folder_mode", "note_signal", "raise_if_interrupted", "signal_received"]
+__all__ = ["PARTIAL_MARK", "Interrupted", "Staged", "check_output_file", "check_output_folder", "clear_committed",
+           "clear_signal", "committed", "new_file_mode", "new_folder_mode", "note_signal", "raise_if_interrupted",
+           "signal_received"]
 
 #: Part of the name of every temporary folder or file (hidden, beside the target).
 PARTIAL_MARK = ".partial-"
@@ -56,6 +57,18 @@ def signal_received() -> int | None:
 
 def clear_signal() -> None:
     _signal.clear()
+
+
+_committed: list[Path] = []  # the outputs this command has put in place
+
+
+def committed() -> list[Path]:
+    """The outputs put in place (by :meth:`Staged.commit`) since :func:`clear_committed`."""
+    return list(_committed)
+
+
+def clear_committed() -> None:
+    _committed.clear()
 
 
 def raise_if_interrupted() -> None:
@@ -192,6 +205,7 @@ class Staged:
             os.replace(self.out, old / self.out.name)
         os.replace(self.folder, self.out)
         self._committed = True
+        _committed.extend([*(target for _, target in self._files), self.out])
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
         return self.out

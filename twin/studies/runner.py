@@ -50,6 +50,7 @@ import shutil
 import signal
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -476,6 +477,48 @@ def _probe(address: str) -> None:
     except OSError as exc:
         raise TwinError(f"--scheduler {address}: cannot reach a Dask scheduler there ({exc.strerror or exc})") \
             from None
+    _handshake(address)
+
+
+def _handshake(address: str) -> None:
+    """Connect a Dask client to ``address`` in a daemon thread and wait at most twice the
+    connect timeout: a service that accepts but never answers would otherwise hold the command
+    for ever (Dask's own timeout does not cover its handshake), and one that answers in another
+    protocol would end in Dask's traceback. A scheduler without workers is refused too: the
+    study would wait for one for ever."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise TwinError("--scheduler tcp://... needs the 'distributed' package (pip install 'dask[distributed]')") \
+            from None
+    found: dict = {}
+
+    def connect() -> None:
+        try:
+            with Client(address, timeout=f"{CONNECT_TIMEOUT_S}s") as client:
+                found["workers"] = len(client.scheduler_info().get("workers", {}))
+        except BaseException as exc:  # any failure is reported by the waiting thread
+            found["error"] = exc
+
+    quiet = logging.getLogger("distributed")
+    was = quiet.disabled
+    quiet.disabled = True  # its log of the failed handshake would bury the one-line error
+    try:
+        thread = threading.Thread(target=connect, name="twin-dask-probe", daemon=True)
+        thread.start()
+        thread.join(2 * CONNECT_TIMEOUT_S)
+    finally:
+        quiet.disabled = was
+    if thread.is_alive():
+        raise TwinError(f"--scheduler {address}: something listens there but gives no Dask scheduler's answer "
+                        f"within {2 * CONNECT_TIMEOUT_S} s")
+    if "error" in found:
+        exc = found["error"]
+        raise TwinError(f"--scheduler {address}: not a Dask scheduler ({type(exc).__name__}: "
+                        f"{' '.join(str(exc).split())[:120]})")
+    if found["workers"] == 0:
+        raise TwinError(f"--scheduler {address}: the scheduler has no worker (start one with "
+                        f"'dask worker {address}')")
 
 
 def final_table(out: Path) -> pa.Table:
