@@ -61,7 +61,7 @@ def normals_trial(study: Study, cell: int, trial: int) -> dict:
     scenario = load_scenario(settings.scenario_path, settings.overrides, machine="arm")
     geo = noise_free_scan(scenario)
     _, rng_err, _, _ = trial_streams(study.seed, cell, trial)
-    points, valid = scan_points(scenario, geo, rng_err)
+    points, valid, _ = scan_points(scenario, geo, rng_err)
     p = np.where(valid[:, :1], points[:, 0], np.nan)  # the point sensor's one beam
     try:
         lines = _lines(spec["cloud"], p, geo.plan.line)

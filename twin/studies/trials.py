@@ -18,7 +18,8 @@ Kinds:
   content; each trial redraws the sensor's errors from the ideal rays (the sensor's
   ``measure``), the encoder noise and time skew, rebuilds the points with the nominal
   kinematics and hand-eye, and localizes from the trial's initial pose
-  (:func:`algorithms.registration.localize`, sigma :func:`twin.sensors.laser.sensor_sigma_m`).
+  (:func:`algorithms.registration.localize`, sigma :func:`twin.scan_uncertainty.reading_sigma_m`:
+  the sensor's and the encoders' noise).
   Robot-side errors drawn once per scenario (kinematics, hand-eye) stay those of the cached scan.
 * ``full``: :func:`twin.workflows.loop.run` on the scenario with its seed replaced by one drawn from
   the trial's stream; the localization is the loop's own (from the nominal pose).
@@ -57,6 +58,7 @@ from twin.plan import ScanPlan, plan_scan
 from twin.realize import Realized, realize
 from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
+from twin.scan_uncertainty import reading_sigma_m
 from twin.scenario import Scenario, load_scenario, merge_tables
 from twin.sensors.base import RawRays, RaySensor
 from twin.sensors.laser import sensor_sigma_m
@@ -202,10 +204,11 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
     return _metrics(out, T_true, len(pts), C)
 
 
-def scan_points(scenario: Scenario, geo: NoiseFreeScan, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def scan_points(scenario: Scenario, geo: NoiseFreeScan,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scan redrawn: the sensor's errors on the ideal rays, encoder noise and time skew on
     the joint log, the points rebuilt with the nominal kinematics and hand-eye (eq. 2);
-    ((N, B, 3) points in the robot base frame [m], (N, B) valid)."""
+    ((N, B, 3) points in the robot base frame [m], (N, B) valid, (N, 6) the joint log)."""
     meas = geo.sensor.measure(geo.rays, rng, geo.model)
     t, q_log = geo.plan.t, geo.q_enc
     noise = scenario.noise
@@ -214,7 +217,7 @@ def scan_points(scenario: Scenario, geo: NoiseFreeScan, rng: np.random.Generator
         q_log = np.column_stack([np.interp(ts, t, q_log[:, j]) for j in range(6)])
     if noise.encoder_sigma_rad > 0:
         q_log = q_log + rng.normal(0.0, noise.encoder_sigma_rad, q_log.shape)
-    return geo.sensor.reconstruct(q_log, meas.d, UR5E_DH, scenario.sensor.T_flange_sensor), meas.valid
+    return geo.sensor.reconstruct(q_log, meas.d, UR5E_DH, scenario.sensor.T_flange_sensor), meas.valid, q_log
 
 
 def fast_trial(study: Study, cell: int, trial: int) -> dict:
@@ -224,13 +227,16 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
     geo = noise_free_scan(scenario)
     rng_init, rng_err, rng_subset, rng_method = trial_streams(study.seed, cell, trial)
     T_true = evaluate.Evaluation(geo.realized).T_base_workpiece
-    points, valid = scan_points(scenario, geo, rng_err)
-    pts = points[valid & (geo.plan.line >= 0)[:, None]]
+    points, valid, q_log = scan_points(scenario, geo, rng_err)
+    mask = valid & (geo.plan.line >= 0)[:, None]
+    pts, q_pts = points[mask], np.broadcast_to(q_log[:, None, :], (*mask.shape, 6))[mask]
     if 0 < loc["points"] < len(pts):  # a random subset of the valid points, drawn per trial
-        pts = pts[np.sort(rng_subset.choice(len(pts), loc["points"], replace=False))]
+        keep = np.sort(rng_subset.choice(len(pts), loc["points"], replace=False))
+        pts, q_pts = pts[keep], q_pts[keep]
     workpiece = geo.realized.workpiece
     T_init = start_pose(T_true, loc, pts, workpiece.mesh, rng_init)
-    return _localize(loc, pts, workpiece, T_true, T_init, sensor_sigma_m(scenario) or None, rng_method)
+    sigma = reading_sigma_m(scenario, q_pts, pts, geo.realized.T_base_workpiece_nominal, workpiece.index)
+    return _localize(loc, pts, workpiece, T_true, T_init, sigma or None, rng_method)
 
 
 _PARTS: dict[str, tuple[Realized, dict]] = {}

@@ -61,9 +61,8 @@ from twin.process_paths import (
 from twin.realize import Realized
 from twin.replay import ReplayLog, build_replay_cell, replay
 from twin.scan import Scan, run_scan
-from twin.scan_uncertainty import pose_covariance
+from twin.scan_uncertainty import pose_covariance, scan_reading_sigma_m
 from twin.segments import solve_with_drops
-from twin.sensors.laser import sensor_sigma_m
 from twin.stages import StageFailed, StageRunner
 from twin.trajectory import PathIK, time_law_for
 
@@ -243,20 +242,21 @@ def _scan(loop: _Loop) -> Scan:
 
 
 def _localize(loop: _Loop, scan: Scan) -> RegistrationResult:
-    """Symmetric-aware localization from the nominal pose, with the sensor's combined sigma;
+    """Symmetric-aware localization from the nominal pose, with the points' standard uncertainty
+    (the sensor's, and the encoders' noise: :mod:`twin.scan_uncertainty`) as sigma;
     along free directions the estimate keeps the nominal pose (the points cannot move it)."""
     realized, index = loop.realized, loop.realized.workpiece.index
     with loop.runner.stage("localize"):
+        sigma = scan_reading_sigma_m(scan, index)
         loc = localize_symmetric(scan.line_points_base, realized.workpiece.mesh, symmetric="auto",
-                                 init=realized.T_base_workpiece_nominal, sigma=sensor_sigma_m(realized.scenario),
-                                 index=index)
+                                 init=realized.T_base_workpiece_nominal, sigma=sigma, index=index)
         if len(loc.free_directions):
             loc = dataclasses.replace(loc, T_world_workpiece=nearest_along_free(
                 loc.T_world_workpiece, loc.free_directions, realized.T_base_workpiece_nominal))
     loop.localization = loc
     loop.watch("localization", loc)
     with loop.runner.within("localize"):
-        loop.covariance = pose_covariance(scan, loc, index)
+        loop.covariance = pose_covariance(scan, loc, index, sigma)
     free = len(loc.free_directions)
     loop.say(f"localized: {loc.status.value}, rms {loc.rmse_m * 1e6:.2f} um, {6 - free} determined, "
              f"{free} free direction(s)")
