@@ -3,8 +3,10 @@ reader), progress on stderr (plain lines off a terminal, bars on one, nothing wi
 ``twin view`` and ``twin export-mesh``."""
 
 import io
+import os
 import json
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -234,7 +236,7 @@ def test_view_refuses_a_folder_and_a_port_without_web(tmp_path, capsys, monkeypa
 def test_view_starts_the_rerun_viewer_on_a_recording(scans, capsys, monkeypatch):
     d, _, _ = scans
     started = []
-    monkeypatch.setattr(view_cli, "launch", lambda argv: started.append(argv) or 0)
+    monkeypatch.setattr(view_cli, "launch", lambda argv: started.append(argv) or (0, ""))
     rc, out, err = run_main(capsys, "view", d / "scan.rrd")
     assert rc == 0 and out == "" and err == ""
     assert started[-1] == [*view_cli.rerun_command(), str(d / "scan.rrd")]
@@ -245,7 +247,7 @@ def test_view_web_serves_on_localhost_and_prints_the_address(tmp_path, capsys, m
     rrd = tmp_path / "old.rrd"
     rrd.write_bytes(b"RRF1" + bytes(20))  # an older release's recording is a recording too
     started = []
-    monkeypatch.setattr(view_cli, "launch", lambda argv: started.append(argv) or 0)
+    monkeypatch.setattr(view_cli, "launch", lambda argv: started.append(argv) or (0, ""))
     rc, out, _ = run_main(capsys, "view", rrd, "--web", "--port", "0")
     assert rc == 0
     argv = started[-1]
@@ -259,20 +261,30 @@ def test_view_web_serves_on_localhost_and_prints_the_address(tmp_path, capsys, m
 def test_view_reports_a_viewer_that_failed(tmp_path, capsys, monkeypatch):
     rrd = tmp_path / "a.rrd"
     rrd.write_bytes(b"RRF2" + bytes(20))
-    monkeypatch.setattr(view_cli, "launch", lambda argv: 1)
+    monkeypatch.setattr(view_cli, "launch", lambda argv: (1, "Error: no display"))
     rc, _, err = run_main(capsys, "view", rrd)
-    assert one_line_refusal(rc, err) and "exit status 1" in err
+    assert one_line_refusal(rc, err) and "exit status 1: Error: no display" in err
 
 
-def test_launch_runs_the_command_line_as_given(monkeypatch):
-    seen = []
-
-    def fake_run(argv, check):
-        seen.append(argv)
-        return subprocess.CompletedProcess(argv, 0)
-
-    monkeypatch.setattr(view_cli.subprocess, "run", fake_run)
-    assert view_cli.launch(["rerun", "x.rrd"]) == 0 and seen == [["rerun", "x.rrd"]]
+def test_launch_reports_the_viewers_last_log_line_and_leaves_nothing_running(tmp_path):
+    """A viewer that logs several (coloured) lines and fails: its last line, plain; a viewer
+    whose own child outlives it: the child is ended with the command."""
+    script = tmp_path / "viewer.sh"
+    script.write_text("#!/bin/sh\nprintf 'starting\\n\\033[31mError:\\033[0m no display\\n' >&2\n"
+                      "sleep 300 &\necho $! > \"$1\"\nexit 1\n")
+    script.chmod(0o755)
+    pid_file = tmp_path / "child.pid"
+    code, last = view_cli.launch([str(script), str(pid_file)])
+    assert (code, last) == (1, "Error: no display")
+    child = int(pid_file.read_text())
+    for _ in range(50):
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        raise AssertionError("the viewer's child outlived the command")
 
 
 # ------------------------------------------------------------------ twin export-mesh
@@ -354,3 +366,34 @@ def test_localize_takes_the_exported_mesh(exported, tmp_path):
     res = json.loads(r.stdout)
     assert res["status"] == "ok"
     assert_pose_close(np.asarray(res["T_world_workpiece"]), T, RECOVER_M, RECOVER_RAD)
+
+
+@pytest.mark.slow
+def test_a_terminated_web_viewer_stops_serving(tmp_path):
+    """SIGTERM of ``twin view --web`` ends the real viewer too (the ``rerun`` script's child
+    used to keep serving, so the next call found the port busy)."""
+    import re
+    import signal
+    import socket
+    import sys
+
+    rrd = tmp_path / "scan.rrd"
+    assert run_cli("scan", short_scenario(tmp_path), "--out", tmp_path / "scan", "--rrd", rrd).returncode == 0
+    proc = subprocess.Popen([sys.executable, "-m", "twin", "view", "--web", "--port", "0", str(rrd)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    port = int(re.search(r"127\.0\.0\.1:(\d+)/", proc.stdout.readline()).group(1))
+
+    def serving() -> bool:
+        with socket.socket() as s:
+            return s.connect_ex(("127.0.0.1", port)) == 0
+
+    for _ in range(100):
+        if serving():
+            break
+        time.sleep(0.1)
+    assert serving()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 143 and len(err.strip().splitlines()) == 1, err
+    time.sleep(0.5)
+    assert not serving()

@@ -9,9 +9,13 @@ recording to a browser on 127.0.0.1 and prints the address to open.
 from __future__ import annotations
 
 import argparse
+import os
+import re
+import signal
 import socket
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from urllib.parse import quote
 
@@ -88,9 +92,45 @@ def web_url(web_port: int, grpc_port: int) -> str:
     return f"http://{HOST}:{web_port}/?url=" + quote(f"rerun+http://{HOST}:{grpc_port}/proxy", safe="")
 
 
-def launch(argv: list[str]) -> int:
-    """Run the viewer in the foreground; its exit status."""
-    return subprocess.run(argv, check=False).returncode
+def launch(argv: list[str]) -> tuple[int, str]:
+    """Run the viewer in the foreground: (its exit status, the last line of its log).
+
+    It runs in a process group of its own, which is ended with this command however it ends
+    (Ctrl-C, SIGTERM, an error): the ``rerun`` script starts the viewer binary as a child, and
+    ending the script alone would leave the viewer serving (the next ``--web`` finds its port
+    busy). Its log is kept aside, so that a viewer that cannot start is reported in one line.
+    """
+    # a file, not a pipe: a child of the viewer holding the pipe open would hold the command
+    with tempfile.TemporaryFile("w+", errors="replace") as log:
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True)
+        try:
+            proc.wait()
+        finally:
+            _end_group(proc)
+        log.seek(0)
+        lines = [ln.strip() for ln in _ANSI.sub("", log.read()).splitlines() if ln.strip()]
+    return proc.returncode, (lines[-1] if lines else "")
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _end_group(proc: subprocess.Popen) -> None:
+    """SIGTERM to the viewer's process group, then SIGKILL to what is left after 2 s."""
+    for sig, wait_s in ((signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+        try:
+            os.killpg(proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            return
+        try:
+            proc.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            continue
+        # the script is gone; a child of it may still hold the group
+        try:
+            os.killpg(proc.pid, 0)
+        except (ProcessLookupError, PermissionError):
+            return
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,8 +148,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"serving {rrd} at {web_url(web_port, grpc_port)} (Ctrl-C stops)", flush=True)
     else:
         cmd += [str(rrd)]
-    code = launch(cmd)
+    code, last = launch(cmd)
     if code != 0:
-        raise TwinError(f"the Rerun viewer ({cmd[0]}) ended with exit status {code}"
+        said = f": {last[:160]}" if last else ""
+        raise TwinError(f"the Rerun viewer ({cmd[0]}) ended with exit status {code}{said}"
                         + ("" if args.web else " (no display? try --web)"))
     return 0
