@@ -3,8 +3,8 @@ reader), progress on stderr (plain lines off a terminal, bars on one, nothing wi
 ``twin view`` and ``twin export-mesh``."""
 
 import io
-import os
 import json
+import os
 import subprocess
 import time
 
