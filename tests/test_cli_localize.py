@@ -103,6 +103,9 @@ def test_global_init_finds_the_pose_with_sigma(scene):
     res = json.loads(out)
     assert res["method"] == "multistart" and res["status"] == "ok" and len(res["solutions"]) == 1
     assert res["global"]["n_starts"] >= 60 and res["candidates"][0]["rmse_m"] < EXACT_FIT_M
+    # the diagnostics say how the answer was chosen, whether or not a start passed the coarse tests
+    g = res["global"]
+    assert f"{g['n_starts']}" in g["selection"] and "verified" in g["selection"]
     assert_pose_close(np.array(res["T_world_workpiece"]), T, RECOVER_M, RECOVER_RAD)
 
 

@@ -214,6 +214,7 @@ def result_to_json(res) -> dict:
             "method": d.method,
             "n_starts": int(d.n_starts),
             "starts_accepted": int(d.starts_accepted),
+            "selection": d.selection,
             "sigma_eff_m": float(d.sigma_eff_m),
             "rms_verify_m": float(d.rms_verify_m),
             "n_verify": int(d.n_verify),

@@ -125,6 +125,22 @@ class GlobalDiagnostics:
     genetic: GeneticDiagnostics | None = None
     pso: PSODiagnostics | None = None
 
+    @property
+    def selection(self) -> str:
+        """How the answer was chosen, in words. Algorithm 5's tests on the coarse points decide
+        only how long the starts run; the best candidates are refined on the verification
+        points and the best of them polished and verified, so a search can be solved with no
+        start accepted on the coarse points."""
+        if self.n_starts == 0:
+            passed = f"the {self.method} search gave its candidates"
+        elif self.starts_accepted:
+            passed = f"{self.starts_accepted} of {self.n_starts} starts passed Algorithm 5's tests on the coarse points"
+        else:
+            passed = (f"no start of {self.n_starts} passed Algorithm 5's tests on the coarse points (their sigma is "
+                      "estimated from the coarse fit)")
+        return (f"{passed}; the best candidates were refined on {self.n_verify} verification points, the best "
+                "of them polished and verified")
+
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class GlobalLocalizationResult(RegistrationResult):
