@@ -196,8 +196,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _restore(handlers: dict) -> None:
-    """Put the caller's signal handlers back. An interruption a library swallowed can surface
-    here, late: the command has already ended and said so, so it is not raised again."""
+    """Put the caller's signal handlers back. A signal arriving meanwhile is not raised again:
+    the command has already ended and said how."""
     for s, h in handlers.items():
         for _ in range(3):
             try:
