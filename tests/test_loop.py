@@ -84,6 +84,8 @@ FAILS_AS_RUN = {
     "inner_sphere": {"scan_path: coverage", "cad_path: coverage"},
     "sphere": {"cad_path: coverage"},
 }
+if FULL:  # the rasters as written: the bottle punch's CAD path also goes 0.38 mm into the part
+    FAILS_AS_RUN["bottle_punch"] = FAILS_AS_RUN["bottle_punch"] | {"cad_path: tip penetration"}
 
 
 @pytest.mark.parametrize("scenario", tiered([s for s in SCENARIOS if _laser(s)], SMOKE, ids=lambda p: p.stem))
