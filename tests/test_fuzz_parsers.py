@@ -15,7 +15,9 @@ import os
 import tempfile
 from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from algorithms.errors import AlgorithmError
 from algorithms.probing.dmis import parse_dmis
@@ -55,25 +57,19 @@ _STUDY = (ROOT / "studies" / "robot_errors.toml").read_text().replace(
 _TEACH = (SCENARIOS / "cmm" / "teach" / "through_hole.toml").read_bytes()
 
 
-@slow_or_ci
-@budget()
-@given(raw=mutated(_SCENARIO))
-def test_fuzz_scenario_reader(raw):
-    _read_or_refuse(load_scenario, raw, "scenario.toml", _FOLDER)
+#: Each TOML reader, the shipped file it starts from and the name it is read under.
+TOML_READERS = {"scenario": (load_scenario, _SCENARIO, "scenario.toml"),
+                "study": (load_study, _STUDY, "study.toml"),
+                "teach": (load_teach, _TEACH, "teach.toml")}
 
 
 @slow_or_ci
+@pytest.mark.parametrize("reader", list(TOML_READERS))
 @budget()
-@given(raw=mutated(_STUDY))
-def test_fuzz_study_reader(raw):
-    _read_or_refuse(load_study, raw, "study.toml", _FOLDER)
-
-
-@slow_or_ci
-@budget()
-@given(raw=mutated(_TEACH))
-def test_fuzz_teach_reader(raw):
-    _read_or_refuse(load_teach, raw, "teach.toml", _FOLDER)
+@given(data=st.data())
+def test_fuzz_toml_readers(reader, data):
+    read, valid, name = TOML_READERS[reader]
+    _read_or_refuse(read, data.draw(mutated(valid)), name, _FOLDER)
 
 
 @slow_or_ci

@@ -255,7 +255,7 @@ def test_resume_notices_a_replaced_mesh(tmp_path, capsys):
     study = write_study(tmp_path, TINY.replace(str(SCENARIOS / "s_surface.toml"), str(tmp_path / "scenario.toml")))
     out = tmp_path / "out"
     prepare_folder(out, load_study(study), resume=False, force=False)
-    assert prepare_folder(out, load_study(study), resume=True, force=False) == out   # same inputs: resumable
+    assert prepare_folder(out, load_study(study), resume=True, force=False)[0] == out   # same inputs: resumable
     make_workpiece("cube").export(tmp_path / "part.stl")
     rc, _, err = run_main(capsys, "study", study, "--out", out, "--resume")
     assert one_line_refusal(rc, err) and "part.stl has changed" in err, err

@@ -107,8 +107,9 @@ def run_batch(study: Study, ids: list[tuple[int, int]]) -> list[dict]:
 
 
 # ------------------------------------------------------------------ the folder
-def prepare_folder(out: Path, study: Study, resume: bool, force: bool) -> Path:
-    """Check the output folder before any work (module docstring); returns the folder to run in.
+def prepare_folder(out: Path, study: Study, resume: bool, force: bool) -> tuple[Path, set[tuple[int, int]]]:
+    """Check the output folder before any work (module docstring); returns the folder to run in
+    and the (cell, trial) ids its batch files already hold.
 
     That is ``out`` itself (created), except with ``force`` over an existing study: then a
     hidden folder beside it, which :func:`run_study` moves into place when the new study is
@@ -118,7 +119,7 @@ def prepare_folder(out: Path, study: Study, resume: bool, force: bool) -> Path:
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise TwinError(f"--out {out} exists and is not a folder")
-    work = out
+    work, done = out, set()
     if out.is_dir() and any(out.iterdir()):
         old = _read_manifest(out)
         same = old is not None and old.get("study_hash") == study.content_hash
@@ -137,12 +138,12 @@ def prepare_folder(out: Path, study: Study, resume: bool, force: bool) -> Path:
             work = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.absolute().parent))
             os.chmod(work, new_folder_mode())
         else:
-            finished_ids(out, study)  # every batch readable and of this study, no trial twice
+            done = finished_ids(out, study)  # every batch readable and of this study, no trial twice
     work.mkdir(parents=True, exist_ok=True)
     (work / BATCH_DIR).mkdir(exist_ok=True)
     manifest = {"study_hash": study.content_hash, **study.settings()}
     _write_atomic(work / MANIFEST, json.dumps(manifest, indent=2, default=str).encode())
-    return work
+    return work, done
 
 
 def _put_in_place(work: Path, out: Path) -> None:
@@ -314,9 +315,9 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
         raise TwinError(f"--scheduler must be local, dask or a tcp://HOST:PORT address, got {scheduler!r}")
     if scheduler.startswith("tcp://"):
         _probe(scheduler)
-    work = prepare_folder(out, study, resume, force)
+    work, done = prepare_folder(out, study, resume, force)
     try:
-        summary = _run_in(work, study, workers, scheduler, on_progress)
+        summary = _run_in(work, study, done, workers, scheduler, on_progress)
     except BaseException:
         if work != out:  # a forced study that did not finish: the old one stays as it was
             shutil.rmtree(work, ignore_errors=True)
@@ -330,12 +331,11 @@ def run_study(study: Study, out: Path, workers: int = 1, scheduler: str = "local
     return summary
 
 
-def _run_in(out: Path, study: Study, workers: int, scheduler: str,
+def _run_in(out: Path, study: Study, done: set[tuple[int, int]], workers: int, scheduler: str,
             on_progress: Callable[[int, int], None]) -> dict:
     """Run the study's missing trials in the prepared folder ``out`` and write its final files."""
     from twin.studies.report import write_report
 
-    done = finished_ids(out, study)
     resumed = len(done)
     numbers = [_batch_number(p) for p in batch_files(out)]
     state = {"next": max(numbers, default=-1) + 1, "count": len(done)}
