@@ -199,6 +199,14 @@ def test_quiet_and_deferred_lines():
         say("scanned")
         raise RuntimeError("refused")
     assert err.getvalue() == ""
+    # released: the held lines at once, and every later one as it comes
+    err = io.StringIO()
+    with Progress("scan", stream=err, defer=True) as say:
+        say("planned")
+        say.release()
+        assert err.getvalue() == "[scan] planned\n"
+        say("simulated")
+        assert err.getvalue() == "[scan] planned\n[scan] simulated\n"
 
 
 # ------------------------------------------------------------------ twin view

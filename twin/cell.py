@@ -128,7 +128,7 @@ def build_spec(realized: Realized, which: str = "true") -> tuple[mujoco.MjSpec, 
     # The sensor on the flange (DH frame 6 = flange site of the wrist_3 body).
     T_flange_sensor = realized.truth.T_flange_sensor if true else scenario.sensor.T_flange_sensor
     T_wrist3_sensor = T_WRIST3_FLANGE @ T_flange_sensor
-    sensor = make_sensor(scenario.sensor, scenario.noise)
+    sensor = make_sensor(realized.sensor, scenario.noise)
     body = spec.body(FLANGE_BODY).add_body(
         name="laser_sensor", pos=T_wrist3_sensor[:3, 3], quat=quat_wxyz(T_wrist3_sensor[:3, :3]))
     sensor.attach(spec, body)

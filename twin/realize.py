@@ -13,7 +13,7 @@ inserted), so existing streams keep their numbers.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import trimesh
@@ -24,10 +24,11 @@ from algorithms.geometry.se3 import inv_pose
 from twin.errors import TwinError
 from twin.parts import load_mesh, make_workpiece
 from twin.robot import LINK_BODIES
-from twin.scenario import Scenario
+from twin.scenario import Scenario, SensorSpec
 
 #: The named random streams, in spawn order (append only).
-STREAM_NAMES = ("kinematics", "sensor", "encoder", "localization", "probe", "probe_encoder", "coarse", "plan")
+STREAM_NAMES = ("kinematics", "sensor", "encoder", "localization", "probe", "probe_encoder", "coarse", "plan",
+                "sensor_unit")
 
 
 @dataclass(frozen=True)
@@ -69,11 +70,14 @@ class Truth:
         T_world_workpiece: (4, 4) the part's true pose.
         T_flange_sensor: (4, 4) the true hand-eye transform (nominal @ hand-eye error).
         link_errors: the drawn kinematic errors, one per moving link (empty when switched off).
+        linearity_phase_deg: the phase of this sensor unit's linearity curve [deg] (the
+            scenario's, or drawn uniform in [0, 360) where it says "random").
     """
 
     T_world_workpiece: np.ndarray
     T_flange_sensor: np.ndarray
     link_errors: tuple[LinkError, ...]
+    linearity_phase_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -84,6 +88,11 @@ class Realized:
     workpiece: Workpiece
     truth: Truth
     streams: Streams
+
+    @property
+    def sensor(self) -> SensorSpec:
+        """The scenario's sensor as this realization's unit (its linearity phase drawn)."""
+        return replace(self.scenario.sensor, linearity_phase_deg=self.truth.linearity_phase_deg)
 
     @property
     def T_base_workpiece_true(self) -> np.ndarray:
@@ -104,17 +113,23 @@ def load_workpiece_mesh(scenario: Scenario) -> trimesh.Trimesh:
     return load_mesh(wp.mesh, wp.units)
 
 
-def draw_truth(scenario: Scenario, rng: np.random.Generator) -> Truth:
-    """Draw the true cell's kinematic errors (each link in turn: position, then rotation)."""
+def draw_truth(scenario: Scenario, streams: Streams) -> Truth:
+    """Draw the true cell's kinematic errors (each link in turn: position, then rotation; the
+    ``kinematics`` stream) and, where the scenario leaves it unknown, the sensor unit's
+    linearity phase (the ``sensor_unit`` stream)."""
     noise = scenario.noise
+    rng = streams.generator("kinematics")
     errors = []
     if noise.kinematic_sigma_m > 0 or noise.kinematic_sigma_rad > 0:
         for name in LINK_BODIES[1:]:
             dpos = rng.normal(0.0, noise.kinematic_sigma_m, 3)
             dR = Rotation.from_rotvec(rng.normal(0.0, noise.kinematic_sigma_rad, 3)).as_matrix()
             errors.append(LinkError(name, dpos, dR))
+    phase = scenario.sensor.linearity_phase_deg
+    if phase is None:
+        phase = float(streams.generator("sensor_unit").uniform(0.0, 360.0))
     return Truth(scenario.workpiece.T_world_workpiece_true.copy(),
-                 scenario.sensor.T_flange_sensor @ noise.T_hand_eye_error, tuple(errors))
+                 scenario.sensor.T_flange_sensor @ noise.T_hand_eye_error, tuple(errors), phase)
 
 
 def realize(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> Realized:
@@ -122,5 +137,5 @@ def realize(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> Realized
     if mesh is None:
         mesh = load_workpiece_mesh(scenario)
     streams = Streams(scenario.seed)
-    truth = draw_truth(scenario, streams.generator("kinematics"))
+    truth = draw_truth(scenario, streams)
     return Realized(scenario, Workpiece(mesh, MeshIndex(mesh)), truth, streams)

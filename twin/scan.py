@@ -11,6 +11,7 @@ from it because they are rebuilt from the encoder readings.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -143,7 +144,8 @@ def _pass_label(plan: ScanPlan, line: int) -> str:
     return f" (pass {plan.passes[int(plan.line_pass[line])].name!r})"
 
 
-def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan | None = None) -> Scan:
+def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan | None = None,
+             reachable: Callable[[ScanPlan], None] | None = None) -> Scan:
     """Simulate the scenario's scan and reconstruct its points (see the module docstring).
 
     Args:
@@ -151,6 +153,8 @@ def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan 
         nominal: the nominal cell (plan and IK); true_cell: the true cell (simulation).
         plan: a plan made elsewhere (e.g. :func:`twin.plan.plan_level_raster`); default: the
             scenario's ``[scan]`` planned by :func:`twin.plan.plan_scan`.
+        reachable: called with the plan once every sample's joints are solved (from then on
+            nothing refuses the scenario: the simulation and the sensor model follow).
     """
     scenario = realized.scenario
     timings = {}
@@ -160,6 +164,8 @@ def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan 
     t0 = time.perf_counter()
     q_ref, qd_ref = solve_joint_references(nominal, plan)
     timings["ik_s"] = time.perf_counter() - t0
+    if reachable is not None:
+        reachable(plan)
 
     sensor = true_cell.sensor
     log = SampleLog(true_cell, len(q_ref))

@@ -16,10 +16,14 @@ effect), not in sigma.
 
 The pose covariance: the random part (repeatability, quantisation, encoder noise) from the
 fit's Cramer-Rao covariance, and the sensor's linearity curve as a systematic error common to
-every point of the scan (GUM: a Type B effect, not white noise).
+every point of the scan (GUM: a Type B effect, not white noise; :func:`linearity_covariance`).
+``benchmarks/bench_coverage.py`` measures how often the true error lies inside the stated
+95 % region (``benchmarks/results_coverage.md``).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -30,8 +34,32 @@ from algorithms.registration.result import RegistrationResult
 from algorithms.registration.uncertainty import systematic_covariance
 from twin.robot import UR5E_DH
 from twin.scan import Scan
-from twin.scenario import Scenario
-from twin.sensors.laser import sensor_sigma_m
+from twin.scenario import NoiseSpec, Scenario, SensorSpec
+from twin.sensors.laser import LINEARITY_VARIANCE_FACTOR, reading_uncertainty_m, sensor_sigma_m, window_coordinate
+
+
+@dataclass(frozen=True)
+class ScanReadings:
+    """The points on a scan folder's lines, with what their uncertainty needs
+    (:func:`twin.io.scan_files.read_scan_readings`).
+
+    Attributes:
+        points_base: (M, 3) points rebuilt with the believed kinematics and hand-eye, robot
+            base frame [m] (the points ``points.ply`` holds, on the scan lines only).
+        d: (M,) their measured distances [m]; beams_base: (M, 3) unit beam directions.
+        q: (M, 6) the joints logged with each point [rad].
+        sensor, noise: the scan's sensor settings and error switches (its scenario's).
+        T_base_workpiece_nominal: (4, 4) the pose the scan was planned on.
+    """
+
+    points_base: np.ndarray
+    d: np.ndarray
+    beams_base: np.ndarray
+    q: np.ndarray
+    sensor: SensorSpec
+    noise: NoiseSpec
+    T_base_workpiece_nominal: np.ndarray
+
 
 #: Joint step of the central differences [rad].
 JOINT_STEP_RAD = 1e-6
@@ -60,8 +88,14 @@ def reading_sigma_m(scenario: Scenario, q: np.ndarray, points_base: np.ndarray,
     """The standard uncertainty of one point along its normal [m] (module docstring): the
     sensor's combined uncertainty, and the encoders' noise propagated at each point's joints
     ``q`` (M, 6), normals from the CAD model at the nominal pose."""
-    u_sensor = sensor_sigma_m(scenario)
-    sigma_enc = scenario.noise.encoder_sigma_rad
+    return point_sigma_m(scenario.sensor, scenario.noise, q, points_base, T_base_workpiece_nominal, index)
+
+
+def point_sigma_m(sensor: SensorSpec, noise: NoiseSpec, q: np.ndarray, points_base: np.ndarray,
+                  T_base_workpiece_nominal: np.ndarray, index: MeshIndex) -> float:
+    """:func:`reading_sigma_m` from the sensor's and the noise's settings."""
+    u_sensor = reading_uncertainty_m(sensor, noise)
+    sigma_enc = noise.encoder_sigma_rad
     if sigma_enc == 0.0 or len(points_base) == 0:
         return u_sensor
     cp = index.query(transform_points(inv_pose(T_base_workpiece_nominal), points_base))
@@ -77,36 +111,103 @@ def scan_reading_sigma_m(scan: Scan, index: MeshIndex) -> float:
     return reading_sigma_m(scan.scenario, q, scan.points_base[mask], scan.T_base_workpiece_nominal, index)
 
 
+def beam_directions_base(q: np.ndarray, beam_dirs_sensor: np.ndarray, T_flange_sensor: np.ndarray) -> np.ndarray:
+    """(N, B, 3) unit beam directions in the robot base frame at the joints ``q`` (N, 6), with
+    the believed kinematics and hand-eye (as the points are rebuilt)."""
+    R = (dh_forward(q, UR5E_DH) @ T_flange_sensor)[:, :3, :3]
+    return np.einsum("nij,bj->nbi", R, np.asarray(beam_dirs_sensor, dtype=np.float64))
+
+
+def linearity_covariance(sensor: SensorSpec, d: np.ndarray, beams_world: np.ndarray, points_world: np.ndarray,
+                         T_world_workpiece: np.ndarray, directions: np.ndarray, index: MeshIndex) -> np.ndarray:
+    """The pose covariance along ``directions`` (q, 6) that the sensor's linearity curve causes,
+    a systematic error common to every point of the scan (GUM: a Type B evaluation).
+
+    The curve is ``e(u) = L sin(pi u + phase)`` (:mod:`twin.sensors.laser`) with the phase of
+    this sensor unit unknown, uniform: ``e = a sin(pi u) + b cos(pi u)`` with ``a, b``
+    uncorrelated, each of variance ``L^2 / 2``. The error moves a point along its beam, so
+    along the surface normal by ``e |b . n|``: the two basis functions are taken at each
+    point's measured distance ``d`` and incidence (:func:`algorithms.registration.uncertainty.systematic_covariance`).
+
+    Args:
+        d: (M,) measured distances [m]; beams_world: (M, 3) unit beam directions; points_world:
+            (M, 3) the points, all in the frame of ``T_world_workpiece`` (the fit's pose).
+    """
+    u = window_coordinate(d, sensor)
+    cp = index.query(transform_points(inv_pose(T_world_workpiece), points_world))
+    normals = index.smooth_normals(cp.face, cp.foot)
+    cos_incidence = np.abs(np.einsum("ni,ni->n", beams_world @ T_world_workpiece[:3, :3], normals))
+    basis = np.column_stack([np.sin(np.pi * u), np.cos(np.pi * u)]) * cos_incidence[:, None]
+    std = np.full(2, sensor.linearity_m * np.sqrt(LINEARITY_VARIANCE_FACTOR))
+    return systematic_covariance(cp.foot, normals, directions, basis, std)
+
+
+def random_share(covariance: np.ndarray, sensor: SensorSpec, noise: NoiseSpec, sigma_m: float) -> np.ndarray:
+    """The fit's covariance (made with ``sigma_m``, every source the reading's sigma holds)
+    scaled to its random sources alone: without the linearity curve's share of the variance."""
+    lin2 = LINEARITY_VARIANCE_FACTOR * sensor.linearity_m**2 if noise.linearity else 0.0
+    return covariance * max(sigma_m**2 - lin2, 0.0) / sigma_m**2
+
+
 def pose_covariance(scan: Scan, localization: RegistrationResult, index: MeshIndex,
                     sigma_m: float | None = None) -> np.ndarray:
     """The estimate's covariance along its determined directions: the Cramer-Rao term of the
     random errors (repeatability, quantisation and encoder noise, with ``sigma_m`` the sigma the
-    fit used) plus the sensor's linearity curve as a
-    systematic error: Legendre polynomials of degree 0-3 in the measured distance across the
-    window, each coefficient with the standard deviation ``linearity_m`` (the curve is known
-    only by its +/- band, and one smooth shape can carry the whole band: the IL-065's
-    sin-shaped curve has degree-1 and degree-3 coefficients of 0.95 and 1.16 times the band);
-    :func:`algorithms.registration.uncertainty.systematic_covariance`."""
+    fit used; default the sensor's alone) plus the sensor's linearity curve as a systematic
+    error (:func:`linearity_covariance`)."""
     sc = scan.scenario
     D = np.asarray(localization.determined_directions, dtype=np.float64).reshape(-1, 6)
     C = np.asarray(localization.covariance, dtype=np.float64)
     if len(D) == 0:
         return C
-    s, n = sc.sensor, sc.noise
-    # the sigma the fit used (default: the sensor's alone)
-    sigma_all = sensor_sigma_m(sc) if sigma_m is None else sigma_m
-    lin = s.linearity_m if n.linearity else 0.0
-    # the random part of sigma_all: without the linearity band's share (linearity / sqrt 3)
-    C = C * max(sigma_all**2 - lin**2 / 3.0, 0.0) / sigma_all**2
-    if lin == 0.0:
+    sigma = sensor_sigma_m(sc) if sigma_m is None else sigma_m
+    C = random_share(C, sc.sensor, sc.noise, sigma)
+    if not sc.noise.linearity or sc.sensor.linearity_m == 0.0:
         return C
     mask = scan.valid & (scan.line >= 0)[:, None]
-    d = scan.d[mask][localization.inliers]
-    pts = scan.points_base[mask][localization.inliers]
-    near, far = s.window_m
-    u = np.clip(2.0 * (d - s.reference_m) / (far - near), -1.0, 1.0)
-    basis = np.polynomial.legendre.legvander(u, 3)
-    cp = index.query(transform_points(inv_pose(localization.T_world_workpiece), pts))
-    normals = index.smooth_normals(cp.face, cp.foot)
-    return C + systematic_covariance(cp.foot, normals, D, basis, np.full(4, lin))
+    beams = beam_directions_base(scan.q, scan.beam_dirs_sensor, scan.T_flange_sensor_nominal)
+    keep = localization.inliers
+    return C + linearity_covariance(sc.sensor, scan.d[mask][keep], beams[mask][keep],
+                                    scan.points_base[mask][keep], localization.T_world_workpiece, D, index)
 
+
+@dataclass(frozen=True)
+class ScanCovariance:
+    """The covariance of a pose localized from a scan's readings (:func:`scan_covariance`).
+
+    Attributes:
+        total: (q, q) random and systematic, along the result's determined directions.
+        random: (q, q) the random sources alone.
+        kind: "random and systematic" or "random only"; sources: the sources it holds.
+    """
+
+    total: np.ndarray
+    random: np.ndarray
+    kind: str
+    sources: tuple[str, ...]
+
+
+def scan_covariance(localization: RegistrationResult, readings: ScanReadings, index: MeshIndex, sigma_m: float,
+                    sigma_given: bool = False) -> ScanCovariance | None:
+    """The covariance of a pose fitted (with sigma ``sigma_m``) to every point of ``readings``:
+    its random sources (repeatability, quantisation, encoder noise: the fit's Cramer-Rao
+    covariance, without the linearity curve's share of ``sigma_m`` unless the sigma was given
+    by the user, ``sigma_given``) and the linearity curve as a systematic effect
+    (:func:`linearity_covariance`). None where the fit has no covariance or was not made on
+    these points."""
+    if localization.covariance is None or not sigma_m or len(np.asarray(localization.inliers)) != len(readings.d):
+        return None
+    s, n = readings.sensor, readings.noise
+    C_random = np.asarray(localization.covariance, dtype=np.float64)
+    if not sigma_given:
+        C_random = random_share(C_random, s, n, sigma_m)
+    sources = [name for name, on in (("repeatability", n.gaussian), ("quantisation", n.quantization),
+                                     ("encoder noise", n.encoder_sigma_rad > 0)) if on]
+    if not (n.linearity and s.linearity_m > 0):
+        return ScanCovariance(C_random, C_random, "random only", tuple(sources))
+    D = np.asarray(localization.determined_directions, dtype=np.float64).reshape(-1, 6)
+    keep = np.asarray(localization.inliers)
+    C = C_random + linearity_covariance(s, readings.d[keep], readings.beams_base[keep], readings.points_base[keep],
+                                        localization.T_world_workpiece, D, index)
+    sources.append("linearity curve (systematic, Type B: a sine of unknown phase within its band)")
+    return ScanCovariance(C, C_random, "random and systematic", tuple(sources))

@@ -189,6 +189,9 @@ class SensorSpec:
         sample_period_s: sampling period [s].
         sigma_m: repeatability, 1-sigma Gaussian noise at normal incidence [m].
         linearity_m: amplitude of the systematic linearity error curve [m].
+        linearity_phase_deg: phase of that curve [deg] (:func:`twin.sensors.laser.linearity_error_m`),
+            or None: unknown, drawn for each realization of the scenario (one sensor unit of
+            the model, :func:`twin.realize.draw_truth`).
         resolution_m: output resolution (quantisation step) [m].
         max_incidence_deg: beyond this angle between beam and surface normal, no return.
         baseline_m: triangulation baseline: receiver offset from the emitter along sensor +x [m].
@@ -207,6 +210,7 @@ class SensorSpec:
     beams: int
     fan_deg: float
     T_flange_sensor: np.ndarray
+    linearity_phase_deg: float | None = 0.0
 
 
 @dataclass(frozen=True)
@@ -682,6 +686,7 @@ def _parse_sensor(s: _Section) -> SensorSpec:
     period = s.number("sample_period_s", 0.001, 0.0, 1.0, lo_open=True)
     sigma = s.number("sigma_m", 2e-6, 0.0, 1e-2)
     linearity = s.number("linearity_m", 10e-6, 0.0, 1e-2)
+    phase = _linearity_phase(s)
     resolution = s.number("resolution_m", 1e-6, 0.0, 1e-2)
     max_inc = s.number("max_incidence_deg", 60.0, 0.0, 90.0, lo_open=True)
     baseline = s.number("baseline_m", 0.020, 0.0, 0.5)
@@ -695,7 +700,18 @@ def _parse_sensor(s: _Section) -> SensorSpec:
     if kind == "point" and beams != 1:
         raise TwinError("sensor.beams applies to kind = 'line' only")
     return SensorSpec(kind, (float(window[0]), float(window[1])), reference, period, sigma,
-                      linearity, resolution, max_inc, baseline, beams, fan, T_fs)
+                      linearity, resolution, max_inc, baseline, beams, fan, T_fs, phase)
+
+
+def _linearity_phase(s: _Section) -> float | None:
+    """``linearity_phase_deg``: a number in [0, 360) or "random" (None: drawn per realization)."""
+    v = s.table.get("linearity_phase_deg", 0.0)
+    if v == "random":
+        s._get("linearity_phase_deg", None)
+        return None
+    if not _is_number(v) or not (0.0 <= v < 360.0):
+        raise TwinError(f'sensor.linearity_phase_deg must be a number in [0, 360) or "random", got {v!r}')
+    return s.number("linearity_phase_deg", 0.0)
 
 
 def _default_hand_eye() -> np.ndarray:

@@ -7,7 +7,8 @@ exactly those, the remaining residual is consistent with the noise, and the fit 
 nothing (document 000's workpiece A from 45 deg: the dome fits at a pose turned 90 deg about
 its axis, and the side-face points that fix that rotation are rejected). What sets such points
 apart from gross errors is not their count but what they would say about the pose, so the
-review asks two questions of the rejected set R against the kept set K, at the fit's pose:
+review asks three questions of the rejected set R against the kept set K, at the fit's pose,
+and a fourth of the fit itself:
 
 1. **Would they matter?** The information the rejected points would carry if they were sound,
    against the kept points', in the direction where the ratio is largest:
@@ -22,7 +23,10 @@ review asks two questions of the rejected set R against the kept set K, at the f
    * one of its poses is the fit's (not distinct, :func:`.global_search.verify.is_distinct`):
      **confirmed**; the fit keeps its verdict.
    * a trusted pose elsewhere that keeps more points: the fit was in a wrong minimum; the
-     search's result is returned (``method`` the local method; the message says so).
+     search's result is returned (``method`` the local method; the message says so), unless
+     the points it rejects in turn cluster (:func:`clustering_ratio` below
+     ``CLUSTER_RATIO``): then neither pose explains every feature (a mirrored part whose one
+     asymmetric feature is all that tells the poses apart) and it is ``POOR_FIT``.
    * a trusted pose elsewhere that keeps as many points: two poses explain the points
      equally well: **AMBIGUOUS**, both in ``solutions``.
    * a pose elsewhere keeping fewer points: the search found nothing better; confirmed.
@@ -35,8 +39,20 @@ review asks two questions of the rejected set R against the kept set K, at the f
    distances from the model, as the points of a missing feature, a fixture or a mirrored part
    lie; spurious returns scatter in both) becomes ``POOR_FIT``, its reason naming the patch.
 
-The review (:func:`localize`) runs on fits that would be trusted, with the outlier rule on and
-at least one point rejected; its outcome is the result's ``rejection_review``. The local
+4. **Does the cost say what the covariance says?** (:func:`profile_checked`, on every fit that
+   would be trusted) The covariance is a quadratic model of the sum of squares. Moved
+   ``PROFILE_SIGMAS`` standard deviations along each determined coordinate (the others
+   following as the covariance says they would: ``m = k C e_j / sqrt(C_jj)``), the model
+   predicts a rise of ``k^2 sigma^2``. Where the sum of squares of the kept points rises by
+   less than ``PROFILE_FRACTION`` of that either way, the points do not fix that direction as
+   stated (a near-symmetry whose only hold is the tessellation or a few points at an edge,
+   where the minimum wanders far beyond the stated deviation): it becomes free and the fit
+   ``UNOBSERVABLE``, its covariance the other coordinates' given the freed ones (a Schur
+   complement).
+
+The review (questions 1-3, :func:`localize`) runs on fits that would be trusted, with the
+outlier rule on and at least one point rejected; its outcome is the result's
+``rejection_review``. The profile (question 4) runs on every fit that would be trusted. The local
 module stays the documents' local fit and never calls it (the global search polishes with it).
 A pose whose kept points leave a direction free is already ``UNOBSERVABLE`` (its directions are
 computed on the kept points), so "removing the rejected points changes which directions are
@@ -54,7 +70,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from algorithms.arraytypes import ArrayLike, FloatArray, Pose
-from algorithms.geometry.se3 import inv_pose, rotation_error_rad, transform_points, translation_error_m
+from algorithms.geometry.se3 import exp_se3, inv_pose, rotation_error_rad, transform_points, translation_error_m
 from algorithms.registration.inputs import finite_rows, mesh_index
 from algorithms.registration.local import DEFAULT_METHOD
 from algorithms.registration.local import localize as local_localize
@@ -67,8 +83,8 @@ if TYPE_CHECKING:
 
     from algorithms.geometry.mesh_index import MeshIndex
 
-__all__ = ["LOAD_BEARING_INFORMATION", "REVIEW_INFORMATION", "RejectedInformation", "localize",
-           "rejected_information", "review_rejected"]
+__all__ = ["LOAD_BEARING_INFORMATION", "PROFILE_FRACTION", "PROFILE_SIGMAS", "REVIEW_INFORMATION",
+           "RejectedInformation", "localize", "profile_checked", "rejected_information", "review_rejected"]
 
 #: The rejected points are reviewed when, were they sound, they would add at least this
 #: fraction of the kept points' information in some direction.
@@ -84,6 +100,17 @@ PATCH_FRACTION = 0.12
 PATCH_SPACING = 3.0
 PATCH_SIMILARITY = 0.2
 PATCH_MIN_POINTS = 10
+#: The profile of the cost (question 4) is taken this many standard deviations along each
+#: determined coordinate, and must rise by at least ``PROFILE_FRACTION`` of the covariance's
+#: prediction (measured on the battery: wrong minima along weak directions rise by 0.04-0.08 of
+#: it at 10 sd, sound fits by 0.97-1.0).
+PROFILE_SIGMAS = 10.0
+#: Rejected points whose mean nearest-neighbour distance is below this fraction of that of as
+#: many points drawn at random from all cluster (a feature, not scattered gross errors).
+CLUSTER_RATIO = 0.5
+#: Random draws of the clustering ratio's reference.
+CLUSTER_DRAWS = 20
+PROFILE_FRACTION = 0.25
 #: The global search's random stream (the review is deterministic).
 REVIEW_SEED = 0
 
@@ -126,11 +153,59 @@ def localize(points: ArrayLike, mesh: trimesh.Trimesh | None = None, method: str
     index = mesh_index(mesh, index)
     result = local_localize(points, method=method, init=init, sigma=sigma, max_iterations=max_iterations,
                             tolerance=tolerance, outlier=outlier, index=index)
-    cfg = outlier_config(outlier)
-    if cfg is None or result.n_outliers == 0 or not result.trusted:
+    if not result.trusted:
         return result
+    cfg = outlier_config(outlier)
     P, rows = finite_rows(points)
-    return review_rejected(result, P[rows], rows, index, sigma=sigma, outlier_cfg=cfg, method=method)
+    if cfg is not None and result.n_outliers > 0:
+        result = review_rejected(result, P[rows], rows, index, sigma=sigma, outlier_cfg=cfg, method=method)
+    return profile_checked(result, P[rows], rows, index)
+
+
+def profile_checked(result: RegistrationResult, Y: FloatArray, rows: np.ndarray,
+                    index: MeshIndex) -> RegistrationResult:
+    """The fit with every determined coordinate whose cost profile is flat made free (module
+    docstring, question 4); unchanged when every coordinate holds or the fit is not trusted.
+
+    Args:
+        result: a fit (its ``inliers`` over the input rows).
+        Y: (M, 3) the finite points it used, world frame [m]; ``rows``: their input rows.
+        index: the model's mesh index.
+    """
+    C = None if result.covariance is None else np.asarray(result.covariance, dtype=np.float64)
+    if not result.trusted or C is None or len(C) == 0 or not result.sigma_m > 0:
+        return result
+    D = np.asarray(result.determined_directions, dtype=np.float64)
+    X = Y[result.inliers[rows]]
+    T = result.T_world_workpiece
+
+    def ssq(T_moved: Pose) -> float:
+        return float(np.sum(index.query(transform_points(inv_pose(T_moved), X)).distance ** 2))
+
+    base, k = ssq(T), PROFILE_SIGMAS
+    rises = []
+    for j in range(len(C)):
+        twist = (k * C[:, j] / np.sqrt(C[j, j])) @ D
+        rise = min(ssq(T @ exp_se3(sign * twist)) for sign in (1.0, -1.0)) - base
+        rises.append(rise / (k**2 * result.sigma_m**2))
+    flat = [j for j, r in enumerate(rises) if r < PROFILE_FRACTION]
+    if not flat:
+        return result
+    keep = [j for j in range(len(C)) if j not in flat]
+    freed = C[:, flat].T @ D
+    freed /= np.linalg.norm(freed, axis=1, keepdims=True)
+    # the kept coordinates' covariance given the freed ones (the Schur complement)
+    C_kept = C[np.ix_(keep, keep)] \
+        - C[np.ix_(keep, flat)] @ np.linalg.solve(C[np.ix_(flat, flat)], C[np.ix_(flat, keep)])
+    words = "; ".join(f"[{', '.join(f'{v:+.2f}' for v in freed[i])}] rises {rises[j]:.2g} x"
+                      for i, j in enumerate(flat))
+    note = (f"unobservable: the sum of squares {k:g} standard deviations along {len(flat)} direction(s) rises by less "
+            f"than {PROFILE_FRACTION:g} of what the covariance predicts (twists [omega, v]: {words}): the points do "
+            "not fix them as stated")
+    return replace(result, status=Status.UNOBSERVABLE, message=f"{note}; {result.message}",
+                   determined_directions=D[keep], covariance=C_kept,
+                   free_directions=np.vstack([np.asarray(result.free_directions, dtype=np.float64).reshape(-1, 6),
+                                              freed]))
 
 
 def rejected_information(Y: FloatArray, kept: np.ndarray, T_world_workpiece: Pose,
@@ -184,6 +259,23 @@ def coherent_fraction(X: FloatArray, rejected: np.ndarray, signed_m: FloatArray)
     return float(np.mean(near & similar))
 
 
+def clustering_ratio(X: FloatArray, rejected: np.ndarray) -> float:
+    """The rejected points' mean nearest-neighbour distance over its mean for as many points
+    drawn at random from all of ``X`` (``CLUSTER_DRAWS`` draws, a fixed seed): about 1 for
+    scattered gross errors, well below for the points of one feature; inf for fewer than 3."""
+    m = int(rejected.sum())
+    if m < 3 or m >= len(X):
+        return float("inf")
+    from scipy.spatial import cKDTree
+
+    def mean_nn(P: FloatArray) -> float:
+        return float(cKDTree(P).query(P, k=2)[0][:, 1].mean())
+
+    rng = np.random.default_rng(REVIEW_SEED)
+    reference = np.mean([mean_nn(X[rng.choice(len(X), m, replace=False)]) for _ in range(CLUSTER_DRAWS)])
+    return mean_nn(X[rejected]) / max(float(reference), 1e-300)
+
+
 def review_rejected(result: RegistrationResult, Y: FloatArray, rows: np.ndarray, index: MeshIndex, *,
                     sigma: float | None, outlier_cfg: OutlierConfig, method: str) -> RegistrationResult:
     """The fit after the review of its rejected points (module docstring): the global search's
@@ -195,6 +287,14 @@ def review_rejected(result: RegistrationResult, Y: FloatArray, rows: np.ndarray,
     reviewed = _searched(result, info, Y, rows, index, sigma=sigma, outlier_cfg=outlier_cfg, method=method)
     if reviewed.T_world_workpiece is not result.T_world_workpiece:
         info = rejected_information(Y, reviewed.inliers[rows], reviewed.T_world_workpiece, index)
+        X = transform_points(inv_pose(reviewed.T_world_workpiece), Y)
+        ratio = clustering_ratio(X, ~reviewed.inliers[rows])
+        if reviewed.trusted and ratio < CLUSTER_RATIO:
+            reason = (f"the pose the search found leaves {info.n_rejected} point(s) unexplained that cluster (their "
+                      f"mean nearest-neighbour distance is {ratio:.2f} of that of as many random points): neither "
+                      "pose explains every feature (a mirrored or another part?)")
+            return replace(reviewed, status=Status.POOR_FIT, poor_fit_reason=reason,
+                           message=f"{reviewed.message}; poor fit: {reason}")
     if reviewed.trusted and info.patch:
         reason = (f"the model leaves a coherent patch unexplained: {_rejected_words(info)}, "
                   f"{info.coherent_fraction:.0%} of them side by side at similar distances "

@@ -158,7 +158,19 @@ def _failed(command: str, exc: Exception) -> int:
     raise exc
 
 
+def _plain_logs_unless_terminal() -> None:
+    """Log lines of the compiled libraries and the viewer (Rust's ``env_logger``) without colour
+    codes where stderr is not a terminal (a file, a pipe, a CI log); a user's own setting wins."""
+    try:
+        terminal = sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        terminal = False
+    if not terminal:
+        os.environ.setdefault("RUST_LOG_STYLE", "never")
+
+
 def main(argv: list[str] | None = None) -> int:
+    _plain_logs_unless_terminal()
     output.clear_signal()
     output.clear_committed()
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}

@@ -156,9 +156,9 @@ class Progress:
     stage that runs longer than :data:`TICK_AFTER_S` without a line shows its elapsed time.
     Elsewhere (a pipe, a file, a test) every call is one plain line and nothing is animated,
     so a captured stderr reads as a log. ``quiet`` prints nothing. ``defer`` holds the stage
-    lines until the block ends without an error (a command whose every stage can still refuse
-    its input, as ``twin scan``: a refusal leaves its one error line only). Calls may come from
-    several threads (the pipeline replays one path in the background).
+    lines until :meth:`release` or the block's end without an error (a command whose first
+    stages can still refuse its input, as ``twin scan``: a refusal leaves its one error line
+    only). Calls may come from several threads (the pipeline replays one path in the background).
     """
 
     def __init__(self, command: str, quiet: bool = False, stream: TextIO | None = None,
@@ -199,6 +199,13 @@ class Progress:
             else:
                 self._line(text)
 
+    def release(self) -> None:
+        """Print the held lines and show every later one as it comes (the input can no longer
+        be refused)."""
+        with self._lock:
+            self.defer = False
+            self._flush_held()
+
     def close(self) -> None:
         """Stop the ticking and leave the terminal on a fresh line."""
         self._stop.set()
@@ -218,10 +225,15 @@ class Progress:
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         self.close()
-        if exc_type is None and self._held:
+        if exc_type is None:
+            self._flush_held()
+        self._held.clear()
+
+    def _flush_held(self) -> None:
+        if self._held:
             self.stream.write("".join(f"{line}\n" for line in self._held))
             self.stream.flush()
-        self._held.clear()
+            self._held.clear()
 
     # ------------------------------------------------------------------ internals
     def _line(self, text: str) -> None:

@@ -1,9 +1,18 @@
-"""``twin localize --model MESH --points PLY [...] --json``: find the workpiece's pose.
+"""``twin localize --model MESH --points PLY|--scan DIR [...] --json``: find the workpiece's pose.
 
 Frames: the points are in the world (robot base) frame, the mesh in the workpiece (CAD)
 frame; the printed ``T_world_workpiece`` maps workpiece coordinates to world coordinates
 (``points ~= T_world_workpiece @ model_points``). Mesh and points are read in the same units
 (``--units``, metres by default); everything printed is in metres and radians.
+
+Uncertainty (the JSON's ``uncertainty``): from bare points the covariance is the fit's, the
+residuals taken as independent white noise (``random only``). From a folder ``twin scan`` wrote
+(``--scan``; its points on the scan lines, robot base frame, metres) sigma is the scan's sensor
+and encoder noise (:func:`twin.scan_uncertainty.point_sigma_m`) and the covariance adds the
+sensor's linearity curve as a systematic effect of unknown phase
+(:func:`twin.scan_uncertainty.scan_covariance`: ``random and systematic``). Its 95 % region is
+``m^T C^-1 m <= chi2_0.95(q)``; how often it holds the true error is measured by
+``benchmarks/bench_coverage.py``.
 
 From a start (``--init FILE``) the local method runs (document 000's Algorithm 1); without
 ``--init`` (or with ``--init global``) every orientation is searched first
@@ -69,7 +78,12 @@ def add_parser(sub) -> None:
         ),
     )
     p.add_argument("--model", required=True, help="workpiece mesh (STL, OBJ or PLY), workpiece frame")
-    p.add_argument("--points", required=True, help="measured points (PLY), world frame")
+    p.add_argument("--points", default=None, help="measured points (PLY), world frame")
+    p.add_argument("--scan", default=None, metavar="DIR",
+                   help="instead of --points: a folder written by 'twin scan' (the points on its scan lines, "
+                        "robot base frame, metres); sigma then defaults to the scan's sensor and encoder "
+                        "noise, and the covariance adds the sensor's linearity curve as a systematic "
+                        "effect (Type B)")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS,
                    help=f"pose update of Algorithm 1 (default {DEFAULT_METHOD})")
     p.add_argument("--init", default=None,
@@ -256,11 +270,28 @@ def _exit_code(res, symmetric_asked: bool) -> int:
 
 def run(args: argparse.Namespace) -> int:
     scale = UNIT_SCALE[args.units]
+    if (args.points is None) == (args.scan is None):
+        raise TwinError("give the measured points: exactly one of --points PLY or --scan DIR")
     mesh = read_mesh(args.model, args.units)   # arrays: trimesh only where the method needs it
-    points = _load_points(args.points, args.units)
+    index = MeshIndex(mesh)
+    readings = None
+    if args.scan is not None:
+        from twin.io.scan_files import read_scan_readings
+
+        readings = read_scan_readings(args.scan)
+        points = readings.points_base
+        if len(points) == 0:
+            raise TwinError(f"the scan in {args.scan} has no valid point on its scan lines: nothing to localize")
+    else:
+        points = _load_points(args.points, args.units)
     search = args.init is None or args.init == "global"
     init = None if search else read_init(args.init)
     sigma = None if args.sigma is None else args.sigma * scale
+    if sigma is None and readings is not None:
+        from twin.scan_uncertainty import point_sigma_m
+
+        sigma = point_sigma_m(readings.sensor, readings.noise, readings.q, points,
+                              readings.T_base_workpiece_nominal, index)
     outlier = args.outlier
     if outlier not in ("mad", "none"):
         try:
@@ -275,16 +306,53 @@ def run(args: argparse.Namespace) -> int:
         found = global_localize(points, _as_trimesh(mesh), args.global_method, rng=np.random.default_rng(args.seed),
                                 noise_sigma_m=sigma, outlier=outlier, polish=args.method)
         init = found.T_world_workpiece
-    if symmetric != "none" or args.allowance is not None:
-        return _run_symmetric(args, _as_trimesh(mesh), points, init, sigma, outlier, symmetric, scale)
+    symmetric_asked = symmetric != "none" or args.allowance is not None
     res: RegistrationResult
-    if found is not None:
+    if symmetric_asked:
+        res = _symmetric_result(args, _as_trimesh(mesh), points, init, sigma, outlier, symmetric, scale)
+    elif found is not None:
         res = found
     else:
-        res = localize(points, method=args.method, init=init, sigma=sigma, index=MeshIndex(mesh),
+        res = localize(points, method=args.method, init=init, sigma=sigma, index=index,
                        max_iterations=args.max_iterations, tolerance=args.tolerance, outlier=outlier)
-    _print(res, result_to_json(res), args.json)
-    return _exit_code(res, symmetric_asked=False)
+    res, uncertainty = _with_uncertainty(res, readings, index, sigma, sigma_given=args.sigma is not None)
+    out = result_to_json(res)
+    out["uncertainty"] = uncertainty
+    _print(res, out, args.json)
+    return _exit_code(res, symmetric_asked)
+
+
+def _with_uncertainty(res, readings, index: MeshIndex, sigma: float | None, sigma_given: bool):
+    from twin.scan_uncertainty import scan_covariance
+
+    """The result with the covariance the input supports, and what that covariance holds.
+
+    From a scan folder: the random sources (repeatability, quantisation, encoder noise, from
+    the fit's Cramer-Rao covariance) and the sensor's linearity curve as a systematic effect
+    (:func:`twin.scan_uncertainty.linearity_covariance`). From bare points: the fit's covariance,
+    the residuals taken as independent white noise (a scan's systematic effects are not in it).
+    A ``--sigma`` given with a scan folder is taken as the random sources' sigma.
+    """
+    region = {"coverage_probability": 0.95, "mahalanobis2_max": None,
+              "rule": "the true error's coordinates m lie inside m^T C^-1 m <= mahalanobis2_max with this probability "
+                      "(chi-square quantile, q = the determined directions)"}
+    D = np.asarray(res.determined_directions, dtype=np.float64).reshape(-1, 6)
+    if res.covariance is not None and len(D):
+        from scipy.stats import chi2
+
+        region["mahalanobis2_max"] = float(chi2.ppf(0.95, len(D)))
+    scan = None if readings is None or not sigma else scan_covariance(res, readings, index, sigma, sigma_given)
+    if scan is None:
+        kind = "random only" if res.covariance is not None else "none"
+        words = ("the residuals taken as independent white noise: correlated errors (a sensor's linearity curve, "
+                 "robot-side errors) are not in it; from a scan folder (--scan) the sensor's are")
+        return res, {"kind": kind, "sources": ["white noise (fit sigma)"], "note": words, "coverage_region": region}
+    from dataclasses import replace
+
+    out = {"kind": scan.kind, "sources": list(scan.sources), "covariance_random": scan.random.tolist(),
+           "note": "robot-side systematic errors (kinematics, hand-eye, time skew) are not in it",
+           "coverage_region": region}
+    return replace(res, covariance=scan.total), out
 
 
 def _print(res, out: dict, as_json: bool) -> None:
@@ -310,7 +378,8 @@ def _print(res, out: dict, as_json: bool) -> None:
     C = res.covariance_twist
     if C is not None:
         sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
-        print("1-sigma (workpiece frame): rotation [urad] "
+        kind = out.get("uncertainty", {}).get("kind", "random only")
+        print(f"1-sigma (workpiece frame; {kind}): rotation [urad] "
               + " ".join(f"{v * 1e6:.3f}" for v in sd[:3])
               + ", translation [um] " + " ".join(f"{v * 1e6:.3f}" for v in sd[3:]))
     n = len(out["solutions"])
@@ -392,7 +461,7 @@ def read_allowance(path: str, units: str, default_value: float | None):
     return pts, allowance, groups
 
 
-def _run_symmetric(args, mesh, points, init, sigma, outlier, symmetric, scale) -> int:
+def _symmetric_result(args, mesh, points, init, sigma, outlier, symmetric, scale):
     from algorithms.registration.symmetric import localize_symmetric
 
     res: SymmetricResult | HybridResult
@@ -408,5 +477,4 @@ def _run_symmetric(args, mesh, points, init, sigma, outlier, symmetric, scale) -
         stock = None if args.stock is None else args.stock * scale
         res = localize_hybrid(points, rough, mesh, allowance, groups=groups, symmetric=symmetric,
                               init=init, stock_m=stock, sigma=sigma, outlier=outlier)
-    _print(res, result_to_json(res), args.json)
-    return _exit_code(res, symmetric_asked=True)
+    return res

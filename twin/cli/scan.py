@@ -48,15 +48,22 @@ def run(args: argparse.Namespace) -> int:
         scenario = dataclasses.replace(scenario, noise=scenario.noise.all_off())
     out, rrd = checked_outputs(args)
     t0 = time.perf_counter()
-    # deferred lines: every stage up to the last write can still refuse the input (an unreachable
-    # scan line, a full disk), and a refusal is one line on stderr
+    # deferred lines until every scan line is known reachable: a refused scenario (a part that
+    # cannot be loaded, a pass or a line the arm cannot reach) is one line on stderr; from then
+    # on the stages show as they run
     with reporting(args, "scan", defer=True) as say, Staged(out) as stage:
         realized = realize(scenario)
         say(f"realized the scenario: {len(realized.workpiece.mesh.faces)} triangles, seed {scenario.seed}")
         true_cell = build_cell(realized, "true")
         nominal_cell = build_cell(realized, "nominal")
         say("built the nominal and the true cell")
-        scan = run_scan(realized, nominal_cell, true_cell)
+
+        def reachable(plan) -> None:
+            say(f"planned {int(plan.line.max()) + 1} scan lines, {len(plan.t)} samples at 1 ms: every one reachable; "
+                "simulating")
+            say.release()
+
+        scan = run_scan(realized, nominal_cell, true_cell, reachable=reachable)
         say(f"scanned {len(scan.t)} samples ({scan.t[-1]:.1f} s simulated), {int(scan.valid.sum())} valid")
         write_scan(scan, stage.folder, extra={"recording": str(rrd)} if rrd else None)
         from twin.io.figures import scan_figures

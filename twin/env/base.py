@@ -123,14 +123,14 @@ def seed_realized(scenario: Scenario, workpiece: Workpiece) -> Realized:
     """The scenario as its own seed realizes it (the cells and streams prepared once per
     scenario, e.g. the probe's qualification, the scan arm's clearance cell)."""
     streams = Streams(scenario.seed)
-    return Realized(scenario, workpiece, draw_truth(scenario, streams.generator("kinematics")), streams)
+    return Realized(scenario, workpiece, draw_truth(scenario, streams), streams)
 
 
 def prepare(scenario: Scenario) -> EnvScenario:
     """Mesh, index, nominal cell and view geometry of a scenario (once per environment)."""
     mesh = load_workpiece_mesh(scenario)
     workpiece = Workpiece(mesh, MeshIndex(mesh))
-    realized = Realized(scenario, workpiece, draw_truth(scenario, Streams(scenario.seed).generator("kinematics")),
+    realized = Realized(scenario, workpiece, draw_truth(scenario, Streams(scenario.seed)),
                         Streams(scenario.seed))
     nominal = build_cell(realized, "nominal")
     s = scenario.sensor
@@ -289,7 +289,7 @@ class ActiveLocalizationEnv(gym.Env):
         T_true = sc.workpiece.T_world_workpiece_nominal @ exp_se3(xi)
         sc = replace(sc, seed=seed, workpiece=replace(sc.workpiece, T_world_workpiece_true=T_true))
         streams = Streams(seed)
-        return es, Realized(sc, es.workpiece, draw_truth(sc, streams.generator("kinematics")), streams)
+        return es, Realized(sc, es.workpiece, draw_truth(sc, streams), streams)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

@@ -21,6 +21,7 @@ The commands stage these files in a temporary folder and move it into place at t
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,8 @@ import pyarrow.parquet as pq
 
 from twin.errors import TwinError
 from twin.formats import read_ply
+from twin.scan_uncertainty import ScanReadings
+from twin.scenario import NoiseSpec, SensorSpec
 
 SAMPLES_FILE, POINTS_FILE, META_FILE = "samples.parquet", "points.ply", "scan.json"
 
@@ -123,3 +126,90 @@ def read_points_ply(path: str | Path) -> np.ndarray:
     if not path.is_file():
         raise TwinError(f"points file not found: {path}")
     return read_ply(path).vertices
+
+
+def read_scan_readings(folder: str | Path) -> ScanReadings:
+    """A folder written by ``twin scan`` read back: the valid samples on its scan lines, their
+    points rebuilt from the logged joints and distances (document 004's eq. 2, as the scan
+    did). Raises TwinError with one line when the folder is not a complete scan."""
+    out = Path(folder)
+    if not out.is_dir():
+        raise TwinError(f"--scan must be a folder written by 'twin scan', got {folder}")
+    meta, table = _read_scan_files(out)
+    sensor, noise = _sensor_and_noise(meta, out)
+    try:
+        q = np.column_stack([table.column(f"q{j + 1}").to_numpy() for j in range(6)]).astype(np.float64)
+        line = table.column("line").to_numpy().astype(np.int64)
+        d = _beam_matrix(table.column("d"), len(q)).astype(np.float64)
+        valid = _beam_matrix(table.column("valid"), len(q)).astype(bool)
+        beam_dirs = np.asarray(meta["sensor"]["beam_dirs_sensor"], dtype=np.float64).reshape(-1, 3)
+        T_nominal = np.asarray(meta["T_base_workpiece_nominal"], dtype=np.float64).reshape(4, 4)
+    except (KeyError, TypeError, ValueError, pa.ArrowException) as exc:
+        raise TwinError(f"{out / SAMPLES_FILE} or {out / META_FILE} is not a scan's (columns t, q1..q6, d, valid, "
+                        f"line; sensor.beam_dirs_sensor): {exc}") from None
+    if d.shape[1] != len(beam_dirs) or not np.all(np.isfinite(q)) or not np.all(np.isfinite(T_nominal)):
+        raise TwinError(f"{out}: the samples, the beams and the poses of the scan do not agree "
+                        f"({d.shape[1]} beams per sample, {len(beam_dirs)} beam directions, or a non-finite joint)")
+    return scan_readings(q, d, valid, line, beam_dirs, sensor, noise, T_nominal)
+
+
+def scan_readings(q: np.ndarray, d: np.ndarray, valid: np.ndarray, line: np.ndarray, beam_dirs_sensor: np.ndarray,
+                  sensor: SensorSpec, noise: NoiseSpec, T_base_workpiece_nominal: np.ndarray) -> ScanReadings:
+    """The readings of the valid samples on the scan lines: logged joints ``q`` (N, 6) [rad],
+    distances ``d`` and ``valid`` (N, B), ``line`` (N,) (-1 between lines); the points rebuilt
+    with the believed kinematics and the sensor's (believed) hand-eye."""
+    from algorithms.geometry.kinematics import reconstruct_line_points
+    from twin.robot import UR5E_DH
+    from twin.scan_uncertainty import beam_directions_base
+
+    mask = valid & np.isfinite(d) & (line >= 0)[:, None]
+    points = reconstruct_line_points(q, np.where(mask, d, np.nan), beam_dirs_sensor, UR5E_DH, sensor.T_flange_sensor)
+    beams = beam_directions_base(q, beam_dirs_sensor, sensor.T_flange_sensor)
+    q_points = np.broadcast_to(q[:, None, :], (*mask.shape, 6))[mask]
+    return ScanReadings(points[mask], d[mask], beams[mask], np.ascontiguousarray(q_points), sensor, noise,
+                        np.asarray(T_base_workpiece_nominal, dtype=np.float64))
+
+
+def _read_scan_files(out: Path) -> tuple[dict, pa.Table]:
+    for name in (SAMPLES_FILE, META_FILE):
+        if not (out / name).is_file():
+            raise TwinError(f"{out} is not a scan folder: {name} is missing (write one with 'twin scan')")
+    try:
+        meta = json.loads((out / META_FILE).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise TwinError(f"{out / META_FILE} cannot be read as JSON: {exc}") from None
+    if not isinstance(meta, dict):
+        raise TwinError(f"{out / META_FILE} must hold a JSON object")
+    try:
+        table = pq.read_table(out / SAMPLES_FILE)
+    except (OSError, pa.ArrowException) as exc:
+        raise TwinError(f"{out / SAMPLES_FILE} cannot be read as Parquet: {exc}") from None
+    return meta, table
+
+
+def _beam_matrix(column: pa.ChunkedArray, n: int) -> np.ndarray:
+    """(n, B) values of a plain (B = 1) or fixed-size-list column."""
+    arr = column.combine_chunks()
+    if pa.types.is_fixed_size_list(arr.type):
+        return arr.flatten().to_numpy(zero_copy_only=False).reshape(n, arr.type.list_size)
+    return arr.to_numpy(zero_copy_only=False).reshape(n, 1)
+
+
+def _sensor_and_noise(meta: dict, out: Path) -> tuple[SensorSpec, NoiseSpec]:
+    """The scan's sensor settings and error switches, from its scenario's copy in scan.json."""
+    try:
+        sc = meta["scenario"]
+        s, n = dict(sc["sensor"]), dict(sc["noise"])
+        s["window_m"] = tuple(float(v) for v in s["window_m"])
+        s["T_flange_sensor"] = np.asarray(s["T_flange_sensor"], dtype=np.float64).reshape(4, 4)
+        s.setdefault("linearity_phase_deg", 0.0)
+        n["T_hand_eye_error"] = np.asarray(n["T_hand_eye_error"], dtype=np.float64).reshape(4, 4)
+        sensor, noise = SensorSpec(**s), NoiseSpec(**n)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise TwinError(f"{out / META_FILE} does not describe the scan's sensor and noise (scenario.sensor, "
+                        f"scenario.noise): {exc}") from None
+    numbers = [sensor.sigma_m, sensor.linearity_m, sensor.resolution_m, noise.encoder_sigma_rad]
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 for v in numbers):
+        raise TwinError(f"{out / META_FILE}: the sensor's sigma_m, linearity_m, resolution_m and the encoders' "
+                        f"sigma must be finite, non-negative numbers")
+    return sensor, noise

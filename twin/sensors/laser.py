@@ -12,9 +12,13 @@ scenario's ``[noise]`` table:
   triangulation baseline (sensor +x for the point sensor, +y for the line profiler, whose fan
   lies in the x-z plane), and must face it;
 * ``gaussian``: repeatability noise N(0, sigma^2) along the beam;
-* ``linearity``: a systematic curve ``e(d) = linearity_m * sin(pi * u)``,
-  ``u = 2 (d - reference) / (far - near)``: zero at the reference and at the window ends,
-  +/- ``linearity_m`` in between (the +/-10 um band of the IL-065);
+* ``linearity``: a systematic curve ``e(d) = linearity_m * sin(pi * u + phase)``,
+  ``u = 2 (d - reference) / (far - near)``: one period over the window, within the
+  +/- ``linearity_m`` band (the +/-10 um band of the IL-065); with the default phase 0 it is
+  zero at the reference and at the window ends. A sensor unit's phase is unknown to its user
+  (``linearity_phase_deg = "random"`` draws it per realization); the uncertainty the twin
+  states takes it as uniform (:data:`LINEARITY_VARIANCE_FACTOR`,
+  :func:`twin.scan_uncertainty.linearity_covariance`);
 * ``quantization``: the output rounded to ``resolution_m``.
 
 Status codes per sample (``status`` column): 0 valid, 1 no hit, 2 outside the window,
@@ -35,18 +39,36 @@ from twin.sensors.raycast import BLOCK_RAYS, CellRays
 OCCLUSION_RAY_OFFSET_M = 1e-7
 
 
-def linearity_error_m(d: np.ndarray, sensor: SensorSpec) -> np.ndarray:
-    """The systematic linearity error curve at distance ``d`` [m]."""
+#: The variance of the linearity error at one distance, in units of ``linearity_m^2``: the mean
+#: of ``sin^2`` over a phase uniform in [0, 2 pi) (the arcsine distribution on the band).
+LINEARITY_VARIANCE_FACTOR = 0.5
+
+
+def window_coordinate(d: np.ndarray, sensor: SensorSpec) -> np.ndarray:
+    """``u = 2 (d - reference) / (far - near)``: the distance's place in the window."""
     near, far = sensor.window_m
-    u = 2.0 * (d - sensor.reference_m) / (far - near)
-    return sensor.linearity_m * np.sin(np.pi * u)
+    return 2.0 * (np.asarray(d, dtype=np.float64) - sensor.reference_m) / (far - near)
+
+
+def linearity_error_m(d: np.ndarray, sensor: SensorSpec) -> np.ndarray:
+    """The systematic linearity error curve at distance ``d`` [m] (module docstring)."""
+    if sensor.linearity_phase_deg is None:
+        raise ValueError("the sensor's linearity phase is drawn per realization: use the realized sensor")
+    return sensor.linearity_m * np.sin(np.pi * window_coordinate(d, sensor) + np.radians(sensor.linearity_phase_deg))
 
 
 def sensor_sigma_m(scenario: Scenario) -> float:
+    """Combined standard uncertainty of one distance (GUM) [m] of the scenario's sensor
+    (:func:`reading_uncertainty_m`)."""
+    return reading_uncertainty_m(scenario.sensor, scenario.noise)
+
+
+def reading_uncertainty_m(s: SensorSpec, n: NoiseSpec) -> float:
     """Combined standard uncertainty of one distance (GUM) [m]: repeatability, linearity band
-    (uniform, amplitude / sqrt 3) and quantisation (step / sqrt 12), for the switched-on sources."""
-    s, n = scenario.sensor, scenario.noise
-    var = (s.sigma_m**2 if n.gaussian else 0.0) + ((s.linearity_m / np.sqrt(3)) ** 2 if n.linearity else 0.0) \
+    (a sine of unknown phase: amplitude * sqrt(LINEARITY_VARIANCE_FACTOR)) and quantisation
+    (step / sqrt 12), for the switched-on sources."""
+    var = (s.sigma_m**2 if n.gaussian else 0.0) \
+        + (LINEARITY_VARIANCE_FACTOR * s.linearity_m**2 if n.linearity else 0.0) \
         + ((s.resolution_m / np.sqrt(12)) ** 2 if n.quantization else 0.0)
     return float(np.sqrt(var))
 

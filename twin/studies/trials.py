@@ -19,7 +19,8 @@ Kinds:
   ``measure``), the encoder noise and time skew, rebuilds the points with the nominal
   kinematics and hand-eye, and localizes from the trial's initial pose
   (:func:`algorithms.registration.localize`, sigma :func:`twin.scan_uncertainty.reading_sigma_m`:
-  the sensor's and the encoders' noise).
+  the sensor's and the encoders' noise). Where the scenario leaves the sensor's linearity
+  phase unknown (``linearity_phase_deg = "random"``), each trial draws its own sensor unit.
   Robot-side errors drawn once per scenario (kinematics, hand-eye) stay those of the cached scan.
 * ``full``: :func:`twin.workflows.loop.run` on the scenario with its seed replaced by one drawn from
   the trial's stream; the localization is the loop's own (from the nominal pose).
@@ -37,10 +38,11 @@ the same path on the true part (NaN for the other kinds).
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import mujoco
@@ -60,7 +62,7 @@ from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
 from twin.scan_uncertainty import reading_sigma_m
 from twin.scenario import Scenario, load_scenario, merge_tables
-from twin.sensors.base import RawRays, RaySensor
+from twin.sensors.base import Measurement, RawRays, RaySensor
 from twin.sensors.laser import sensor_sigma_m
 from twin.sim import simulate
 from twin.studies.methods import Outcome, run_method
@@ -204,12 +206,16 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
     return _metrics(out, T_true, len(pts), C)
 
 
-def scan_points(scenario: Scenario, geo: NoiseFreeScan,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The scan redrawn: the sensor's errors on the ideal rays, encoder noise and time skew on
-    the joint log, the points rebuilt with the nominal kinematics and hand-eye (eq. 2);
-    ((N, B, 3) points in the robot base frame [m], (N, B) valid, (N, 6) the joint log)."""
-    meas = geo.sensor.measure(geo.rays, rng, geo.model)
+def scan_measurement(scenario: Scenario, geo: NoiseFreeScan,
+                     rng: np.random.Generator) -> tuple[Measurement, np.ndarray]:
+    """The scan redrawn: the sensor's errors on the ideal rays (this trial's sensor unit where
+    the scenario's linearity phase is "random"), encoder noise and time skew on the joint log;
+    (the measurement, (N, 6) the joint log [rad])."""
+    sensor = geo.sensor
+    if scenario.sensor.linearity_phase_deg is None:
+        sensor = copy.copy(sensor)
+        sensor.spec = replace(sensor.spec, linearity_phase_deg=float(rng.uniform(0.0, 360.0)))
+    meas = sensor.measure(geo.rays, rng, geo.model)
     t, q_log = geo.plan.t, geo.q_enc
     noise = scenario.noise
     if noise.time_skew_s != 0.0:
@@ -217,6 +223,14 @@ def scan_points(scenario: Scenario, geo: NoiseFreeScan,
         q_log = np.column_stack([np.interp(ts, t, q_log[:, j]) for j in range(6)])
     if noise.encoder_sigma_rad > 0:
         q_log = q_log + rng.normal(0.0, noise.encoder_sigma_rad, q_log.shape)
+    return meas, q_log
+
+
+def scan_points(scenario: Scenario, geo: NoiseFreeScan,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`scan_measurement` with the points rebuilt with the nominal kinematics and hand-eye
+    (eq. 2); ((N, B, 3) points in the robot base frame [m], (N, B) valid, (N, 6) the joint log)."""
+    meas, q_log = scan_measurement(scenario, geo, rng)
     return geo.sensor.reconstruct(q_log, meas.d, UR5E_DH, scenario.sensor.T_flange_sensor), meas.valid, q_log
 
 
