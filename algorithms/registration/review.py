@@ -37,7 +37,8 @@ and a fourth of the fit itself:
 3. **Is it a surface the model lacks?** Whatever the search found, a trusted answer whose
    rejected points form a coherent patch (:func:`coherent_fraction`: side by side, at similar
    distances from the model, as the points of a missing feature, a fixture or a mirrored part
-   lie; spurious returns scatter in both) becomes ``POOR_FIT``, its reason naming the patch.
+   lie; spurious returns scatter in both) that would carry at least ``PATCH_INFORMATION`` of
+   the kept points' information becomes ``POOR_FIT``, its reason naming the patch.
 
 4. **Does the cost say what the covariance says?** (:func:`profile_checked`, on every fit that
    would be trusted) The covariance is a quadratic model of the sum of squares. Moved
@@ -100,6 +101,10 @@ PATCH_FRACTION = 0.12
 PATCH_SPACING = 3.0
 PATCH_SIMILARITY = 0.2
 PATCH_MIN_POINTS = 10
+#: ... and a patch makes the fit a poor fit only when its points would carry at least this
+#: fraction of the kept points' information: a table or fixture beyond the part's edges, seen
+#: past a cube's sides, carries 0.05 and leaves the pose alone; the mirrored parts' 0.15.
+PATCH_INFORMATION = 0.1
 #: The profile of the cost (question 4) is taken this many standard deviations along each
 #: determined coordinate, and must rise by at least ``PROFILE_FRACTION`` of the covariance's
 #: prediction (measured on the battery: wrong minima along weak directions rise by 0.04-0.08 of
@@ -295,7 +300,7 @@ def review_rejected(result: RegistrationResult, Y: FloatArray, rows: np.ndarray,
                       "pose explains every feature (a mirrored or another part?)")
             return replace(reviewed, status=Status.POOR_FIT, poor_fit_reason=reason,
                            message=f"{reviewed.message}; poor fit: {reason}")
-    if reviewed.trusted and info.patch:
+    if reviewed.trusted and info.patch and info.ratio >= PATCH_INFORMATION:
         reason = (f"the model leaves a coherent patch unexplained: {_rejected_words(info)}, "
                   f"{info.coherent_fraction:.0%} of them side by side at similar distances "
                   "(a feature the model lacks, a fixture, or another part)")
