@@ -44,9 +44,10 @@ and a fourth of the fit itself:
    would be trusted) The covariance is a quadratic model of the sum of squares. Moved
    ``PROFILE_SIGMAS`` standard deviations along each determined coordinate (the others
    following as the covariance says they would: ``m = k C e_j / sqrt(C_jj)``), the model
-   predicts a rise of ``k^2 sigma^2``. Where the sum of squares of the kept points rises by
-   less than ``PROFILE_FRACTION`` of that either way, the points do not fix that direction as
-   stated (a near-symmetry whose only hold is the tessellation or a few points at an edge,
+   predicts a rise of the sum of squares of ``sum_i (g_i . xi)^2`` (``k^2 sigma^2`` over every
+   point; taken on a regular subset of ``PROFILE_POINTS`` kept points, less the subset's own
+   slope). Where either side rises by less than ``PROFILE_FRACTION`` of that, the points do
+   not fix that direction as stated (a near-symmetry whose only hold is the tessellation or a few points at an edge,
    where the minimum wanders far beyond the stated deviation): it becomes free and the fit
    ``UNOBSERVABLE``, its covariance the other coordinates' given the freed ones (a Schur
    complement).
@@ -107,15 +108,17 @@ PATCH_MIN_POINTS = 10
 PATCH_INFORMATION = 0.1
 #: The profile of the cost (question 4) is taken this many standard deviations along each
 #: determined coordinate, and must rise by at least ``PROFILE_FRACTION`` of the covariance's
-#: prediction (measured on the battery: wrong minima along weak directions rise by 0.04-0.08 of
-#: it at 10 sd, sound fits by 0.97-1.0).
+#: prediction.
 PROFILE_SIGMAS = 10.0
+PROFILE_FRACTION = 0.25
+#: The profile is taken on a regular subset of at most this many kept points, its prediction
+#: from their own information rows.
+PROFILE_POINTS = 500
 #: Rejected points whose mean nearest-neighbour distance is below this fraction of that of as
 #: many points drawn at random from all cluster (a feature, not scattered gross errors).
 CLUSTER_RATIO = 0.5
 #: Random draws of the clustering ratio's reference.
 CLUSTER_DRAWS = 20
-PROFILE_FRACTION = 0.25
 #: The global search's random stream (the review is deterministic).
 REVIEW_SEED = 0
 
@@ -182,17 +185,26 @@ def profile_checked(result: RegistrationResult, Y: FloatArray, rows: np.ndarray,
         return result
     D = np.asarray(result.determined_directions, dtype=np.float64)
     X = Y[result.inliers[rows]]
+    X = X[:: max(1, -(-len(X) // PROFILE_POINTS))]   # a regular subset: the ratio needs no more
     T = result.T_world_workpiece
+    Xm = transform_points(inv_pose(T), X)
+    cp = index.query(Xm)
+    rows_info = information_rows(cp.foot, cp.normal)
+    signed = np.einsum("ij,ij->i", Xm - cp.foot, cp.normal)
 
     def ssq(T_moved: Pose) -> float:
         return float(np.sum(index.query(transform_points(inv_pose(T_moved), X)).distance ** 2))
 
-    base, k = ssq(T), PROFILE_SIGMAS
+    base, k = float(np.sum(cp.distance**2)), PROFILE_SIGMAS
     rises = []
     for j in range(len(C)):
         twist = (k * C[:, j] / np.sqrt(C[j, j])) @ D
-        rise = min(ssq(T @ exp_se3(sign * twist)) for sign in (1.0, -1.0)) - base
-        rises.append(rise / (k**2 * result.sigma_m**2))
+        along = rows_info @ twist
+        predicted = float(np.sum(along**2))
+        # the subset's own slope taken out (zero at the minimum of all the points, not of a subset)
+        slope = -2.0 * float(np.sum(signed * along))
+        rise = min(ssq(T @ exp_se3(sign * twist)) - base - sign * slope for sign in (1.0, -1.0))
+        rises.append(rise / max(predicted, 1e-300))
     flat = [j for j, r in enumerate(rises) if r < PROFILE_FRACTION]
     if not flat:
         return result
