@@ -26,12 +26,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from algorithms.geometry.kinematics import dh_forward
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import inv_pose, transform_points
 from algorithms.registration.result import RegistrationResult
-from algorithms.registration.uncertainty import systematic_covariance
+from algorithms.registration.uncertainty import systematic_response
 from twin.robot import UR5E_DH
 from twin.scan import Scan
 from twin.scenario import NoiseSpec, Scenario, SensorSpec
@@ -60,6 +61,10 @@ class ScanReadings:
     noise: NoiseSpec
     T_base_workpiece_nominal: np.ndarray
 
+
+#: Draws and seed of the Monte Carlo coverage region (:func:`coverage_region_m2`).
+REGION_DRAWS = 20000
+REGION_SEED = 101
 
 #: Joint step of the central differences [rad].
 JOINT_STEP_RAD = 1e-6
@@ -118,6 +123,18 @@ def beam_directions_base(q: np.ndarray, beam_dirs_sensor: np.ndarray, T_flange_s
     return np.einsum("nij,bj->nbi", R, np.asarray(beam_dirs_sensor, dtype=np.float64))
 
 
+def linearity_response(sensor: SensorSpec, d: np.ndarray, beams_world: np.ndarray, points_world: np.ndarray,
+                       T_world_workpiece: np.ndarray, directions: np.ndarray, index: MeshIndex) -> np.ndarray:
+    """(q, 2) how the pose moves along ``directions`` per metre of the linearity curve's
+    ``sin(pi u)`` and ``cos(pi u)`` coefficients (:func:`linearity_covariance`)."""
+    u = window_coordinate(d, sensor)
+    cp = index.query(transform_points(inv_pose(T_world_workpiece), points_world))
+    normals = index.smooth_normals(cp.face, cp.foot)
+    cos_incidence = np.abs(np.einsum("ni,ni->n", beams_world @ T_world_workpiece[:3, :3], normals))
+    basis = np.column_stack([np.sin(np.pi * u), np.cos(np.pi * u)]) * cos_incidence[:, None]
+    return systematic_response(cp.foot, normals, directions, basis)
+
+
 def linearity_covariance(sensor: SensorSpec, d: np.ndarray, beams_world: np.ndarray, points_world: np.ndarray,
                          T_world_workpiece: np.ndarray, directions: np.ndarray, index: MeshIndex) -> np.ndarray:
     """The pose covariance along ``directions`` (q, 6) that the sensor's linearity curve causes,
@@ -127,19 +144,32 @@ def linearity_covariance(sensor: SensorSpec, d: np.ndarray, beams_world: np.ndar
     this sensor unit unknown, uniform: ``e = a sin(pi u) + b cos(pi u)`` with ``a, b``
     uncorrelated, each of variance ``L^2 / 2``. The error moves a point along its beam, so
     along the surface normal by ``e |b . n|``: the two basis functions are taken at each
-    point's measured distance ``d`` and incidence (:func:`algorithms.registration.uncertainty.systematic_covariance`).
+    point's measured distance ``d`` and incidence (:func:`algorithms.registration.uncertainty.systematic_response`).
 
     Args:
         d: (M,) measured distances [m]; beams_world: (M, 3) unit beam directions; points_world:
             (M, 3) the points, all in the frame of ``T_world_workpiece`` (the fit's pose).
     """
-    u = window_coordinate(d, sensor)
-    cp = index.query(transform_points(inv_pose(T_world_workpiece), points_world))
-    normals = index.smooth_normals(cp.face, cp.foot)
-    cos_incidence = np.abs(np.einsum("ni,ni->n", beams_world @ T_world_workpiece[:3, :3], normals))
-    basis = np.column_stack([np.sin(np.pi * u), np.cos(np.pi * u)]) * cos_incidence[:, None]
-    std = np.full(2, sensor.linearity_m * np.sqrt(LINEARITY_VARIANCE_FACTOR))
-    return systematic_covariance(cp.foot, normals, directions, basis, std)
+    G = linearity_response(sensor, d, beams_world, points_world, T_world_workpiece, directions, index)
+    return (G * LINEARITY_VARIANCE_FACTOR * sensor.linearity_m**2) @ G.T
+
+
+def coverage_region_m2(C_random: np.ndarray, G_linearity: np.ndarray, linearity_m: float, C_total: np.ndarray,
+                       p: float = 0.95, draws: int = REGION_DRAWS) -> float:
+    """The squared Mahalanobis radius (against ``C_total``) of the smallest such ellipsoid that
+    holds the pose error with probability ``p`` under the propagated distribution (JCGM 101,
+    Monte Carlo): the random part Gaussian with ``C_random``, the linearity curve
+    ``linearity_m sin(pi u + phase)`` with the phase uniform (``G_linearity`` (q, 2) its response,
+    :func:`linearity_response`). ``draws`` draws from a fixed seed (the same region every time).
+    Where the bounded systematic part dominates, the radius is below the chi-square quantile."""
+    rng = np.random.default_rng(REGION_SEED)
+    phase = rng.uniform(0.0, 2.0 * np.pi, draws)
+    w, V = np.linalg.eigh(0.5 * (C_random + C_random.T))
+    root = V * np.sqrt(np.clip(w, 0.0, None))
+    e = (G_linearity @ (linearity_m * np.vstack([np.sin(phase), np.cos(phase)]))).T \
+        + rng.standard_normal((draws, len(C_total))) @ root.T
+    m2 = np.einsum("ij,ij->i", e, np.linalg.solve(C_total, e.T).T)
+    return float(np.quantile(m2, p))
 
 
 def random_share(covariance: np.ndarray, sensor: SensorSpec, noise: NoiseSpec, sigma_m: float) -> np.ndarray:
@@ -179,12 +209,15 @@ class ScanCovariance:
         total: (q, q) random and systematic, along the result's determined directions.
         random: (q, q) the random sources alone.
         kind: "random and systematic" or "random only"; sources: the sources it holds.
+        region_m2: the 95 % coverage region ``m^T total^-1 m <= region_m2`` of the propagated
+            distribution (:func:`coverage_region_m2`; the chi-square quantile where all is Gaussian).
     """
 
     total: np.ndarray
     random: np.ndarray
     kind: str
     sources: tuple[str, ...]
+    region_m2: float
 
 
 def scan_covariance(localization: RegistrationResult, readings: ScanReadings, index: MeshIndex, sigma_m: float,
@@ -203,11 +236,14 @@ def scan_covariance(localization: RegistrationResult, readings: ScanReadings, in
         C_random = random_share(C_random, s, n, sigma_m)
     sources = [name for name, on in (("repeatability", n.gaussian), ("quantisation", n.quantization),
                                      ("encoder noise", n.encoder_sigma_rad > 0)) if on]
+    q = len(C_random)
     if not (n.linearity and s.linearity_m > 0):
-        return ScanCovariance(C_random, C_random, "random only", tuple(sources))
+        return ScanCovariance(C_random, C_random, "random only", tuple(sources), float(chi2.ppf(0.95, q)))
     D = np.asarray(localization.determined_directions, dtype=np.float64).reshape(-1, 6)
     keep = np.asarray(localization.inliers)
-    C = C_random + linearity_covariance(s, readings.d[keep], readings.beams_base[keep], readings.points_base[keep],
-                                        localization.T_world_workpiece, D, index)
+    G = linearity_response(s, readings.d[keep], readings.beams_base[keep], readings.points_base[keep],
+                           localization.T_world_workpiece, D, index)
+    C = C_random + (G * LINEARITY_VARIANCE_FACTOR * s.linearity_m**2) @ G.T
     sources.append("linearity curve (systematic, Type B: a sine of unknown phase within its band)")
-    return ScanCovariance(C, C_random, "random and systematic", tuple(sources))
+    return ScanCovariance(C, C_random, "random and systematic", tuple(sources),
+                          coverage_region_m2(C_random, G, s.linearity_m, C))

@@ -309,12 +309,19 @@ def systematic_covariance(points: ArrayLike, normals: ArrayLike, directions: Arr
         bias_basis: (N, K) the basis functions' values at the points.
         bias_std: (K,) their coefficients' standard deviations [m].
     """
-    D = np.asarray(directions, dtype=np.float64).reshape(-1, 6)
-    A = information_rows(points, normals) @ D.T
-    Phi = np.asarray(bias_basis, dtype=np.float64)
-    G = np.linalg.lstsq(A, Phi, rcond=None)[0]          # (q, K)
+    G = systematic_response(points, normals, directions, bias_basis)
     s = np.asarray(bias_std, dtype=np.float64)
     return (G * s**2) @ G.T
+
+
+def systematic_response(points: ArrayLike, normals: ArrayLike, directions: ArrayLike,
+                        bias_basis: ArrayLike) -> FloatArray:
+    """(q, K) how the least-squares pose moves along ``directions`` per unit coefficient of each
+    basis function of a systematic error along the normals: ``(A^T A)^-1 A^T phi_k``
+    (:func:`systematic_covariance`)."""
+    D = np.asarray(directions, dtype=np.float64).reshape(-1, 6)
+    A = information_rows(points, normals) @ D.T
+    return np.asarray(np.linalg.lstsq(A, np.asarray(bias_basis, dtype=np.float64), rcond=None)[0], dtype=np.float64)
 
 
 def nearest_along_free(T_world_workpiece: ArrayLike, free_directions: ArrayLike, T_reference: ArrayLike,

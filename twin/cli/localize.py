@@ -349,6 +349,10 @@ def _with_uncertainty(res, readings, index: MeshIndex, sigma: float | None, sigm
         return res, {"kind": kind, "sources": ["white noise (fit sigma)"], "note": words, "coverage_region": region}
     from dataclasses import replace
 
+    region.update(mahalanobis2_max=scan.region_m2,
+                  rule="the true error's coordinates m lie inside m^T C^-1 m <= mahalanobis2_max with this "
+                       "probability under the propagated distribution (JCGM 101 Monte Carlo: the random part "
+                       "Gaussian, the linearity curve's phase uniform)")
     out = {"kind": scan.kind, "sources": list(scan.sources), "covariance_random": scan.random.tolist(),
            "note": "robot-side systematic errors (kinematics, hand-eye, time skew) are not in it",
            "coverage_region": region}
