@@ -156,9 +156,9 @@ def linearity_covariance(sensor: SensorSpec, d: np.ndarray, beams_world: np.ndar
 
 def coverage_region_m2(C_random: np.ndarray, G_linearity: np.ndarray, linearity_m: float, C_total: np.ndarray,
                        p: float = 0.95, draws: int = REGION_DRAWS) -> float:
-    """The squared Mahalanobis radius (against ``C_total``) of the smallest such ellipsoid that
-    holds the pose error with probability ``p`` under the propagated distribution (JCGM 101,
-    Monte Carlo): the random part Gaussian with ``C_random``, the linearity curve
+    """The squared radius ``r2`` of the region ``m^T C_total^-1 m <= r2`` that holds the pose
+    error with probability ``p`` under the propagated distribution (JCGM 101, Monte Carlo):
+    the random part Gaussian with ``C_random``, the linearity curve
     ``linearity_m sin(pi u + phase)`` with the phase uniform (``G_linearity`` (q, 2) its response,
     :func:`linearity_response`). ``draws`` draws from a fixed seed (the same region every time).
     Where the bounded systematic part dominates, the radius is below the chi-square quantile."""

@@ -47,15 +47,18 @@ and a fourth of the fit itself:
    predicts a rise of the sum of squares of ``sum_i (g_i . xi)^2`` (``k^2 sigma^2`` over every
    point; taken on a regular subset of ``PROFILE_POINTS`` kept points, less the subset's own
    slope). Where either side rises by less than ``PROFILE_FRACTION`` of that, the points do
-   not fix that direction as stated (a near-symmetry whose only hold is the tessellation or a few points at an edge,
-   where the minimum wanders far beyond the stated deviation): it becomes free and the fit
-   ``UNOBSERVABLE``, its covariance the other coordinates' given the freed ones (a Schur
-   complement).
+   not fix that direction as stated (a near-symmetry whose only hold is the tessellation or a
+   few points at an edge, where the minimum wanders far beyond the stated deviation): it
+   becomes free and the fit ``UNOBSERVABLE``, its covariance the other coordinates' given the
+   freed ones (a Schur complement). Measured on the battery: the two weak partial views that
+   were ``ok`` 0.53 deg and 0.58 mm off rise by 0.08 and 0.04 of the prediction, sound fits by
+   0.94-1.0.
 
 The review (questions 1-3, :func:`localize`) runs on fits that would be trusted, with the
 outlier rule on and at least one point rejected; its outcome is the result's
-``rejection_review``. The profile (question 4) runs on every fit that would be trusted. The local
-module stays the documents' local fit and never calls it (the global search polishes with it).
+``rejection_review``. The profile (question 4) runs on every fit that would be trusted. The
+local module stays the documents' local fit and never calls it (the global search polishes
+with it).
 A pose whose kept points leave a direction free is already ``UNOBSERVABLE`` (its directions are
 computed on the kept points), so "removing the rejected points changes which directions are
 determined" is covered there. The symmetric pipeline (the loop's localization, from the

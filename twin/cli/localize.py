@@ -11,7 +11,9 @@ residuals taken as independent white noise (``random only``). From a folder ``tw
 and encoder noise (:func:`twin.scan_uncertainty.point_sigma_m`) and the covariance adds the
 sensor's linearity curve as a systematic effect of unknown phase
 (:func:`twin.scan_uncertainty.scan_covariance`: ``random and systematic``). Its 95 % region is
-``m^T C^-1 m <= chi2_0.95(q)``; how often it holds the true error is measured by
+``m^T C^-1 m <= mahalanobis2_max``: from a scan, the propagated distribution's 95 % quantile
+(JCGM 101 Monte Carlo, :func:`twin.scan_uncertainty.coverage_region_m2`); from bare points,
+``chi2_0.95(q)``. How often it holds the true error is measured by
 ``benchmarks/bench_coverage.py``.
 
 From a start (``--init FILE``) the local method runs (document 000's Algorithm 1); without
@@ -81,9 +83,9 @@ def add_parser(sub) -> None:
     p.add_argument("--points", default=None, help="measured points (PLY), world frame")
     p.add_argument("--scan", default=None, metavar="DIR",
                    help="instead of --points: a folder written by 'twin scan' (the points on its scan lines, "
-                        "robot base frame, metres); sigma then defaults to the scan's sensor and encoder "
-                        "noise, and the covariance adds the sensor's linearity curve as a systematic "
-                        "effect (Type B)")
+                        "robot base frame, metres; --units applies to the model only); sigma then defaults to "
+                        "the scan's sensor and encoder noise, and the covariance adds the sensor's linearity "
+                        "curve as a systematic effect (Type B)")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=METHODS,
                    help=f"pose update of Algorithm 1 (default {DEFAULT_METHOD})")
     p.add_argument("--init", default=None,
@@ -323,8 +325,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _with_uncertainty(res, readings, index: MeshIndex, sigma: float | None, sigma_given: bool):
-    from twin.scan_uncertainty import scan_covariance
-
     """The result with the covariance the input supports, and what that covariance holds.
 
     From a scan folder: the random sources (repeatability, quantisation, encoder noise, from
@@ -333,6 +333,8 @@ def _with_uncertainty(res, readings, index: MeshIndex, sigma: float | None, sigm
     the residuals taken as independent white noise (a scan's systematic effects are not in it).
     A ``--sigma`` given with a scan folder is taken as the random sources' sigma.
     """
+    from twin.scan_uncertainty import scan_covariance
+
     region = {"coverage_probability": 0.95, "mahalanobis2_max": None,
               "rule": "the true error's coordinates m lie inside m^T C^-1 m <= mahalanobis2_max with this probability "
                       "(chi-square quantile, q = the determined directions)"}
