@@ -121,7 +121,10 @@ def test_a_failing_recording_leaves_no_folder(tmp_path, monkeypatch):
     monkeypatch.setattr(twin.viz, "save_scan_recording", broken)
     rc, out, err = run_main("scan", short_scenario(tmp_path), "--out", tmp_path / "scan",
                             "--rrd", tmp_path / "scan.rrd")
-    assert one_line_refusal(rc, err) and "No space left on device" in err and out == ""
+    # once every line is known reachable the stages show as they run: the refusal is the last line
+    *stages, last = err.strip().splitlines()
+    assert rc == EXIT_BAD_INPUT and "No space left on device" in last and "Traceback" not in err and out == ""
+    assert stages and all(line.startswith("[scan] ") for line in stages)
     assert not (tmp_path / "scan").exists() and not (tmp_path / "scan.rrd").exists()
     assert leftovers(tmp_path) == []
 

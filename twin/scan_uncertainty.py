@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from algorithms.geometry.kinematics import dh_forward
 from algorithms.geometry.mesh_index import MeshIndex
@@ -238,7 +238,7 @@ def scan_covariance(localization: RegistrationResult, readings: ScanReadings, in
                                      ("encoder noise", n.encoder_sigma_rad > 0)) if on]
     q = len(C_random)
     if not (n.linearity and s.linearity_m > 0):
-        return ScanCovariance(C_random, C_random, "random only", tuple(sources), float(chi2.ppf(0.95, q)))
+        return ScanCovariance(C_random, C_random, "random only", tuple(sources), float(chdtri(q, 0.05)))
     D = np.asarray(localization.determined_directions, dtype=np.float64).reshape(-1, 6)
     keep = np.asarray(localization.inliers)
     G = linearity_response(s, readings.d[keep], readings.beams_base[keep], readings.points_base[keep],

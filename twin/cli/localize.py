@@ -333,17 +333,19 @@ def _with_uncertainty(res, readings, index: MeshIndex, sigma: float | None, sigm
     the residuals taken as independent white noise (a scan's systematic effects are not in it).
     A ``--sigma`` given with a scan folder is taken as the random sources' sigma.
     """
-    from twin.scan_uncertainty import scan_covariance
-
     region = {"coverage_probability": 0.95, "mahalanobis2_max": None,
               "rule": "the true error's coordinates m lie inside m^T C^-1 m <= mahalanobis2_max with this probability "
                       "(chi-square quantile, q = the determined directions)"}
     D = np.asarray(res.determined_directions, dtype=np.float64).reshape(-1, 6)
     if res.covariance is not None and len(D):
-        from scipy.stats import chi2
+        from scipy.special import chdtri  # scipy.stats would load scipy.spatial: start-up time
 
-        region["mahalanobis2_max"] = float(chi2.ppf(0.95, len(D)))
-    scan = None if readings is None or not sigma else scan_covariance(res, readings, index, sigma, sigma_given)
+        region["mahalanobis2_max"] = float(chdtri(len(D), 0.05))
+    scan = None
+    if readings is not None and sigma:
+        from twin.scan_uncertainty import scan_covariance
+
+        scan = scan_covariance(res, readings, index, sigma, sigma_given)
     if scan is None:
         kind = "random only" if res.covariance is not None else "none"
         words = ("the residuals taken as independent white noise: correlated errors (a sensor's linearity curve, "

@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
@@ -30,8 +31,10 @@ import pyarrow.parquet as pq
 
 from twin.errors import TwinError
 from twin.formats import read_ply
-from twin.scan_uncertainty import ScanReadings
-from twin.scenario import NoiseSpec, SensorSpec
+
+if TYPE_CHECKING:   # the module itself stays light: reading points loads neither the cell nor scipy
+    from twin.scan_uncertainty import ScanReadings
+    from twin.scenario import NoiseSpec, SensorSpec
 
 SAMPLES_FILE, POINTS_FILE, META_FILE = "samples.parquet", "points.ply", "scan.json"
 
@@ -160,7 +163,7 @@ def scan_readings(q: np.ndarray, d: np.ndarray, valid: np.ndarray, line: np.ndar
     with the believed kinematics and the sensor's (believed) hand-eye."""
     from algorithms.geometry.kinematics import reconstruct_line_points
     from twin.robot import UR5E_DH
-    from twin.scan_uncertainty import beam_directions_base
+    from twin.scan_uncertainty import ScanReadings, beam_directions_base
 
     mask = valid & np.isfinite(d) & (line >= 0)[:, None]
     points = reconstruct_line_points(q, np.where(mask, d, np.nan), beam_dirs_sensor, UR5E_DH, sensor.T_flange_sensor)
@@ -197,6 +200,8 @@ def _beam_matrix(column: pa.ChunkedArray, n: int) -> np.ndarray:
 
 def _sensor_and_noise(meta: dict, out: Path) -> tuple[SensorSpec, NoiseSpec]:
     """The scan's sensor settings and error switches, from its scenario's copy in scan.json."""
+    from twin.scenario import NoiseSpec, SensorSpec
+
     try:
         sc = meta["scenario"]
         s, n = dict(sc["sensor"]), dict(sc["noise"])
