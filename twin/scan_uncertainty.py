@@ -150,8 +150,14 @@ def linearity_covariance(sensor: SensorSpec, d: np.ndarray, beams_world: np.ndar
         d: (M,) measured distances [m]; beams_world: (M, 3) unit beam directions; points_world:
             (M, 3) the points, all in the frame of ``T_world_workpiece`` (the fit's pose).
     """
-    G = linearity_response(sensor, d, beams_world, points_world, T_world_workpiece, directions, index)
-    return (G * LINEARITY_VARIANCE_FACTOR * sensor.linearity_m**2) @ G.T
+    return linearity_share(linearity_response(sensor, d, beams_world, points_world, T_world_workpiece, directions,
+                                              index), sensor)
+
+
+def linearity_share(G_linearity: np.ndarray, sensor: SensorSpec) -> np.ndarray:
+    """The covariance ``G var G^T`` of the response ``G_linearity`` (q, 2) (:func:`linearity_response`):
+    each coefficient of the curve of variance ``LINEARITY_VARIANCE_FACTOR linearity_m^2``."""
+    return (G_linearity * LINEARITY_VARIANCE_FACTOR * sensor.linearity_m**2) @ G_linearity.T
 
 
 def coverage_region_m2(C_random: np.ndarray, G_linearity: np.ndarray, linearity_m: float, C_total: np.ndarray,
@@ -243,7 +249,7 @@ def scan_covariance(localization: RegistrationResult, readings: ScanReadings, in
     keep = np.asarray(localization.inliers)
     G = linearity_response(s, readings.d[keep], readings.beams_base[keep], readings.points_base[keep],
                            localization.T_world_workpiece, D, index)
-    C = C_random + (G * LINEARITY_VARIANCE_FACTOR * s.linearity_m**2) @ G.T
+    C = C_random + linearity_share(G, s)
     sources.append("linearity curve (systematic, Type B: a sine of unknown phase within its band)")
     return ScanCovariance(C, C_random, "random and systematic", tuple(sources),
                           coverage_region_m2(C_random, G, s.linearity_m, C))
