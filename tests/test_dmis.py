@@ -25,21 +25,25 @@ INCH_M = 0.0254  # one inch [m]
 EXACT_M = 1e-15  # a length converted from inches against its hand-computed value [m]
 
 EXAMPLE = """\
-DMISMN/'inner_sphere document',05.0
-UNITS/MM,ANGDEG
+DMISMN/'inner_sphere document',05.3
+UNITS/MM,ANGDEC
 MODE/PROG,MAN
 SNSET/APPRCH,2.000000
 SNSET/RETRCT,2.000000
 SNSET/SEARCH,5.000000
 SNSET/CLRSRF,30.000000
 SNSLCT/SA(S1)
-GOTO/12.500000,0.000000,93.000000
+GOTO/CART,12.500000,0.000000,93.000000
 F(SPH1_1)=FEAT/POINT,CART,38.729833,0.000000,50.000000,-0.968245837,0.000000000,-0.250000000
 MEAS/POINT,F(SPH1_1),1
 PTMEAS/CART,38.729833,0.000000,50.000000,-0.968245837,0.000000000,-0.250000000
 ENDMES
 ENDFIL
 """
+
+
+#: EXAMPLE as the writer writes it: with the FILNAM line.
+WRITTEN = EXAMPLE.replace("05.3\n", "05.3\nFILNAM/'inner_sphere document',05.3\n", 1)
 
 
 def example_program() -> Program:
@@ -68,7 +72,8 @@ def edited(edits: dict[int, str]) -> str:
 
 def test_writes_the_expected_text() -> None:
     """The hand-written program is written as the documented example, and reads back equal."""
-    assert write_dmis(example_program()) == EXAMPLE
+    assert write_dmis(example_program()) == WRITTEN
+    assert parse_dmis(WRITTEN) == example_program()
     assert parse_dmis(EXAMPLE) == example_program()
 
 
@@ -117,7 +122,7 @@ def test_file_round_trip(tmp_path: Path) -> None:
     """write_dmis_file and read_dmis: the program back, the text on disk as write_dmis gives it."""
     path = tmp_path / "example.dmi"
     write_dmis_file(example_program(), path)
-    assert path.read_bytes() == EXAMPLE.encode("utf-8")
+    assert path.read_bytes() == WRITTEN.encode("utf-8")
     assert read_dmis(path) == example_program()
     assert read_dmis(str(path)) == example_program()
 
@@ -138,8 +143,8 @@ def test_a_setting_below_the_grid_is_refused() -> None:
 
 
 def test_inch_units_read_as_metres() -> None:
-    """UNITS/INCH,ANGDEG: lengths are inches (25.4 mm); normals are unitless."""
-    text = edited({2: "UNITS/INCH,ANGDEG", 4: "SNSET/APPRCH,0.1", 9: "GOTO/1,0,-2",
+    """UNITS/INCH,ANGDEC: lengths are inches (25.4 mm); normals are unitless."""
+    text = edited({2: "UNITS/INCH,ANGDEC", 4: "SNSET/APPRCH,0.1", 9: "GOTO/1,0,-2",
                    10: "F(P1)=FEAT/POINT,CART,0.5,0,0,0,0,1", 11: "MEAS/POINT,F(P1),1",
                    12: "PTMEAS/CART,0.5,0,0,0,0,1"})
     program = parse_dmis(text)
@@ -212,15 +217,15 @@ MEASURE = f"{FEAT}\nMEAS/POINT,F(SPH1_1),1\n{PTMEAS}\nENDMES"
 
 REFUSALS: list[tuple[str, str, int, str]] = [
     # id, text, line, a piece of the message
-    ("unknown word", edited({9: "FOO/1,2"}), 9, "FOO is not a statement this subset knows: .*DMISMN, UNITS"),
+    ("unknown word", edited({9: "FOO/1,2"}), 9, "FOO is not a statement this subset knows: .*DMISMN, FILNAM, UNITS"),
     ("DMIS word not run", edited({9: "CONST/POINT,F(X),MOVEPT,F(SPH1_1),1"}), 9, "CONST is a DMIS statement this "
      "subset does not run"),
     ("not a statement", edited({9: "12,3"}), 9, "not a statement"),
     ("missing slash", edited({9: "GOTO 12.5,0,93"}), 9, "missing '/'"),
     ("missing slash in SNSET", edited({4: "SNSET APPRCH,2"}), 4, "missing '/'"),
     ("ENDFIL with fields", edited({14: "ENDFIL/1"}), 14, "ENDFIL stands alone"),
-    ("too few fields", edited({9: "GOTO/12.5,0"}), 9, "GOTO takes 3 fields"),
-    ("too many fields", edited({9: "GOTO/12.5,0,93,4"}), 9, "GOTO takes 3 fields"),
+    ("too few fields", edited({9: "GOTO/12.5,0"}), 9, "GOTO takes 3 coordinates"),
+    ("too many fields", edited({9: "GOTO/12.5,0,93,4"}), 9, "GOTO takes 3 coordinates"),
     ("FEAT fields", edited({10: "F(SPH1_1)=FEAT/POINT,CART,38.729833,0,50"}), 10, "FEAT takes 8 fields"),
     ("non-number", edited({9: "GOTO/12.5,abc,93"}), 9, "GOTO coordinate y must be a number"),
     ("nan", edited({9: "GOTO/12.5,nan,93"}), 9, "must be a number"),
@@ -235,8 +240,8 @@ REFUSALS: list[tuple[str, str, int, str]] = [
     ("label on GOTO", edited({9: "F(X)=GOTO/12.5,0,93"}), 9, "GOTO takes no label assignment"),
     ("not a point", edited({10: FEAT.replace("POINT", "CIRCLE")}), 10, "point features only"),
     ("not CART", edited({10: FEAT.replace("CART", "POL")}), 10, "CART"),
-    ("units CM", edited({2: "UNITS/CM,ANGDEG"}), 2, "UNITS/MM,ANGDEG and UNITS/INCH,ANGDEG"),
-    ("units radians", edited({2: "UNITS/MM,ANGRAD"}), 2, "the units accepted are"),
+    ("units CM", edited({2: "UNITS/CM,ANGDEC"}), 2, "UNITS/MM or UNITS/INCH, with ANGDEC"),
+    ("units degrees and minutes only", edited({2: "UNITS/MM"}), 2, "the units accepted are"),
     ("mode", edited({3: "MODE/AUTO"}), 3, "the modes accepted are MODE/PROG,MAN"),
     ("SNSET word", edited({4: "SNSET/DEPTH,2"}), 4, "the SNSET words accepted are APPRCH, RETRCT, SEARCH, CLRSRF"),
     ("SNSET zero", edited({5: "SNSET/RETRCT,0"}), 5, "SNSET/RETRCT distance 0 is not positive"),

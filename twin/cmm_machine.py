@@ -323,8 +323,9 @@ def execute(program: Program, setup: CmmSetup, rng: np.random.Generator) -> CmmR
         if mv.kind == "probe":
             # the retract (the next move) starts where the machine stopped
             back = moves[i + 1]
-            hit, q = _probe(machine, q, mv, measures[mv.statement], (head_of(back.end_m, back.stylus), back.statement),
-                            program.settings.search_m, setup, rng)
+            st = measures[mv.statement]
+            hit, q = _probe(machine, q, mv, st, (head_of(back.end_m, back.stylus), back.statement),
+                            (st.settings or program.settings).search_m, setup, rng)
             hits.append(hit)
             i += 2
             continue

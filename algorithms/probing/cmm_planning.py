@@ -126,9 +126,10 @@ def program_moves(program: Program, styli: dict[str, StylusReach]) -> list[Move]
             raise AlgorithmError(f"statement {k + 1} measures before the first GOTO: the program must say where "
                                  "the probe starts")
         r = styli[stylus].ball_radius_m
-        a = st.approach_centre(r, s.approach_m)
+        here = st.settings or s
+        a = st.approach_centre(r, here.approach_m)
         touch = np.asarray(st.point_m) + r * np.asarray(st.normal)
-        back = st.approach_centre(r, s.retract_m)
+        back = st.approach_centre(r, here.retract_m)
         out += [Move(cur, a, stylus, "approach", k), Move(a, touch, stylus, "probe", k),
                 Move(touch, back, stylus, "retract", k)]
         cur = back

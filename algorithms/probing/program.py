@@ -80,11 +80,14 @@ class SelectStylus:
 @dataclass(frozen=True)
 class MeasurePoint:
     """A point feature ``label`` measured by one touch at ``point_m`` (part frame) [m], probed
-    along ``-normal`` (``normal``: the unit outward surface normal there)."""
+    along ``-normal`` (``normal``: the unit outward surface normal there); ``settings``: the
+    probing distances of this touch where they differ from the program's (a DMIS program may set
+    ``SNSET`` again between touches), else None."""
 
     label: str
     point_m: tuple[float, float, float]
     normal: tuple[float, float, float]
+    settings: ProbeSettings | None = None
 
     def __post_init__(self) -> None:
         check_label(self.label, "feature")
@@ -97,6 +100,9 @@ class MeasurePoint:
         if not on_grid:  # a normal already unit on the 9-decimal grid is kept as it is
             n = np.round(n / norm, NORMAL_DECIMALS)
         object.__setattr__(self, "normal", tuple(float(x) for x in n))
+        if self.settings is not None and not isinstance(self.settings, ProbeSettings):
+            raise AlgorithmError(f"settings of {self.label} must be ProbeSettings or None, got "
+                                 f"{type(self.settings).__name__}")
 
     def approach_centre(self, ball_radius_m: float, approach_m: float) -> FloatArray:
         """The ball centre at the start of the probing move [m]."""

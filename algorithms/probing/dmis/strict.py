@@ -1,18 +1,22 @@
-"""DMIS 5 text for measurement programs (:class:`~algorithms.probing.program.Program`): a writer
-and a strict parser of the subset the programs use.
+"""DMIS 5.3 text for measurement programs (:class:`~algorithms.probing.program.Program`): the
+writer, and the strict reader of exactly what the writer writes (real programs from measurement
+software are read by :mod:`algorithms.probing.dmis.reader`).
 
 The subset, one statement per line (DMIS ``$$`` comment lines and blank lines are ignored;
 statements may be upper or lower case, with spaces around commas)::
 
-    DMISMN/'name',05.0                      the program's name; version 05.0 to 05.3 (or 5.0 to 5.3)
-    UNITS/MM,ANGDEG                         or UNITS/INCH,ANGDEG (25.4 mm); MM until one is given
+    DMISMN/'name',05.3                      the program's name; version 05.0 to 05.3 (or 5.0 to 5.3)
+    FILNAM/'name',05.3                      optional: the name of the output file (ignored)
+    UNITS/MM,ANGDEC                         or UNITS/INCH,ANGDEC (25.4 mm); MM until one is given
+                                            (ANGDMS and ANGRAD too; ANGDEG, which earlier versions of
+                                            this writer wrote and no DMIS reader knows, is still read)
     MODE/PROG,MAN                           also MODE/AUTO,PROG,MAN and MODE/MAN
     SNSET/APPRCH,d                          the four probing distances of ProbeSettings, each once,
     SNSET/RETRCT,d                          all before the first motion statement (SNSLCT, GOTO, MEAS)
     SNSET/SEARCH,d
     SNSET/CLRSRF,d
     SNSLCT/SA(stylus)                       SelectStylus
-    GOTO/x,y,z                              Goto
+    GOTO/CART,x,y,z                         Goto (GOTO/x,y,z too)
     F(label)=FEAT/POINT,CART,x,y,z,i,j,k    MeasurePoint: the nominal point and its outward normal,
     MEAS/POINT,F(label),1                   measured by one touch whose PTMEAS repeats the nominal
     PTMEAS/CART,x,y,z,i,j,k                 point and normal (the normal gives the approach
@@ -58,17 +62,18 @@ from algorithms.probing.program import (
 )
 
 #: The DMIS version the writer puts in ``DMISMN``.
-DMIS_VERSION = "05.0"
+DMIS_VERSION = "05.3"
 
 #: The major words this subset runs, in the order a file uses them.
-ACCEPTED_WORDS = ("DMISMN", "UNITS", "MODE", "SNSET", "SNSLCT", "GOTO", "FEAT", "MEAS", "PTMEAS", "ENDMES",
+ACCEPTED_WORDS = ("DMISMN", "FILNAM", "UNITS", "MODE", "SNSET", "SNSLCT", "GOTO", "FEAT", "MEAS", "PTMEAS", "ENDMES",
                   "ENDFIL")
 
 #: The ``SNSET`` words and the :class:`ProbeSettings` fields they set.
 SNSET_WORDS = {"APPRCH": "approach_m", "RETRCT": "retract_m", "SEARCH": "search_m", "CLRSRF": "clearance_m"}
 
 #: Millimetres per file unit, by ``UNITS`` statement.
-UNITS_MM = {("MM", "ANGDEG"): 1.0, ("INCH", "ANGDEG"): 25.4}
+UNITS_MM = {(length, angle): mm for length, mm in (("MM", 1.0), ("INCH", 25.4))
+            for angle in ("ANGDEC", "ANGDMS", "ANGRAD", "ANGDEG")}
 
 #: The accepted ``MODE`` statements.
 MODES = {("PROG", "MAN"), ("AUTO", "PROG", "MAN"), ("MAN",)}
@@ -86,7 +91,7 @@ _OTHER_DMIS_WORDS = frozenset("""
     ACLRAT ALGDEF ASSIGN BADTST BOUND CALIB CALL CASE CLMPID CLMPSN CLOSE CMPNTGRP CNFRMRUL CONST
     CRGDEF CRMODE CROSCL CRSLCT CZONE CZSLCT DATDEF DATSET DATTRGDEF DECL DECPL DELETE DEVICE DFTCAS
     DISPLY DMEHW DMEID DMESWI DMESWV DMISMD DO ELSE ENDAS ENDCAS ENDDO ENDGO ENDIF ENDMAC ENDSEL
-    ENDSIMREQT ENDX EQUATE ERROR EVAL EXTENS EXTFIL FEDRAT FILDEF FILNAM FINPOS FIXTID FIXTSN FROM
+    ENDSIMREQT ENDX EQUATE ERROR EVAL EXTENS EXTFIL FEDRAT FILDEF FINPOS FIXTID FIXTSN FROM
     GEOALG GEOM GOHOME GOTARG GROUP IF INCLUD ITERAT JUMPTO KEYCHAR LITDEF LOCATE LOTID MACRO MFGDEV
     OBTAIN OPEN OPERID OUTPUT PAMEAS PARTID PARTRV PARTSN PLANID POP PRCOMP PREVOP PROCID PROMPT
     PSTHRU PTBUFF PUSH QISDEF RAPID READ RECALL REFMNT REPORT RESUME RMEAS ROTAB ROTATE ROTDEF ROTSET
@@ -130,22 +135,32 @@ def write_dmis(program: Program) -> str:
     """The DMIS text of ``program`` (millimetres; see the module docstring).
 
     Positions and normals are on the grid the file carries, so they read back exactly;
-    ProbeSettings are not snapped, and a setting off the 1 nm grid is written rounded to it.
+    ProbeSettings are not snapped, and a setting off the 1 nm grid is written rounded to it. A
+    point with its own settings is preceded by the ``SNSET`` statements that change them (such a
+    program is read back by :func:`algorithms.probing.dmis.reader.parse_program`; this module's
+    strict reader sets each distance once).
     """
     if not isinstance(program, Program):
         raise AlgorithmError(f"write_dmis takes a Program, got {type(program).__name__}")
-    lines = [f"DMISMN/'{program.name}',{DMIS_VERSION}", "UNITS/MM,ANGDEG", "MODE/PROG,MAN"]
+    lines = [f"DMISMN/'{program.name}',{DMIS_VERSION}", f"FILNAM/'{program.name}',{DMIS_VERSION}", "UNITS/MM,ANGDEC",
+             "MODE/PROG,MAN"]
     for word, name in SNSET_WORDS.items():
         value = getattr(program.settings, name)
         if _snap_m(value) <= 0.0:
             raise AlgorithmError(f"probe setting {name} = {value!r} m rounds to 0 on the 1 nm grid a DMIS file "
                                  "carries: settings must be at least 0.5 nm")
         lines.append(f"SNSET/{word},{_mm(value)}")
+    in_force = program.settings
     for s in program.statements:
+        if isinstance(s, MeasurePoint) and (s.settings or program.settings) != in_force:
+            wanted = s.settings or program.settings
+            lines += [f"SNSET/{word},{_mm(getattr(wanted, name))}" for word, name in SNSET_WORDS.items()
+                      if getattr(wanted, name) != getattr(in_force, name)]
+            in_force = wanted
         if isinstance(s, SelectStylus):
             lines.append(f"SNSLCT/SA({_writable_label(s.name, 'stylus')})")
         elif isinstance(s, Goto):
-            lines.append("GOTO/" + ",".join(_mm(x) for x in s.xyz_m))
+            lines.append("GOTO/CART," + ",".join(_mm(x) for x in s.xyz_m))
         elif isinstance(s, MeasurePoint):
             label = _writable_label(s.label, "feature")
             nominal = ",".join([*(_mm(x) for x in s.point_m), *(_unit(c) for c in s.normal)])
@@ -364,8 +379,8 @@ class _Parser:
     def do_units(self, st: _Statement) -> None:
         units = tuple(f.upper() for f in st.fields)
         if units not in UNITS_MM:
-            self.fail(f"UNITS {_show(st.rest)} is not read: the units accepted are UNITS/MM,ANGDEG and "
-                      "UNITS/INCH,ANGDEG")
+            self.fail(f"UNITS {_show(st.rest)} is not read: the units accepted are UNITS/MM or UNITS/INCH, with "
+                      "ANGDEC, ANGDMS or ANGRAD")
         self.mm_per_unit = UNITS_MM[units]  # type: ignore[index]
 
     def do_mode(self, st: _Statement) -> None:
@@ -399,10 +414,16 @@ class _Parser:
             self.fail(f"SNSLCT takes a stylus as SA(label), got {_show(st.fields[0])}")
         self.statements.append(SelectStylus(self.label(m.group(2), "stylus")))
 
+    def do_filnam(self, st: _Statement) -> None:
+        if not re.fullmatch(r"'[^']*'\s*(,.*)?", st.rest.strip()):
+            self.fail(f"FILNAM takes 'name',version, got {_show(st.rest)}")
+
     def do_goto(self, st: _Statement) -> None:
-        form = "GOTO/x,y,z"
-        self.count(st, 3, form)
-        xyz = [self.length_m(f, f"GOTO coordinate {a}", form) for a, f in zip("xyz", st.fields, strict=True)]
+        form = "GOTO/CART,x,y,z or GOTO/x,y,z"
+        fields = st.fields[1:] if st.fields and st.fields[0].upper() == "CART" else st.fields
+        if len(fields) != 3:
+            self.fail(f"GOTO takes 3 coordinates ({form}), got {_show(st.rest)}")
+        xyz = [self.length_m(f, f"GOTO coordinate {a}", form) for a, f in zip("xyz", fields, strict=True)]
         self.statements.append(Goto(tuple(xyz)))  # type: ignore[arg-type]
 
     def do_feat(self, st: _Statement) -> None:
