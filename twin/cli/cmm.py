@@ -9,6 +9,11 @@
   time) and ``hits.csv``.
 * ``twin cmm compare TEACH SCENARIO --out DIR``: both for all three planners, with the table
   side by side (``report.md``) and one recording with each program on its own entity.
+* ``twin cmm check PROGRAM.dmi [SCENARIO --out DIR]``: read a DMIS program as measurement
+  software writes it (:mod:`algorithms.probing.dmis.reader`) and list its features, tolerances,
+  moves, stylus changes and every statement not run; with a scenario, run it in the twin and
+  evaluate its tolerances: ``output.dmo`` (DMIS output), ``results.csv``, ``report.html``,
+  ``report.json``, ``hits.csv``.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from twin.cli.common import (
     EXIT_OK,
     EXIT_UNTRUSTED,
     add_output_options,
+    add_print_options,
     checked_outputs,
     non_negative_int,
     number,
@@ -38,6 +44,10 @@ PLAN_FILE = "plan.json"
 REPORT_FILE = "report.json"
 TABLE_FILE = "report.md"
 HITS_FILE = "hits.csv"
+DMO_FILE = "output.dmo"
+RESULTS_FILE = "results.csv"
+PAGE_FILE = "report.html"
+CHECK_FILE = "check.json"
 PLANNER_CHOICES = ("all", "baseline", "document", "full_check")
 
 
@@ -83,6 +93,31 @@ def add_parser(sub) -> None:
     pc.add_argument("--no-rrd", action="store_true", help="do not write DIR/cmm.rrd")
     add_output_options(pc, "output folder (created; refused if it exists, unless --force)")
     pc.set_defaults(run=run_compare)
+
+    pk = cmd.add_parser("check", help="read a DMIS program from measurement software; with a scenario, run it and "
+                                      "evaluate its tolerances",
+                        description="Read PROGRAM (DMIS 5.3 as measurement software writes it: UTF-8 or Latin-1, "
+                                    "$ continuations, variables, IF/JUMPTO/DO, macros, CALL/EXTERN) and list what it "
+                                    "measures, moves and evaluates, and every statement not run with its line. With "
+                                    "SCENARIO (machine = \"cmm\"), run it in the twin's CMM at 1 ms and evaluate its "
+                                    f"tolerances on the measured points: DIR/{DMO_FILE} (DMIS output), "
+                                    f"DIR/{RESULTS_FILE}, DIR/{PAGE_FILE}, DIR/{REPORT_FILE}, DIR/{HITS_FILE}.",
+                        epilog=f"exit status: {EXIT_OK} read (and, with a scenario: every touch hit, no unintended "
+                               "contact, every tolerance evaluated and in); 2 bad input or a statement that moves the "
+                               f"machine and is not run (nothing written); {EXIT_UNTRUSTED} ran, but a touch missed, "
+                               "the probe hit the part, or a tolerance is out or could not be evaluated")
+    pk.add_argument("program", help="DMIS program (.dmi, .dms, ...)")
+    pk.add_argument("scenario", nargs="?", help='scenario TOML file with machine = "cmm" (omit to only read)')
+    pk.add_argument("--stylus", action="append", default=[], metavar="PROGRAM=MACHINE",
+                    help="run the program's stylus PROGRAM (its SNSLCT label) as the machine's stylus MACHINE; "
+                         "repeat for each")
+    pk.add_argument("--seed", type=non_negative_int, help="random stream of the probe and scales (default: scenario)")
+    pk.add_argument("--out", help=f"output folder (created; refused if it exists, unless --force); without a "
+                                  f"scenario optional: DIR/{CHECK_FILE}")
+    pk.add_argument("--rrd", help="also write a rerun recording to this .rrd file")
+    pk.add_argument("--force", action="store_true", help="replace an existing output folder (and recording) whole")
+    add_print_options(pk)
+    pk.set_defaults(run=run_check)
 
 
 def _setup(path: str):
@@ -213,3 +248,108 @@ def run_compare(args: argparse.Namespace) -> int:
                                      f"{s['misses']} misses") for m, s in summary.items()], indent=2)
     full = summary["full_check"]
     return EXIT_UNTRUSTED if full["contacts"] or full["misses"] or full["unresolved"] else EXIT_OK
+
+
+def _stylus_map(items: list[str]) -> dict[str, str]:
+    from twin.errors import TwinError
+
+    out: dict[str, str] = {}
+    for item in items:
+        program, eq, machine = item.partition("=")
+        if not eq or not program.strip() or not machine.strip():
+            raise TwinError(f"--stylus {item!r} is not PROGRAM=MACHINE (a stylus label of the program, '=', one of "
+                            "the machine's)")
+        out[program.strip().upper()] = machine.strip()
+    return out
+
+
+def _check_rows(s: dict) -> list[tuple[str, str]]:
+    skipped = [n for n in s["notices"] if n["kind"] == "skipped"]
+    rows = [("program", f"{s['program']} ({s['encoding']}, {len(s['files'])} file(s), "
+                        f"{s['statements_executed']} statements executed)"),
+            ("features", f"{len(s['features'])}, {len(s['measurements'])} measured with {s['touches']} touches"),
+            ("moves", f"{s['moves']} GOTOs, {len(s['stylus_changes'])} stylus changes "
+                      f"({', '.join(sorted({c['stylus'] for c in s['stylus_changes']})) or 'none'})"),
+            ("evaluation", f"{len(s['constructions'])} constructions, {len(s['alignments'])} alignments, "
+                           f"{len(s['tolerances'])} tolerances, {len(s['outputs'])} outputs"),
+            ("not run", f"{len(skipped)} statements skipped, {len(s['notices']) - len(skipped)} warnings")]
+    words: dict[str, list[int]] = {}
+    for n in skipped:
+        words.setdefault(n["word"] or "(free text)", []).append(n["line"])
+    for word, lines in sorted(words.items(), key=lambda kv: -len(kv[1]))[:8]:
+        rows.append((f"  {word}", f"{len(lines)} (line {', '.join(map(str, lines[:5]))}{', ...' if len(lines) > 5 else ''})"))
+    return rows
+
+
+def run_check(args: argparse.Namespace) -> int:
+    from algorithms.errors import AlgorithmError
+    from algorithms.probing.dmis.reader import read_program
+    from twin.errors import TwinError
+    from twin.io.dmis_files import summary
+
+    stylus_names = _stylus_map(args.stylus)
+    if args.scenario is not None and args.out is None:
+        raise TwinError("twin cmm check with a SCENARIO runs the program: give --out DIR for its results")
+    if args.scenario is None and (args.rrd or args.stylus or args.seed is not None):
+        raise TwinError("--rrd, --stylus and --seed need a SCENARIO to run the program on")
+    try:
+        model = read_program(args.program)
+    except AlgorithmError as exc:
+        raise TwinError(str(exc)) from None
+    info = summary(model)
+    if args.scenario is None:
+        if args.out is not None:
+            out, _ = checked_outputs(args)
+            with Staged(out) as stage:
+                write_json(stage.folder / CHECK_FILE, info)
+                stage.commit()
+        print_result(args, info, _check_rows(info), indent=2)
+        return EXIT_OK
+    return _run_check(args, model, info, stylus_names)
+
+
+def _run_check(args: argparse.Namespace, model, info: dict, stylus_names: dict[str, str]) -> int:
+    from algorithms.probing.dmis.output import write_output
+    from twin.io.cmm_files import run_report, write_hits_csv
+    from twin.io.dmis_files import results, write_results_csv, write_results_html
+    from twin.workflows.cmm import run_dmis
+
+    setup = _setup(args.scenario)
+    out, rrd = checked_outputs(args)
+    t0 = time.perf_counter()
+    with reporting(args, "cmm check") as say, Staged(out) as stage:
+        dr = run_dmis(model, setup, _rng(setup, args.seed), stylus_names)
+        run = run_report(dr.run)
+        ev = dr.evaluation
+        say(f"ran {model.name!r}: {dr.run.cycle_time_s:.1f} s, {len(dr.run.contacts)} contacts, {dr.run.misses} misses")
+        checks = [("every touch hit", run["misses"] == 0, f"{run['misses']} of {run['measured_points']} missed"),
+                  ("no unintended contact", run["contacts"] == 0, f"{run['contacts']} contacts"),
+                  ("every tolerance evaluated", all(t.in_tolerance is not None for t in ev.tolerances),
+                   f"{sum(t.in_tolerance is None for t in ev.tolerances)} of {len(ev.tolerances)} not evaluated"),
+                  ("every tolerance in", all(t.in_tolerance is not False for t in ev.tolerances),
+                   f"{sum(t.in_tolerance is False for t in ev.tolerances)} of {len(ev.tolerances)} out")]
+        verdict = "PASS" if all(ok for _, ok, _ in checks) else "FAIL"
+        report: dict[str, Any] = {"verdict": verdict, "checks": [{"check": c, "pass": ok, "detail": d}
+                                                                 for c, ok, d in checks],
+                                  "scenario": str(args.scenario), "dmis": str(args.program), "program": info,
+                                  "results": results(ev), "run": run}
+        (stage.folder / DMO_FILE).write_text(write_output(model, ev), encoding="utf-8")
+        write_results_csv(stage.folder / RESULTS_FILE, ev)
+        write_results_html(stage.folder / PAGE_FILE, model, ev, run, checks, verdict)
+        write_hits_csv(stage.folder / HITS_FILE, dr.run)
+        if rrd is not None:
+            from twin.viz.cmm import save_cmm_recording
+
+            save_cmm_recording(stage.file(rrd), setup, {"program": dr.run})
+            report["recording"] = str(rrd)
+        report["wall_s"] = round(time.perf_counter() - t0, 2)
+        write_json(stage.folder / REPORT_FILE, report)
+        stage.commit()
+    rows = [("verdict", verdict)] + [(f"  {c}", ("pass" if ok else "FAIL") + f" ({d})") for c, ok, d in checks]
+    for t in ev.tolerances:
+        value = "not evaluated: " + t.note if t.in_tolerance is None else (
+            f"{1e3 * (t.actual_m or 0.0):.4f} mm in [{1e3 * (t.lower_m or 0.0):.4f}, {1e3 * (t.upper_m or 0.0):.4f}]"
+            f" {'in' if t.in_tolerance else 'OUT'}")
+        rows.append((f"  {t.label} ({t.kind} {','.join(t.features)})", value))
+    print_result(args, {k: report[k] for k in ("verdict", "checks", "results", "run")}, rows, indent=2)
+    return EXIT_OK if verdict == "PASS" else EXIT_UNTRUSTED

@@ -1,17 +1,23 @@
 """Document 002's workflow on the CMM: a teach file checked against the CAD model (touches on
 the part, the operator's moves clear of it), then planned by the three planners of
 :mod:`algorithms.probing.cmm_planning` (the safe-plane baseline, the document's algorithm and
-the full-check variant). The programs run on the machine of :mod:`twin.cmm_machine`.
+the full-check variant). The programs run on the machine of :mod:`twin.cmm_machine`; a DMIS
+program from elsewhere runs there too (:func:`run_dmis`), its tolerances evaluated on the
+measured points.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from algorithms.errors import AlgorithmError
+from algorithms.probing.dmis.evaluation import Evaluation, evaluate
+from algorithms.probing.dmis.model import DmisModel, Lowered, lower
 from algorithms.probing.cmm_planning import PLANNERS, Plan, plan, taught_path_collisions
 from algorithms.probing.safety_plane import SafetyPlane, Station, Teach, penetrations, taught_path
-from twin.cmm_machine import CmmSetup
+from twin.cmm_machine import CmmRun, CmmSetup, execute
 from twin.errors import TwinError
 
 #: A taught touch must lie this close to the CAD surface [m].
@@ -71,3 +77,39 @@ def plan_programs(teach: Teach, setup: CmmSetup, methods: tuple[str, ...] = PLAN
 def _mm(p) -> str:
     return "(" + ", ".join(f"{1e3 * float(x):.2f}" for x in p) + ") mm"
 
+
+
+@dataclass(frozen=True)
+class DmisRun:
+    """A DMIS program run in the twin: the program the machine ran, its run, the results."""
+
+    lowered: Lowered
+    run: CmmRun
+    evaluation: Evaluation
+
+
+def run_dmis(model: DmisModel, setup: CmmSetup, rng: np.random.Generator,
+             stylus_names: dict[str, str] | None = None) -> DmisRun:
+    """Run a DMIS program read by :func:`algorithms.probing.dmis.reader.read_program` on the CMM
+    and evaluate its features and tolerances on the measured points (part frame at the nominal
+    pose, where the program's base coordinate system is).
+
+    Raises:
+        TwinError: a stylus the machine lacks (``stylus_names`` maps a program's stylus labels to
+            the machine's), a program with nothing to run, or a move past the machine's range.
+    """
+    names = {k.upper(): v for k, v in (stylus_names or {}).items()}
+    unknown = [s for s in model.styli if names.get(s.upper(), s) not in setup.styli]
+    if unknown:
+        raise TwinError(f"program {model.name!r} selects stylus {unknown[0]}, which the machine lacks (it has "
+                        f"{', '.join(sorted(setup.styli))}): map it with --stylus {unknown[0]}=NAME")
+    default = sorted(setup.styli)[0] if len(setup.styli) == 1 else None
+    try:
+        lowered = lower(model, names, default)
+    except AlgorithmError as exc:
+        raise TwinError(str(exc) + (f"; the machine has styli {', '.join(sorted(setup.styli))}: select one with "
+                                    "SNSLCT" if default is None else "")) from None
+    run = execute(lowered.program, setup, rng)
+    by_label = {h.label: h.measured_m for h in run.hits}
+    measured = [by_label.get(label) for label in lowered.touch_labels]
+    return DmisRun(lowered, run, evaluate(model, measured))

@@ -12,6 +12,7 @@ are kept as recipes so that the evaluation can rebuild them from the measured da
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -119,7 +120,8 @@ class Measurement:
     requested: int
     touches: tuple[Touch, ...]
     where: Where
-    alignment: int
+    alignment: int | None
+    events: tuple[Event, ...] = ()  # the block's GOTOs and touches, in order
 
 
 @dataclass(frozen=True)
@@ -132,7 +134,7 @@ class Construction:
     method: str
     inputs: tuple[str, ...]
     where: Where
-    alignment: int
+    alignment: int | None
 
 
 @dataclass(frozen=True)
@@ -183,8 +185,13 @@ class DmisModel:
         constructions, tolerances (by upper-case label), outputs, datums (letter -> feature label).
         alignments: the alignment steps; each ``Measurement``, ``Construction`` and ``OutputRequest``
             names the one active (None: the base frame).
+        settings: the probing distances in force at the program's first move, stylus change or touch.
         notices: what was skipped or warned about, with its line.
         statements_executed: how many statements the reader executed (loops and calls counted).
+        items: everything above in program order, as (kind, item) pairs: ``feature``, ``actual``,
+            ``stylus``, ``move``, ``meas``, ``const``, ``datdef`` ((letter, label)), ``align``
+            ((index, name or None)), ``save`` (name), ``tol``, ``output``; what
+            :func:`~algorithms.probing.dmis.writer.write_model` writes back.
     """
 
     name: str
@@ -202,6 +209,8 @@ class DmisModel:
     alignments: list[AlignmentStep] = field(default_factory=list)
     notices: list[Notice] = field(default_factory=list)
     statements_executed: int = 0
+    items: list[tuple[str, Any]] = field(default_factory=list)
+    settings: ProbeSettings = field(default_factory=ProbeSettings)
 
     @property
     def touches(self) -> list[Touch]:
@@ -273,7 +282,7 @@ def lower(model: DmisModel, stylus_names: dict[str, str] | None = None, default_
     if not touches and not model.moves:
         raise AlgorithmError(f"program {model.name!r} makes no move and no touch: nothing to run")
     labels = _touch_labels(model)
-    first = touches[0].settings if touches else ProbeSettings()
+    first = model.settings
     statements: list[Statement] = []
     k = 0
     if not isinstance(model.events[0], StylusChange):

@@ -114,6 +114,7 @@ class _MeasBlock:
     requested: int
     where: Where
     touches: list[Touch] = field(default_factory=list)
+    events: list = field(default_factory=list)
 
 
 def _structure(statements: list[lexer.Statement], source: str) -> _Body:
@@ -189,6 +190,13 @@ class Reader:
 
     def skip(self, why: str) -> None:
         self.notice("skipped", why)
+
+    def event(self, e) -> None:
+        """Record a move, stylus change or touch; the first one fixes the program's starting probing distances."""
+        assert self.model is not None
+        if not self.model.events:
+            self.model.settings = ProbeSettings(**self.settings)
+        self.model.events.append(e)
 
     # --- files and bodies ----------------------------------------------------------------------
 
@@ -444,7 +452,9 @@ class Reader:
         assert self.model is not None
         _, name = self.label(st.fields[0] if st.fields else "", ("S", "SA"), "SNSLCT's sensor")
         self.stylus = name
-        self.model.events.append(StylusChange(name, self.where()))
+        ev = StylusChange(name, self.where())
+        self.event(ev)
+        self.model.items.append(("stylus", ev))
 
     def do_goto(self, st: lexer.Statement) -> None:
         assert self.model is not None
@@ -467,7 +477,12 @@ class Reader:
             if len(f) > 3:
                 self.notice("warning", "GOTO's probe direction i,j,k noted, not applied (the head does not turn)")
             p = self.xyz_m(f[:3], "GOTO coordinate")
-        self.model.events.append(Move(p, self.where()))
+        move = Move(p, self.where())
+        self.event(move)
+        if self.meas is not None:
+            self.meas.events.append(move)
+        else:
+            self.model.items.append(("move", move))
 
     def do_feat(self, st: lexer.Statement) -> None:
         assert self.model is not None
@@ -484,6 +499,7 @@ class Reader:
             self.notice("warning", f"F({st.label}) defined again (first at line {store[st.label.upper()].where.line}): "
                                    "the new definition is used")
         store[st.label.upper()] = f
+        self.model.items.append(("feature" if st.label_kind == "F" else "actual", f))
 
     def parse_feature(self, st: lexer.Statement, kind: str) -> Feature:
         f = list(st.fields[1:])
@@ -583,7 +599,8 @@ class Reader:
         t = Touch(self.meas.feature.label, len(self.meas.touches), p, n, ProbeSettings(**self.settings), self.stylus,
                   self.where())
         self.meas.touches.append(t)
-        self.model.events.append(t)
+        self.meas.events.append(t)
+        self.event(t)
 
     def do_endmes(self, st: lexer.Statement) -> None:
         assert self.model is not None
@@ -595,8 +612,10 @@ class Reader:
         if len(m.touches) != m.requested:
             self.notice("warning", f"MEAS of F({m.feature.label}) asked for {m.requested} points and the block holds "
                                    f"{len(m.touches)}: all {len(m.touches)} are measured")
-        self.model.measurements.append(Measurement(m.feature.label, m.requested, tuple(m.touches), m.where,
-                                                   self.current_alignment()))
+        measurement = Measurement(m.feature.label, m.requested, tuple(m.touches), m.where, self.current_alignment(),
+                                  tuple(m.events))
+        self.model.measurements.append(measurement)
+        self.model.items.append(("meas", measurement))
         self.meas = None
 
     def auto_touches(self, m: _MeasBlock) -> None:
@@ -636,8 +655,9 @@ class Reader:
         except AlgorithmError as e:
             self.fail(str(e))
         self.model.features[name.upper()] = nominal
-        self.model.constructions.append(Construction(name, kind, method, tuple(f.label for f in inputs),
-                                                     self.where(), self.current_alignment()))
+        c = Construction(name, kind, method, tuple(f.label for f in inputs), self.where(), self.current_alignment())
+        self.model.constructions.append(c)
+        self.model.items.append(("const", c))
 
     def do_datdef(self, st: lexer.Statement) -> None:
         assert self.model is not None
@@ -646,6 +666,7 @@ class Reader:
         f = self.feature(st.fields[0], "DATDEF's feature")
         _, letter = self.label(st.fields[1], ("DAT",), "DATDEF's datum")
         self.model.datums[letter.upper()] = f.label
+        self.model.items.append(("datdef", (letter, f.label)))
 
     # --- alignments -------------------------------------------------------------------------
 
@@ -664,8 +685,10 @@ class Reader:
         except AlgorithmError as e:
             self.fail(str(e))
         self.alignment = index
-        if st.label_kind in ("D", "DA") and st.label:
-            self.saved[st.label.upper()] = index
+        name = st.label if st.label_kind in ("D", "DA") and st.label else None
+        if name:
+            self.saved[name.upper()] = index
+        self.model.items.append(("align", (index, name)))
 
     def do_datset(self, st: lexer.Statement) -> None:
         items: list[tuple[str, tuple[str, ...]]] = []
@@ -706,6 +729,8 @@ class Reader:
                                 "SAVE's item")
         if kind in ("DA", "D"):
             self.saved[name.upper()] = self.alignment
+            assert self.model is not None
+            self.model.items.append(("save", name))
         else:
             self.skip(f"SAVE/{kind}({name}): kept only for alignments (D/DA)")
 
@@ -726,6 +751,7 @@ class Reader:
         index = len(self.model.alignments) - 1
         self.frames[index] = self.frames[target]
         self.alignment = index
+        self.model.items.append(("align", (index, name)))
 
     # --- tolerances and outputs -------------------------------------------------------------
 
@@ -746,7 +772,9 @@ class Reader:
             params = tolerance_params(kind, st.fields[1:], self)
         except AlgorithmError as e:
             self.fail(str(e))
-        self.model.tolerances[st.label.upper()] = Tolerance(st.label, kind, params, self.where())
+        tol = Tolerance(st.label, kind, params, self.where())
+        self.model.tolerances[st.label.upper()] = tol
+        self.model.items.append(("tol", tol))
 
     def do_output(self, st: lexer.Statement) -> None:
         assert self.model is not None
@@ -766,7 +794,9 @@ class Reader:
                 tols.append(self.model.tolerances[name.upper()].label)
             else:
                 self.skip(f"OUTPUT/{kind}({name}): only features and tolerances are reported")
-        self.model.outputs.append(OutputRequest(tuple(features), tuple(tols), self.where(), self.alignment))
+        out = OutputRequest(tuple(features), tuple(tols), self.where(), self.alignment)
+        self.model.outputs.append(out)
+        self.model.items.append(("output", out))
 
     # --- variables, calls -------------------------------------------------------------------
 
