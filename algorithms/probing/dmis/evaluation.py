@@ -324,14 +324,14 @@ def evaluate(model: DmisModel, measured_m: list[FloatArray | None]) -> Evaluatio
                              f"{len(measured_m)} points")
     ev = Evaluation(_actual_features(model, measured_m))
     nominal_features = model.features
-    actual_features = {k: (r.actual if r.actual is not None else nominal_features[k]) for k, r in ev.features.items()}
-    actual_features = {**nominal_features, **actual_features}
+    actual_features = {k: r.actual for k, r in ev.features.items() if r.actual is not None}
     nominal_frames: dict[int | None, FloatArray] = {None: np.eye(4)}
     actual_frames: dict[int | None, FloatArray] = {None: np.eye(4)}
     for out in model.outputs:
         T_nom = nominal_frames[None] if out.alignment is None else alignment_frame(
             model.alignments, out.alignment, nominal_features, nominal_frames)
-        T_act = actual_frames[None] if out.alignment is None else alignment_frame(
+        unaligned = _unmeasured_datums(model, out.alignment, actual_features)
+        T_act = T_nom if unaligned else actual_frames[None] if out.alignment is None else alignment_frame(
             model.alignments, out.alignment, actual_features, actual_frames)
         reported = []
         for label in out.features:
@@ -340,8 +340,25 @@ def evaluate(model: DmisModel, measured_m: list[FloatArray | None]) -> Evaluatio
             reported.append((label, nominal, None if r is None or r.actual is None else in_frame(r.actual, T_act)))
         results = [res for t in out.tolerances
                    for res in _tolerance(model.tolerances[t.upper()], out, ev, nominal_features, T_nom, T_act)]
+        if unaligned:  # a result in an alignment whose datums were not all measured is no result
+            why = (f"the alignment of this OUTPUT is built on {', '.join(unaligned)}, which has no actual "
+                   f"({'; '.join(ev.features[x.upper()].note or 'not measured' for x in unaligned if x.upper() in ev.features) or 'not measured'})")
+            results = [replace(r, actual_m=None, deviation_m=None, in_tolerance=None, note=why) for r in results]
         ev.outputs.append(OutputResult(out, tuple(reported), tuple(results)))
     return ev
+
+
+def _unmeasured_datums(model: DmisModel, index: int | None, actuals: Mapping[str, Feature]) -> list[str]:
+    """The features alignment ``index`` (and its parents) is built on that have no actual."""
+    out: list[str] = []
+    while index is not None:
+        step = model.alignments[index]
+        if step.op == "datset":
+            out += [label for label, _ in step.args if label.upper() not in actuals]
+        elif step.op == "trans":
+            out += [what for _, what in step.args if isinstance(what, str) and what.upper() not in actuals]
+        index = step.parent
+    return list(dict.fromkeys(out))
 
 
 def _missing(tol: Tolerance, labels: tuple[str, ...], why: str) -> ToleranceResult:
