@@ -21,6 +21,8 @@ from hypothesis import strategies as st
 
 from algorithms.errors import AlgorithmError
 from algorithms.probing.dmis import parse_dmis
+from algorithms.probing.dmis.lexer import decode
+from algorithms.probing.dmis.reader import parse_program
 from tests.helpers import ROOT, SCENARIOS
 from tests.test_dmis import EXAMPLE
 from tests.test_fuzz import mutated, slow_or_ci
@@ -84,3 +86,18 @@ def test_fuzz_dmis_reader(raw):
         parse_dmis(text, "fuzz.dmi")
     except AlgorithmError as exc:
         assert str(exc).strip()
+
+
+WORKSHOP = (ROOT / "tests" / "data" / "dmis" / "workshop_latin1.dmi").read_bytes()
+
+
+@slow_or_ci
+@budget()
+@given(raw=mutated(WORKSHOP))
+def test_fuzz_real_program_reader(raw):
+    """Any bytes near a real program: read, or refused in one line naming the file; nothing else."""
+    try:
+        text, encoding = decode(raw, "fuzz.dmi")
+        parse_program(text, str(ROOT / "tests" / "data" / "dmis" / "fuzz.dmi"), encoding)
+    except AlgorithmError as exc:
+        assert str(exc).strip() and "\n" not in str(exc)

@@ -277,7 +277,8 @@ def _check_rows(s: dict) -> list[tuple[str, str]]:
     for n in skipped:
         words.setdefault(n["word"] or "(free text)", []).append(n["line"])
     for word, lines in sorted(words.items(), key=lambda kv: -len(kv[1]))[:8]:
-        rows.append((f"  {word}", f"{len(lines)} (line {', '.join(map(str, lines[:5]))}{', ...' if len(lines) > 5 else ''})"))
+        more = ", ..." if len(lines) > 5 else ""
+        rows.append((f"  {word}", f"{len(lines)} (line {', '.join(map(str, lines[:5]))}{more})"))
     return rows
 
 

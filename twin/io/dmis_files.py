@@ -44,7 +44,7 @@ def summary(model: DmisModel) -> dict:
         "encoding": model.encoding,
         "files": model.sources,
         "statements_executed": model.statements_executed,
-        "features": {f.label: feature_dict(f) | {"line": f.where.line} for f in model.features.values()},
+        "features": {f.label: {**(feature_dict(f) or {}), "line": f.where.line} for f in model.features.values()},
         "measurements": [{"feature": m.feature, "requested": m.requested, "touches": len(m.touches),
                           "line": m.where.line} for m in model.measurements],
         "touches": len(model.touches),
@@ -115,7 +115,8 @@ def write_results_html(path: Path, model: DmisModel, ev: Evaluation, run: dict, 
     for t in ev.tolerances:
         cls = "none" if t.in_tolerance is None else ("" if t.in_tolerance else "out")
         rows.append(f"<tr class='{cls}'><td class='l'>{e(t.label)}</td><td class='l'>{e(t.kind)}</td>"
-                    f"<td class='l'>{e(', '.join(t.features))}</td><td>{_mm(t.nominal_m)}</td><td>{_mm(t.actual_m)}</td>"
+                    f"<td class='l'>{e(', '.join(t.features))}</td>"
+                    f"<td>{_mm(t.nominal_m)}</td><td>{_mm(t.actual_m)}</td>"
                     f"<td>{_mm(t.lower_m)}</td><td>{_mm(t.upper_m)}</td><td>{_mm(t.deviation_m)}</td>"
                     f"<td class='l'>{_result_word(t)}</td><td class='l'>{e(t.note)}</td></tr>")
     feats = []
@@ -136,7 +137,8 @@ def write_results_html(path: Path, model: DmisModel, ev: Evaluation, run: dict, 
 {sum(t.in_tolerance is True for t in ev.tolerances)} in, {sum(t.in_tolerance is False for t in ev.tolerances)} out,
 {sum(t.in_tolerance is None for t in ev.tolerances)} not evaluated; {run['measured_points']} touches,
 {run['misses']} missed, {run['contacts']} unintended contacts, cycle {run['cycle_time_s']:.1f} s.</p>
-<h2>Checks</h2><table><tr><th class='l'>check</th><th class='l'>result</th><th class='l'>detail</th></tr>{check_rows}</table>
+<h2>Checks</h2><table><tr><th class='l'>check</th><th class='l'>result</th><th class='l'>detail</th></tr>
+{check_rows}</table>
 <h2>Tolerances (mm)</h2>
 <table><tr><th class='l'>tolerance</th><th class='l'>type</th><th class='l'>feature</th><th>nominal</th><th>actual</th>
 <th>lower limit</th><th>upper limit</th><th>deviation</th><th class='l'>result</th><th class='l'>note</th></tr>

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from algorithms.errors import AlgorithmError
+from algorithms.probing.cmm_planning import PLANNERS, Plan, plan, taught_path_collisions
 from algorithms.probing.dmis.evaluation import Evaluation, evaluate
 from algorithms.probing.dmis.model import DmisModel, Lowered, lower
-from algorithms.probing.cmm_planning import PLANNERS, Plan, plan, taught_path_collisions
 from algorithms.probing.safety_plane import SafetyPlane, Station, Teach, penetrations, taught_path
 from twin.cmm_machine import CmmRun, CmmSetup, execute
 from twin.errors import TwinError

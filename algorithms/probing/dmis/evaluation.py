@@ -139,36 +139,39 @@ def in_frame(f: Feature, T: FloatArray) -> Feature:
 # --- tolerance parameters -----------------------------------------------------------------------
 
 
-def tolerance_params(kind: str, fields: tuple[str, ...] | list[str], reader: Any) -> dict:
-    """The parameters of ``T(label)=TOL/kind,fields`` (lengths [m], angles [rad]); ``reader`` converts
-    units and resolves labels (:class:`~algorithms.probing.dmis.reader.Reader`)."""
-    f = [x.strip() for x in fields]
-    words = [x.upper() for x in f]
-    if kind in ("FLAT", "CIRLTY"):
-        if len(f) < 1:
-            raise AlgorithmError(f"TOL/{kind} takes its zone")
-        return {"zone_m": _positive(reader.length_m(f[0], f"TOL/{kind} zone"), kind)}
-    if kind == "DIAM":
-        if len(f) < 2:
-            raise AlgorithmError("TOL/DIAM takes lotol,uptol")
-        return {"lower_m": reader.length_m(f[0], "TOL/DIAM lower"), "upper_m": reader.length_m(f[1], "TOL/DIAM upper")}
+def _zone_params(kind: str, f: list[str], words: list[str], reader: Any) -> dict:
+    """FLAT, CIRLTY: zone; POS: 2D|3D,zone[,MMC|LMC|RFS]...; PARLEL, PERP: zone,DAT(x)."""
     if kind == "POS":
         if len(f) < 2 or words[0] not in ("2D", "3D"):
             raise AlgorithmError("TOL/POS takes 2D|3D,zone[,MMC|LMC|RFS][,DAT(x)...]")
         return {"dim": words[0], "zone_m": _positive(reader.length_m(f[1], "TOL/POS zone"), kind),
                 "modifier": next((w for w in words[2:] if w in ("MMC", "LMC", "RFS")), "RFS")}
+    if len(f) < 1:
+        raise AlgorithmError(f"TOL/{kind} takes its zone")
+    params: dict[str, Any] = {"zone_m": _positive(reader.length_m(f[0], f"TOL/{kind} zone"), kind)}
     if kind in ("PARLEL", "PERP"):
         refs = [x for x in f[1:] if "(" in x]
-        if len(f) < 2 or not refs:
+        if not refs:
             raise AlgorithmError(f"TOL/{kind} takes zone,DAT(x) (or FA(x))")
-        return {"zone_m": _positive(reader.length_m(f[0], f"TOL/{kind} zone"), kind),
-                "datum": reader.feature(refs[0], f"TOL/{kind}'s datum").label}
-    if kind == "CORTOL":
-        if len(f) < 3 or words[0] not in ("XAXIS", "YAXIS", "ZAXIS", "RADIAL"):
-            raise AlgorithmError("TOL/CORTOL takes XAXIS|YAXIS|ZAXIS|RADIAL,lotol,uptol")
-        return {"axis": _AXIS_WORDS[words[0]], "lower_m": reader.length_m(f[1], "TOL/CORTOL lower"),
-                "upper_m": reader.length_m(f[2], "TOL/CORTOL upper")}
-    # DISTWRT, DISTB: [NOMINL,value,]lotol,uptol, then reference, axis and AVG|MIN|MAX in any order
+        params["datum"] = reader.feature(refs[0], f"TOL/{kind}'s datum").label
+    return params
+
+
+def _limit_params(kind: str, f: list[str], words: list[str], reader: Any) -> dict:
+    """DIAM: lotol,uptol; CORTOL: XAXIS|YAXIS|ZAXIS|RADIAL,lotol,uptol."""
+    if kind == "DIAM":
+        if len(f) < 2:
+            raise AlgorithmError("TOL/DIAM takes lotol,uptol")
+        return {"lower_m": reader.length_m(f[0], "TOL/DIAM lower"), "upper_m": reader.length_m(f[1], "TOL/DIAM upper")}
+    if len(f) < 3 or words[0] not in ("XAXIS", "YAXIS", "ZAXIS", "RADIAL"):
+        raise AlgorithmError("TOL/CORTOL takes XAXIS|YAXIS|ZAXIS|RADIAL,lotol,uptol")
+    return {"axis": _AXIS_WORDS[words[0]], "lower_m": reader.length_m(f[1], "TOL/CORTOL lower"),
+            "upper_m": reader.length_m(f[2], "TOL/CORTOL upper")}
+
+
+def _distance_params(kind: str, f: list[str], words: list[str], reader: Any) -> dict:
+    """DISTWRT, DISTB: [NOMINL,value,]lotol,uptol, then the reference (DISTWRT), the axis and
+    AVG|MIN|MAX in any order."""
     nominal = None
     if words and words[0] == "NOMINL":
         if len(f) < 2:
@@ -190,6 +193,18 @@ def tolerance_params(kind: str, fields: tuple[str, ...] | list[str], reader: Any
     if kind == "DISTWRT" and params["reference"] is None:
         raise AlgorithmError("TOL/DISTWRT takes its reference feature or datum (FA(x) or DAT(x))")
     return params
+
+
+def tolerance_params(kind: str, fields: tuple[str, ...] | list[str], reader: Any) -> dict:
+    """The parameters of ``T(label)=TOL/kind,fields`` (lengths [m]); ``reader`` converts units and
+    resolves labels (:class:`~algorithms.probing.dmis.reader.Reader`)."""
+    f = [x.strip() for x in fields]
+    words = [x.upper() for x in f]
+    if kind in ("FLAT", "CIRLTY", "POS", "PARLEL", "PERP"):
+        return _zone_params(kind, f, words, reader)
+    if kind in ("DIAM", "CORTOL"):
+        return _limit_params(kind, f, words, reader)
+    return _distance_params(kind, f, words, reader)
 
 
 def _positive(v: float, kind: str) -> float:
@@ -279,11 +294,12 @@ def _actual_features(model: DmisModel, measured: list[FloatArray | None]) -> dic
             actual, res = geometry.fitted(nominal, got)
             note = f"{missed} of {len(pts)} touches missed" if missed else ""
         except AlgorithmError as e:
-            actual, res, note = None, np.zeros(0), str(e) + (f" ({missed} of {len(pts)} touches missed)" if missed else "")
+            actual, res = None, np.zeros(0)
+            note = str(e) + (f" ({missed} of {len(pts)} touches missed)" if missed else "")
         form = None
         if actual is not None and len(got) >= geometry.MIN_POINTS[nominal.kind] + 1:
             if nominal.kind == "PLANE":
-                form = geometry.min_zone_flatness(got, actual.direction)
+                form = geometry.min_zone_flatness(got, geometry.direction_of(actual))
             elif nominal.kind == "CIRCLE":
                 form = _roundness(actual, got)
             elif nominal.kind != "POINT":
@@ -305,7 +321,8 @@ def _actual_features(model: DmisModel, measured: list[FloatArray | None]) -> dic
             actual = geometry.construct(c.label, c.kind, c.method, [r.actual for r in inputs], nominal, c.where)  # type: ignore[union-attr,misc]
             results[c.label.upper()] = FeatureResult(c.label, nominal, actual, np.zeros((0, 3)), np.zeros(0), None)
         except AlgorithmError as e:
-            results[c.label.upper()] = FeatureResult(c.label, nominal, None, np.zeros((0, 3)), np.zeros(0), None, str(e))
+            results[c.label.upper()] = FeatureResult(c.label, nominal, None, np.zeros((0, 3)), np.zeros(0), None,
+                                                     str(e))
     return results
 
 
@@ -341,8 +358,9 @@ def evaluate(model: DmisModel, measured_m: list[FloatArray | None]) -> Evaluatio
         results = [res for t in out.tolerances
                    for res in _tolerance(model.tolerances[t.upper()], out, ev, nominal_features, T_nom, T_act)]
         if unaligned:  # a result in an alignment whose datums were not all measured is no result
+            notes = [ev.features[x.upper()].note for x in unaligned if x.upper() in ev.features]
             why = (f"the alignment of this OUTPUT is built on {', '.join(unaligned)}, which has no actual "
-                   f"({'; '.join(ev.features[x.upper()].note or 'not measured' for x in unaligned if x.upper() in ev.features) or 'not measured'})")
+                   f"({'; '.join(n for n in notes if n) or 'not measured'})")
             results = [replace(r, actual_m=None, deviation_m=None, in_tolerance=None, note=why) for r in results]
         ev.outputs.append(OutputResult(out, tuple(reported), tuple(results)))
     return ev
@@ -386,58 +404,67 @@ def _one(tol: Tolerance, labels: tuple[str, ...], ev: Evaluation, nominals: Mapp
         if r.actual is None:
             return _missing(tol, labels, f"{x} has no actual: {r.note}")
     rs: list[FeatureResult] = results  # type: ignore[assignment]
-    p = tol.params
     nom = [in_frame(r.nominal, T_nom) for r in rs]
     act = [in_frame(r.actual, T_act) for r in rs]  # type: ignore[arg-type]
     pts = [(r.points_m - T_act[:3, 3]) @ T_act[:3, :3] for r in rs]
-    kind = tol.kind
     try:
-        if kind in ("FLAT", "CIRLTY"):
-            want = "PLANE" if kind == "FLAT" else "CIRCLE"
-            if rs[0].nominal.kind != want or rs[0].form_m is None:
-                return _missing(tol, labels, f"TOL/{kind} applies to a {want} with more than "
-                                             f"{geometry.MIN_POINTS[want]} points")
-            return _zone(tol, labels, rs[0].form_m, p["zone_m"], "minimum zone")
-        if kind == "DIAM":
-            if nom[0].size_m is None or rs[0].nominal.kind not in ("CIRCLE", "CYLNDR", "SPHERE"):
-                return _missing(tol, labels, "TOL/DIAM applies to a circle, cylinder or sphere")
-            return _limits(tol, labels, nom[0].size_m, act[0].size_m, p["lower_m"], p["upper_m"])
-        if kind == "POS":
-            d = act[0].point_m - nom[0].point_m
-            if p["dim"] == "2D" and nom[0].direction is not None:
-                d = d - (d @ nom[0].direction) * nom[0].direction
-            note = "RFS: no bonus" + (f" ({p['modifier']} given)" if p["modifier"] != "RFS" else "")
-            return _zone(tol, labels, 2 * float(np.linalg.norm(d)), p["zone_m"], note)
-        if kind in ("PARLEL", "PERP"):
-            return _orientation(tol, labels, rs[0], act[0], pts[0], ev, p, T_act)
-        if kind == "CORTOL":
-            d = act[0].point_m - nom[0].point_m
-            if p["axis"] == "RADIAL":
-                value_nom, value_act = float(np.hypot(*nom[0].point_m[:2])), float(np.hypot(*act[0].point_m[:2]))
-            else:
-                value_nom, value_act = float(nom[0].point_m[p["axis"]]), float(nom[0].point_m[p["axis"]] + d[p["axis"]])
-            return _limits(tol, labels, value_nom, value_act, p["lower_m"], p["upper_m"])
-        # DISTWRT, DISTB
-        if kind == "DISTWRT":
-            ref = ev.features.get(p["reference"].upper())
-            ref_nom = in_frame(nominals[p["reference"].upper()], T_nom)
-            if ref is None or ref.actual is None:
-                return _missing(tol, labels, f"the reference {p['reference']} is not measured")
-            ref_act = in_frame(ref.actual, T_act)
-            nom_value = _distance(nom[0], np.zeros((0, 3)), ref_nom, p["axis"], "AVG")
-            act_value = _distance(act[0], pts[0], ref_act, p["axis"], p["mode"])
-        else:
-            nom_value = _distance(nom[0], np.zeros((0, 3)), nom[1], p["axis"], "AVG")
-            act_value = _distance(act[0], pts[0], act[1], p["axis"], p["mode"])
-        if p["nominal_m"] is not None:
-            if abs(p["nominal_m"] - nom_value) > 1e-6:
-                note = f"the TOL's nominal {p['nominal_m'] * 1e3:.4f} mm is used; the features' is {nom_value * 1e3:.4f} mm"
-                r = _limits(tol, labels, p["nominal_m"], act_value, p["lower_m"], p["upper_m"])
-                return replace(r, note=note)
-            nom_value = p["nominal_m"]
-        return _limits(tol, labels, nom_value, act_value, p["lower_m"], p["upper_m"])
+        if tol.kind in ("FLAT", "CIRLTY", "DIAM", "POS", "CORTOL"):
+            return _feature_tolerance(tol, labels, rs[0], nom[0], act[0])
+        if tol.kind in ("PARLEL", "PERP"):
+            return _orientation(tol, labels, act[0], pts[0], ev, T_act)
+        return _distance_tolerance(tol, labels, ev, nominals, nom, act, pts, T_nom, T_act)
     except AlgorithmError as e:
         return _missing(tol, labels, str(e))
+
+
+def _feature_tolerance(tol: Tolerance, labels: tuple[str, ...], r: FeatureResult, nom: Feature, act: Feature
+                       ) -> ToleranceResult:
+    """FLAT, CIRLTY (the feature's minimum zone), DIAM, POS and CORTOL of one feature."""
+    p, kind = tol.params, tol.kind
+    if kind in ("FLAT", "CIRLTY"):
+        want = "PLANE" if kind == "FLAT" else "CIRCLE"
+        if r.nominal.kind != want or r.form_m is None:
+            return _missing(tol, labels, f"TOL/{kind} applies to a {want} with more than "
+                                         f"{geometry.MIN_POINTS[want]} points")
+        return _zone(tol, labels, r.form_m, p["zone_m"], "minimum zone")
+    if kind == "DIAM":
+        if nom.size_m is None or r.nominal.kind not in ("CIRCLE", "CYLNDR", "SPHERE"):
+            return _missing(tol, labels, "TOL/DIAM applies to a circle, cylinder or sphere")
+        return _limits(tol, labels, nom.size_m, act.size_m, p["lower_m"], p["upper_m"])
+    d = act.point_m - nom.point_m
+    if kind == "POS":
+        if p["dim"] == "2D" and nom.direction is not None:
+            d = d - (d @ nom.direction) * nom.direction
+        note = "RFS: no bonus" + (f" ({p['modifier']} given)" if p["modifier"] != "RFS" else "")
+        return _zone(tol, labels, 2 * float(np.linalg.norm(d)), p["zone_m"], note)
+    if p["axis"] == "RADIAL":
+        value_nom, value_act = float(np.hypot(*nom.point_m[:2])), float(np.hypot(*act.point_m[:2]))
+    else:
+        value_nom, value_act = float(nom.point_m[p["axis"]]), float(nom.point_m[p["axis"]] + d[p["axis"]])
+    return _limits(tol, labels, value_nom, value_act, p["lower_m"], p["upper_m"])
+
+
+def _distance_tolerance(tol: Tolerance, labels: tuple[str, ...], ev: Evaluation, nominals: Mapping[str, Feature],
+                        nom: list[Feature], act: list[Feature], pts: list[FloatArray], T_nom: FloatArray,
+                        T_act: FloatArray) -> ToleranceResult:
+    """DISTWRT (to its reference) and DISTB (between the OUTPUT's two features)."""
+    p = tol.params
+    if tol.kind == "DISTWRT":
+        ref = ev.features.get(p["reference"].upper())
+        if ref is None or ref.actual is None:
+            return _missing(tol, labels, f"the reference {p['reference']} is not measured")
+        ref_nom, ref_act = in_frame(nominals[p["reference"].upper()], T_nom), in_frame(ref.actual, T_act)
+    else:
+        ref_nom, ref_act = nom[1], act[1]
+    nom_value = _distance(nom[0], np.zeros((0, 3)), ref_nom, p["axis"], "AVG")
+    act_value = _distance(act[0], pts[0], ref_act, p["axis"], p["mode"])
+    if p["nominal_m"] is None:
+        return _limits(tol, labels, nom_value, act_value, p["lower_m"], p["upper_m"])
+    r = _limits(tol, labels, p["nominal_m"], act_value, p["lower_m"], p["upper_m"])
+    if abs(p["nominal_m"] - nom_value) > 1e-6:
+        r = replace(r, note=f"the TOL's nominal {p['nominal_m'] * 1e3:.4f} mm is used; the features' is "
+                            f"{nom_value * 1e3:.4f} mm")
+    return r
 
 
 def _zone(tol: Tolerance, labels: tuple[str, ...], value: float, zone: float, note: str) -> ToleranceResult:
@@ -468,30 +495,33 @@ def _distance(f: Feature, pts: FloatArray, ref: Feature, axis, mode: str) -> flo
     return float({"MIN": values.min, "MAX": values.max}.get(mode, values.mean)())
 
 
-def _orientation(tol: Tolerance, labels: tuple[str, ...], r: FeatureResult, act: Feature, pts: FloatArray,
-                 ev: Evaluation, p: dict, T_act: FloatArray) -> ToleranceResult:
+def _orientation(tol: Tolerance, labels: tuple[str, ...], act: Feature, pts: FloatArray, ev: Evaluation,
+                 T_act: FloatArray) -> ToleranceResult:
+    """PARLEL and PERP of a plane (its measured points) or an axis (over its measured length)."""
+    p = tol.params
     datum = ev.features.get(p["datum"].upper())
     if datum is None or datum.actual is None:
         return _missing(tol, labels, f"the datum {p['datum']} is not measured")
     dref = in_frame(datum.actual, T_act)
-    if dref.direction is None:
-        return _missing(tol, labels, f"the datum {p['datum']} has no direction")
-    n_d = dref.direction if dref.kind in ("PLANE", "POINT") else None
-    axis_d = dref.direction if n_d is None else None
+    if dref.direction is None or act.direction is None:
+        return _missing(tol, labels, f"the datum {p['datum']} or {labels[0]} has no direction")
+    ref: FloatArray = dref.direction
+    datum_is_plane = dref.kind in ("PLANE", "POINT")  # ref is its normal; else ref is its axis
+    d: FloatArray = act.direction
     if act.kind == "PLANE" and len(pts) >= 3:
-        if tol.kind == "PARLEL":
-            direction = n_d if n_d is not None else act.direction
-            if n_d is None:  # parallel to a datum axis: the plane's normal made perpendicular to that axis
-                direction = act.direction - (act.direction @ axis_d) * axis_d
+        # the direction across the zone: the datum's normal (parallel to a plane), or the plane's own
+        # normal made perpendicular to the datum's normal (perpendicular to a plane) or axis (parallel to it)
+        if tol.kind == "PARLEL" and datum_is_plane:
+            across = ref
+        elif tol.kind == "PERP" and not datum_is_plane:
+            across = ref
         else:
-            direction = act.direction - (act.direction @ n_d) * n_d if n_d is not None else axis_d
-        direction = direction / np.linalg.norm(direction)
-        return _zone(tol, labels, float(np.ptp(pts @ direction)), p["zone_m"], "zone of the measured points")
-    if act.kind in ("LINE", "CYLNDR", "CONE") and act.direction is not None and len(pts) >= 2:
-        length = float(np.ptp((pts - act.point_m) @ act.direction))
-        d = act.direction
-        ref = n_d if n_d is not None else axis_d
-        if (tol.kind == "PARLEL") == (n_d is not None):  # the axis should lie perpendicular to ref
+            across = d - (d @ ref) * ref
+        across = across / np.linalg.norm(across)
+        return _zone(tol, labels, float(np.ptp(pts @ across)), p["zone_m"], "zone of the measured points")
+    if act.kind in ("LINE", "CYLNDR", "CONE") and len(pts) >= 2:
+        length = float(np.ptp((pts - act.point_m) @ d))
+        if (tol.kind == "PARLEL") == datum_is_plane:  # the axis should lie perpendicular to ref
             tilt = abs(float(d @ ref))
         else:  # the axis should lie along ref
             tilt = float(np.linalg.norm(d - (d @ ref) * ref))

@@ -120,32 +120,40 @@ def fit_cone(points: FloatArray, apex: FloatArray, axis: FloatArray, half_angle:
 def min_zone_flatness(points: FloatArray, normal: FloatArray) -> float:
     """The minimum-zone flatness [m]: the least distance between two parallel planes holding
     every point (a linear program on the plane's tilt about the least-squares normal; the small-
-    angle form is exact to (tilt)^2, below 1e-9 of the value for any tilt a CMM part shows)."""
+    angle form is exact to (tilt)^2, below 1e-9 of the value for any tilt a CMM part shows). If
+    the solver fails, the range about the least-squares plane (never smaller) is returned."""
     c = points.mean(axis=0)
     u, v = plane_frame(normal)
     x, y, z = (points - c) @ u, (points - c) @ v, (points - c) @ normal
+    # the solver's tolerances are absolute: scale heights and positions to order one
+    hz = max(float(np.ptp(z)), 1e-15)
+    hx = max(float(np.ptp(x)), float(np.ptp(y)), 1e-15)
+    x, y, zs = x / hx, y / hx, z / hz
     n = len(points)
     # variables a, b, c, t: minimise t with |z - (a x + b y + c)| <= t / 2
     A = np.block([[-x[:, None], -y[:, None], -np.ones((n, 1)), -0.5 * np.ones((n, 1))],
                   [x[:, None], y[:, None], np.ones((n, 1)), -0.5 * np.ones((n, 1))]])
-    b = np.concatenate([-z, z])
+    b = np.concatenate([-zs, zs])
     res = linprog([0, 0, 0, 1], A_ub=A, b_ub=b, bounds=[(None, None)] * 3 + [(0, None)], method="highs")
-    return float(res.x[3]) if res.success else float(np.ptp(z))
+    return float(min(res.x[3], 1.0) * hz) if res.success else float(np.ptp(z))
 
 
 def min_zone_roundness(uv: FloatArray, centre: FloatArray) -> float:
     """The minimum-zone roundness [m] of 2D points: the least radial width of two concentric
-    circles holding them (a linear program on the centre's shift from ``centre``)."""
+    circles holding them (a linear program on the centre's shift from ``centre``, linear to first
+    order in the shift). If the solver fails, the radial range about ``centre`` is returned."""
     w = uv - centre
     r = np.linalg.norm(w, axis=1)
     e = w / r[:, None]
+    h = max(float(np.ptp(r)), 1e-15)
+    rs = (r - r.mean()) / h  # the solver's tolerances are absolute: widths of order one
     n = len(uv)
     # r_i(s) = r_i - e_i . s; minimise t with rmin <= r_i(s) <= rmin + t: variables sx, sy, rmin, t
     A = np.block([[e, np.ones((n, 1)), np.zeros((n, 1))],
                   [-e, -np.ones((n, 1)), -np.ones((n, 1))]])
-    b = np.concatenate([r, -r])
+    b = np.concatenate([rs, -rs])
     res = linprog([0, 0, 0, 1], A_ub=A, b_ub=b, bounds=[(None, None)] * 3 + [(0, None)], method="highs")
-    return float(res.x[3]) if res.success else float(np.ptp(r))
+    return float(min(res.x[3], 1.0) * h) if res.success else float(np.ptp(r))
 
 
 def fitted(nominal: Feature, points: FloatArray) -> tuple[Feature, FloatArray]:
@@ -176,8 +184,8 @@ def fitted(nominal: Feature, points: FloatArray) -> tuple[Feature, FloatArray]:
         d = _oriented(d, d0)
         w = points - c
         res = np.linalg.norm(w - np.outer(w @ d, d), axis=1)
-        if nominal.normal is not None:  # a line on a surface: the residual along its surface normal
-            m = nominal.normal - (nominal.normal @ d) * d
+        m = nominal.normal - (nominal.normal @ d) * d if nominal.normal is not None else np.zeros(3)
+        if np.linalg.norm(m) > 1e-9:  # a line on a surface: the residual along its surface normal
             res = w @ (m / np.linalg.norm(m))
         length = float(np.ptp(w @ d))
         return replace(nominal, point_m=c + (w @ d).min() * d, direction=d, size_m=length), res
@@ -215,8 +223,66 @@ CONSTRUCTIONS = ("POINT BF", "LINE BF", "PLANE BF", "CIRCLE BF", "SPHERE BF", "P
                  "POINT PROJCT", "CIRCLE PROJCT", "LINE PROJCT", "POINT MIDPT")
 
 
-def _points_of(f: Feature) -> FloatArray:
-    return f.point_m[None]
+def direction_of(f: Feature) -> FloatArray:
+    """``f``'s direction; an AlgorithmError for a feature without one (a sphere)."""
+    if f.direction is None:
+        raise AlgorithmError(f"{f.label}, a {f.kind}, has no direction")
+    return f.direction
+
+
+def _need(label: str, kind: str, method: str, inputs: list[Feature], n: int,
+          allowed: tuple[str, ...] | None = None) -> None:
+    kinds = [f.kind for f in inputs]
+    if len(inputs) < n or (allowed is not None and any(k not in allowed for k in kinds)):
+        raise AlgorithmError(f"CONST/{kind},F({label}),{method} takes {n} or more features"
+                             + (f" of kinds {', '.join(allowed)}" if allowed else "")
+                             + f", got {', '.join(kinds) or 'none'}")
+
+
+def _best_fit(label: str, kind: str, inputs: list[Feature], like: Feature | None, where) -> Feature:
+    pts = np.vstack([f.point_m[None] for f in inputs]) if inputs else np.zeros((0, 3))
+    _need(label, kind, "BF", inputs, MIN_POINTS[kind])
+    nominal = like if like is not None else Feature(label, kind, None, pts.mean(axis=0), None, None, None, None, where)
+    if kind == "CIRCLE" and nominal.direction is None:
+        nominal = replace(nominal, direction=fit_plane(pts)[1])
+    return fitted(replace(nominal, kind=kind, label=label, where=where), pts)[0]
+
+
+def _intersection(label: str, kind: str, inputs: list[Feature], ref_dir: FloatArray | None) -> tuple:
+    """(point, direction) of INTOF: two planes give a line; a line (or axis) and a plane, or two
+    lines, a point (for two skew lines, the midpoint of their common perpendicular)."""
+    _need(label, kind, "INTOF", inputs, 2)
+    a, b = inputs[0], inputs[1]
+    if kind == "LINE":
+        _need(label, kind, "INTOF", inputs, 2, ("PLANE",))
+        na, nb = direction_of(a), direction_of(b)
+        d = np.cross(na, nb)
+        if np.linalg.norm(d) < 1e-9:
+            raise AlgorithmError(f"CONST/LINE,F({label}),INTOF: the planes are parallel")
+        d = _oriented(d / np.linalg.norm(d), ref_dir)
+        A = np.vstack([na, nb, d])
+        return np.linalg.solve(A, np.array([na @ a.point_m, nb @ b.point_m, d @ a.point_m])), d
+    planes = [f for f in (a, b) if f.kind == "PLANE"]
+    others = [f for f in (a, b) if f.kind != "PLANE"]
+    axial = ("LINE", "CYLNDR", "CONE", "CIRCLE")
+    if len(planes) == 1 and others[0].direction is not None and others[0].kind in axial:
+        pl, ln = planes[0], others[0]
+        n, d = direction_of(pl), direction_of(ln)
+        denom = float(d @ n)
+        if abs(denom) < 1e-9:
+            raise AlgorithmError(f"CONST/POINT,F({label}),INTOF: the line lies parallel to the plane")
+        return ln.point_m + float((pl.point_m - ln.point_m) @ n) / denom * d, n
+    if not planes and a.direction is not None and b.direction is not None:
+        d1, d2, w = direction_of(a), direction_of(b), a.point_m - b.point_m
+        B = float(d1 @ d2)
+        den = 1.0 - B * B
+        if den < 1e-12:
+            raise AlgorithmError(f"CONST/POINT,F({label}),INTOF: the lines are parallel")
+        s = (B * (d2 @ w) - (d1 @ w)) / den
+        t = ((d2 @ w) - B * (d1 @ w)) / den
+        return ((a.point_m + s * d1) + (b.point_m + t * d2)) / 2, None
+    raise AlgorithmError(f"CONST/POINT,F({label}),INTOF takes a line (or an axis) and a plane, or two lines; "
+                         f"got {', '.join(f.kind for f in inputs)}")
 
 
 def construct(label: str, kind: str, method: str, inputs: list[Feature], like: Feature | None, where) -> Feature:
@@ -232,81 +298,35 @@ def construct(label: str, kind: str, method: str, inputs: list[Feature], like: F
     Raises:
         AlgorithmError: a (kind, method) not in :data:`CONSTRUCTIONS`, or inputs of the wrong kinds.
     """
-    key = f"{kind} {method}"
-    if key not in CONSTRUCTIONS:
+    if f"{kind} {method}" not in CONSTRUCTIONS:
         raise AlgorithmError(f"CONST/{kind},...,{method} is not a construction this reader builds: "
                              f"{', '.join(CONSTRUCTIONS)}")
-    kinds = [f.kind for f in inputs]
     ref_dir = like.direction if like is not None else None
 
-    def feature(point, direction=None, normal=None, size=None, inner=None, angle=None) -> Feature:
-        return Feature(label, kind, inner, np.asarray(point, dtype=np.float64), direction, normal, size, angle, where)
-
-    def need(n: int, allowed: tuple[str, ...] | None = None) -> None:
-        if len(inputs) < n or (allowed is not None and any(k not in allowed for k in kinds)):
-            raise AlgorithmError(f"CONST/{kind},F({label}),{method} takes {n} or more features"
-                                 + (f" of kinds {', '.join(allowed)}" if allowed else "")
-                                 + f", got {', '.join(kinds) or 'none'}")
+    def feature(point, direction=None, normal=None, size=None, inner=None) -> Feature:
+        return Feature(label, kind, inner, np.asarray(point, dtype=np.float64), direction, normal, size, None, where)
 
     if method == "BF":
-        pts = np.vstack([_points_of(f) for f in inputs]) if inputs else np.zeros((0, 3))
-        need(MIN_POINTS[kind])
-        nominal = like if like is not None else feature(pts.mean(axis=0), direction=None)
-        if kind == "CIRCLE" and nominal.direction is None:
-            nominal = replace(nominal, direction=_oriented(fit_plane(pts)[1], None))
-        base = replace(nominal, kind=kind, label=label, where=where)
-        f, _ = fitted(base, pts)
-        return f
+        return _best_fit(label, kind, inputs, like, where)
     if method == "MIDPT":
-        need(2)
+        _need(label, kind, method, inputs, 2)
         return feature((inputs[0].point_m + inputs[1].point_m) / 2)
     if method == "INTOF":
-        need(2)
-        a, b = inputs[0], inputs[1]
-        if kind == "LINE":
-            need(2, ("PLANE",))
-            d = np.cross(a.direction, b.direction)
-            if np.linalg.norm(d) < 1e-9:
-                raise AlgorithmError(f"CONST/LINE,F({label}),INTOF: the planes are parallel")
-            d = _oriented(d / np.linalg.norm(d), ref_dir)
-            A = np.vstack([a.direction, b.direction, d])
-            p = np.linalg.solve(A, [a.direction @ a.point_m, b.direction @ b.point_m, d @ a.point_m])
-            return feature(p, direction=d)
-        planes = [f for f in inputs[:2] if f.kind == "PLANE"]
-        others = [f for f in inputs[:2] if f.kind != "PLANE"]
-        if len(planes) == 1 and others[0].direction is not None and others[0].kind in ("LINE", "CYLNDR", "CONE",
-                                                                                          "CIRCLE"):
-            pl, ln = planes[0], others[0]
-            denom = float(ln.direction @ pl.direction)
-            if abs(denom) < 1e-9:
-                raise AlgorithmError(f"CONST/POINT,F({label}),INTOF: the line lies parallel to the plane")
-            s = float((pl.point_m - ln.point_m) @ pl.direction) / denom
-            return feature(ln.point_m + s * ln.direction, direction=pl.direction)
-        if not planes and all(f.direction is not None for f in inputs[:2]):
-            d1, d2, w = a.direction, b.direction, a.point_m - b.point_m
-            B = float(d1 @ d2)
-            den = 1.0 - B * B
-            if den < 1e-12:
-                raise AlgorithmError(f"CONST/POINT,F({label}),INTOF: the lines are parallel")
-            s = (B * (d2 @ w) - (d1 @ w)) / den
-            t = ((d2 @ w) - B * (d1 @ w)) / den
-            return feature(((a.point_m + s * d1) + (b.point_m + t * d2)) / 2)
-        raise AlgorithmError(f"CONST/POINT,F({label}),INTOF takes a line (or an axis) and a plane, or two lines; "
-                             f"got {', '.join(kinds)}")
-    # PROJCT
-    need(1)
+        return feature(*_intersection(label, kind, inputs, ref_dir))
+    _need(label, kind, method, inputs, 1)  # PROJCT
     src = inputs[0]
     if len(inputs) > 1:
         if inputs[1].kind != "PLANE":
             raise AlgorithmError(f"CONST/{kind},F({label}),PROJCT projects onto a plane, got a {inputs[1].kind}")
-        q, n = inputs[1].point_m, inputs[1].direction
+        q, n = inputs[1].point_m, direction_of(inputs[1])
     else:
         q, n = np.zeros(3), np.array([0.0, 0.0, 1.0])
     p = src.point_m - ((src.point_m - q) @ n) * n
     if kind == "LINE":
         if src.direction is None:
             raise AlgorithmError(f"CONST/LINE,F({label}),PROJCT projects a line, got a {src.kind}")
-        d = src.direction - (src.direction @ n) * n
+        d = direction_of(src)
+        d = d - (d @ n) * n
         return feature(p, direction=_oriented(d / np.linalg.norm(d), ref_dir), normal=src.normal)
     if kind == "CIRCLE":
         return feature(p, direction=n, size=src.size_m, inner=src.inner)

@@ -96,8 +96,8 @@ def logical_lines(text: str) -> list[tuple[int, str]]:
     joined, blank lines dropped."""
     out: list[tuple[int, str]] = []
     pending: tuple[int, str] | None = None
-    for number, raw in enumerate(re.split(r"\r\n|\r|\n", text), start=1):
-        line = strip_comment(raw).strip()
+    for number, raw in enumerate(text.split("\n"), start=1):
+        line = strip_comment(raw.removesuffix("\r")).strip()
         if pending is not None:
             first, before = pending
             line = before + line

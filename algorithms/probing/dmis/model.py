@@ -271,23 +271,19 @@ def lower(model: DmisModel, stylus_names: dict[str, str] | None = None, default_
         stylus_names: the machine's stylus for a program's stylus label (upper case keys); a label
             not in it keeps its name.
         default_stylus: the stylus to select first when the program selects none before its
-            first move.
+            first move (None: none is selected, and a machine refuses the program).
 
     Raises:
-        AlgorithmError: no touch or move, or a program that moves before selecting a stylus when no
-            default is given.
+        AlgorithmError: no move, stylus change or touch.
     """
     names = {k.upper(): v for k, v in (stylus_names or {}).items()}
-    touches = model.touches
-    if not touches and not model.moves:
-        raise AlgorithmError(f"program {model.name!r} makes no move and no touch: nothing to run")
+    if not model.events:
+        raise AlgorithmError(f"program {model.name!r} makes no move, stylus change or touch: nothing to run")
     labels = _touch_labels(model)
     first = model.settings
     statements: list[Statement] = []
     k = 0
-    if not isinstance(model.events[0], StylusChange):
-        if default_stylus is None:
-            raise AlgorithmError(f"{model.events[0].where}: the program moves before it selects a stylus (SNSLCT)")
+    if not isinstance(model.events[0], StylusChange) and default_stylus is not None:
         statements.append(SelectStylus(default_stylus))
     for e in model.events:
         if isinstance(e, StylusChange):

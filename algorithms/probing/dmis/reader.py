@@ -63,6 +63,9 @@ from algorithms.probing.program import ProbeSettings
 MAX_STATEMENTS = 1_000_000
 MAX_CALL_DEPTH = 32
 
+#: A direction whose length is within this of 1 is taken as written, not normalised again.
+UNIT_AS_WRITTEN = 2e-9
+
 #: Millimetres per length unit, radians per angle unit.
 LENGTH_UNITS_MM = {"MM": 1.0, "CM": 10.0, "M": 1000.0, "INCH": 25.4, "FEET": 304.8}
 ANGLE_UNITS_RAD = {"ANGDEC": math.pi / 180.0, "ANGRAD": 1.0, "ANGDMS": math.pi / 180.0}
@@ -346,11 +349,15 @@ class Reader:
     def ijk(self, fields: tuple[str, ...] | list[str], what: str) -> np.ndarray:
         """A direction in the active coordinate system, unit, in the base frame."""
         v = np.array([self.number(f, f"{what} {a}") for a, f in zip("ijk", fields, strict=True)])
+        if abs(float(np.linalg.norm(v)) - 1.0) > UNIT_AS_WRITTEN:
+            v = self.unit(v, what)  # a unit vector as written is kept as written (the twin's own read back exactly)
+        return self.frame()[:3, :3] @ v
+
+    def unit(self, v: np.ndarray, what: str) -> np.ndarray:
         try:
-            v = unit(v, what)
+            return unit(v, what)
         except AlgorithmError as e:
             self.fail(str(e))
-        return self.frame()[:3, :3] @ v
 
     def label(self, text: str, kinds: tuple[str, ...], what: str) -> tuple[str, str]:
         m = _LABEL.fullmatch(text.strip())
@@ -408,9 +415,9 @@ class Reader:
                 return  # a called file's own header
             self.fail("a second DMISMN: a file holds one program")
         m = re.fullmatch(r"'([^']*)'\s*(?:,\s*(\S+))?", st.rest.strip())
-        if not m or not m.group(1).strip():
+        if not m or not m.group(1):
             self.fail(f"DMISMN takes 'name',version, got {st.rest!r}")
-        self.model = DmisModel(m.group(1).strip(), m.group(2) or "", self.encoding)
+        self.model = DmisModel(m.group(1), m.group(2) or "", self.encoding)
         self.model.notices.extend(self.pending_notices)
         self.pending_notices.clear()
 
@@ -529,7 +536,7 @@ class Reader:
         if kind == "LINE":
             if bounded:
                 q = self.xyz_m(f[3:6], "line end")
-                d = unit(q - p, "a bounded line (its ends coincide)")
+                d = self.unit(q - p, "a bounded line's direction (its ends coincide)")
                 return Feature(label, kind, None, p, d, self.ijk(f[6:9], "line normal"), float(np.linalg.norm(q - p)),
                                None, where)
             return Feature(label, kind, None, p, self.ijk(f[3:6], "line direction"), self.ijk(f[6:9], "line normal"),
@@ -892,7 +899,7 @@ def _substitute(body: _Body, params: dict[str, str]) -> _Body:
                          re.IGNORECASE)
     out = []
     for st in body.statements:
-        text = pattern.sub(lambda m: params[m.group(1).upper()].strip("'") if st.word != "(" else m.group(1), st.text)
+        text = st.text if st.word == "(" else pattern.sub(lambda m: params[m.group(1).upper()].strip("'"), st.text)
         new = lexer.statement(text, st.line, st.source)
         out.append(new if new is not None else st)
     return _Body(out, body.targets, body.match)

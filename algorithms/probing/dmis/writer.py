@@ -24,12 +24,18 @@ from algorithms.probing.program import ProbeSettings
 _AXIS = ("X", "Y", "Z")
 
 
+def _fixed(x: float, decimals: int) -> str:
+    """``x`` with ``decimals`` decimals, a zero always unsigned (so a written program is a fixed point)."""
+    text = f"{x:.{decimals}f}"
+    return text.lstrip("-") if float(text) == 0.0 else text
+
+
 def _mm(x_m: float) -> str:
-    return f"{x_m * 1e3:.6f}"
+    return _fixed(x_m * 1e3, 6)
 
 
 def _unit(c: float) -> str:
-    return f"{c:.12f}"
+    return _fixed(c, 12)
 
 
 class _Writer:
@@ -69,7 +75,7 @@ class _Writer:
         if f.kind in ("CIRCLE", "CYLNDR"):
             tail = f",{_mm(f.size_m or 0.0)}"
         elif f.kind == "CONE":
-            tail = f",{math.degrees(f.angle_rad or 0.0):.12f}"
+            tail = "," + _fixed(math.degrees(f.angle_rad or 0.0), 12)
         return f"{head}{side}CART,{self.point(f.point_m)},{self.direction(f.direction)}{tail}"
 
     def touch(self, t: Touch) -> list[str]:
@@ -82,7 +88,10 @@ class _Writer:
         kind = self.model.features[m.feature.upper()].kind
         body: list[str] = []
         for e in m.events:
-            body += self.touch(e) if isinstance(e, Touch) else [f"GOTO/CART,{self.point(e.xyz_m)}"]
+            if isinstance(e, Touch):
+                body += self.touch(e)
+            elif isinstance(e, Move):
+                body.append(f"GOTO/CART,{self.point(e.xyz_m)}")
         self.lines += [f"MEAS/{kind},F({m.feature}),{m.requested}", *body, "ENDMES"]
 
     def alignment_step(self, index: int, name: str | None) -> None:
@@ -102,7 +111,7 @@ class _Writer:
             self.lines.append(f"{head}TRANS/{','.join(parts)}")
         else:
             axis, angle = step.args
-            self.lines.append(f"{head}ROTATE/{_AXIS[axis]}AXIS,{math.degrees(angle):.12f}")
+            self.lines.append(f"{head}ROTATE/{_AXIS[axis]}AXIS,{_fixed(math.degrees(angle), 12)}")
         self.alignment = index
 
     def tolerance(self, t: Tolerance) -> str:
