@@ -59,9 +59,11 @@ from algorithms.probing.dmis.model import (
 )
 from algorithms.probing.program import ProbeSettings
 
-#: The most statements one program may execute (loops and calls counted), and the deepest call.
-MAX_STATEMENTS = 1_000_000
+#: The most statements one program may execute (loops and calls counted), the deepest call, and
+#: the most touches a point or circle measured without PTMEAS may ask for.
+MAX_STATEMENTS = 200_000
 MAX_CALL_DEPTH = 32
+MAX_AUTO_TOUCHES = 1000
 
 #: A direction whose length is within this of 1 is taken as written, not normalised again.
 UNIT_AS_WRITTEN = 2e-9
@@ -629,6 +631,9 @@ class Reader:
         """The touches of a point or circle measured with no PTMEAS: the nominal point, or the
         requested count spread evenly round the nominal circle from its first in-plane axis."""
         f = m.feature
+        if m.requested > MAX_AUTO_TOUCHES:
+            self.fail(f"MEAS of F({f.label}) asks for {m.requested} touches with no PTMEAS: at most {MAX_AUTO_TOUCHES} "
+                      "are generated")
         if f.kind == "POINT":
             assert f.direction is not None
             for _ in range(m.requested):
