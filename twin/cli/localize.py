@@ -79,7 +79,8 @@ def add_parser(sub) -> None:
             "it is printed all the same"
         ),
     )
-    p.add_argument("--model", required=True, help="workpiece mesh (STL, OBJ or PLY), workpiece frame")
+    p.add_argument("--model", required=True,
+                   help="workpiece mesh (STL, OBJ or PLY) or STEP part (its own units), workpiece frame")
     p.add_argument("--points", default=None, help="measured points (PLY), world frame")
     p.add_argument("--scan", default=None, metavar="DIR",
                    help="instead of --points: a folder written by 'twin scan' (the points on its scan lines, "

@@ -1,10 +1,11 @@
-"""A user's workpiece mesh file (STL, OBJ or PLY) read into checked arrays, in metres.
+"""A user's workpiece mesh file (STL, OBJ or PLY) or STEP part read into checked arrays, in metres.
 
 STL and triangle PLY files are read here with numpy; OBJ files (and PLY polygons of more than
 three corners) go through trimesh's parsers. Whatever the format, the result is the one
 ``trimesh.Trimesh(vertices, faces, process=True)`` would hold: vertices closer than 1e-8 m in
 every coordinate merged (trimesh's ``tol.merge``), the first of each group kept, in the order
-of first use, unreferenced vertices dropped. Reading an STL this way keeps trimesh (and the
+of first use, unreferenced vertices dropped. A STEP part is meshed by :mod:`twin.formats.step`
+(units from the file, a stated chordal tolerance). Reading an STL this way keeps trimesh (and the
 half second its import takes) out of the commands that only need the arrays, ``twin localize``
 among them (``benchmarks/results_startup.md``).
 """
@@ -22,7 +23,7 @@ from twin.formats.ply import read_ply
 
 __all__ = ["MESH_EXTENSIONS", "MeshArrays", "merge_vertices", "read_mesh"]
 
-MESH_EXTENSIONS: tuple[str, ...] = (".stl", ".obj", ".ply")
+MESH_EXTENSIONS: tuple[str, ...] = (".stl", ".obj", ".ply", ".step", ".stp")
 """File extensions accepted by :func:`read_mesh` (case-insensitive)."""
 
 #: A workpiece in a cell lies within this distance of its file's origin [m].
@@ -43,14 +44,16 @@ class MeshArrays(NamedTuple):
 
 
 def read_mesh(path: str | Path, units: str) -> MeshArrays:
-    """Read a user's workpiece mesh (STL, OBJ or PLY), convert it to metres and merge vertices.
+    """Read a user's workpiece mesh (STL, OBJ or PLY) or STEP part, convert it to metres and merge
+    vertices.
 
     A file holding several bodies (an OBJ with several objects) is concatenated into one mesh;
     nothing is repaired.
 
     Args:
         path: file path; the extension (case-insensitive) must be one of :data:`MESH_EXTENSIONS`.
-        units: length unit of the file's coordinates, "m" or "mm".
+        units: length unit of the file's coordinates, "m" or "mm" (a STEP file states its own
+            units, which are used instead).
 
     Raises:
         TwinError: bad units, unsupported extension, missing or unreadable file, a file whose
@@ -75,7 +78,12 @@ def read_mesh(path: str | Path, units: str) -> MeshArrays:
         raw = p.read_bytes()
     except OSError as exc:
         raise TwinError(f"cannot read mesh file {str(p)!r}: {exc.strerror}") from None
-    if ext == ".ply":
+    if ext in (".step", ".stp"):
+        from twin.formats.step import read_step
+
+        vertices, faces = read_step(p)
+        units = "m"
+    elif ext == ".ply":
         data = read_ply(p)
         if data.faces is None:
             raise TwinError(f"mesh file {str(p)!r} has no faces")

@@ -1,4 +1,4 @@
-"""Loading a user's workpiece mesh file (STL, OBJ or PLY) in metres, as a trimesh."""
+"""Loading a user's workpiece mesh file (STL, OBJ or PLY) or STEP part in metres, as a trimesh."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ __all__ = ["MESH_EXTENSIONS", "load_mesh"]
 
 
 def load_mesh(path: str | Path, units: str) -> trimesh.Trimesh:
-    """Load a user's workpiece mesh (STL, OBJ or PLY) and convert it to metres.
+    """Load a user's workpiece mesh (STL, OBJ or PLY) or STEP part and convert it to metres.
 
     A file holding several bodies (an OBJ with several objects, a scene) is concatenated
     into one mesh. The mesh is returned as stored (vertices merged, no repair); callers that
