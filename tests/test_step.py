@@ -71,14 +71,18 @@ def test_twin_localize_finds_a_step_part(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_twin_run_on_a_step_part(tmp_path: Path) -> None:
-    """The bracket cell with the STEP part as its workpiece: the loop closes on it."""
+    """The bracket cell with the STEP part as its workpiece: every stage runs and the part is
+    localized to micrometres (whether its paths keep 95 % of their points on this part is the
+    verdict's business: exit 0 or 3)."""
     text = (SCENARIOS / "bracket.toml").read_text().replace('mesh = "meshes/bracket.stl"', f'mesh = "{PART}"')
     scenario = tmp_path / "block_boss.toml"
     scenario.write_text(text.replace('name = "bracket"', 'name = "block_boss"'))
     r = run_cli("run", str(scenario), "--out", str(tmp_path / "run"), "--json", "--quiet")
     assert r.returncode in (0, 3), r.stderr
     report = json.loads((tmp_path / "run" / "report.json").read_text())
-    assert report["localization"]["translation_error_m"] < 50e-6
+    assert report["complete"] and report["localization"]["status"] == "ok"
+    assert report["localization"]["translation_error_mm"] < 0.02
+    assert report["localization"]["rotation_error_deg"] < 0.01
 
 
 @pytest.mark.parametrize("content, message", [
