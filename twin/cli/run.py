@@ -56,6 +56,10 @@ def add_parser(sub) -> None:
                    help="first move the robot base on the table to a pose from which the arm reaches every "
                         "scan and path pose (a search over x, y and yaw around the part), then run from there; "
                         "the placement is written to the report (placement)")
+    p.add_argument("--export-urscript", action="store_true",
+                   help="also write each replayed path as a robot program: DIR/<path>.script (URScript: servoj "
+                        "every 2 ms through the verified 1 ms references) and DIR/<path>_joints.csv; a path past "
+                        "a joint range or speed limit is not written (exit 3)")
     p.add_argument("--strict", action="store_true",
                    help="a path stretch that cannot be processed (unreachable, singular, colliding) fails "
                         "the run instead of being dropped and listed")
@@ -63,9 +67,31 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
+def export_programs(result, folder: Path) -> list[dict]:
+    """Each replayed path as URScript and a joint CSV in ``folder`` (:mod:`twin.formats.urscript`);
+    one entry per path: the files, or why it was not written."""
+    from twin.formats.urscript import write_joint_csv, write_urscript
+
+    model = result.replay_cell.model
+    lo, hi = model.jnt_range[:6, 0], model.jnt_range[:6, 1]
+    out = []
+    for r in result.runs:
+        try:
+            text = write_urscript(r.name, r.trajectory, lo, hi, note=f"{result.realized.scenario.name}, {r.name}")
+        except TwinError as exc:
+            out.append({"path": r.name, "written": False, "why": str(exc)})
+            continue
+        (folder / f"{r.name}.script").write_text(text)
+        (folder / f"{r.name}_joints.csv").write_text(write_joint_csv(r.trajectory))
+        out.append({"path": r.name, "written": True, "script": f"{r.name}.script", "joints": f"{r.name}_joints.csv",
+                    "duration_s": round(float(r.trajectory.t[-1] - r.trajectory.t[0]), 3)})
+    return out
+
+
 def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command: str = "run",
                    strict: bool = False, placement: dict | None = None,
-                   say: Callable[[str], None] | None = None, live: str | None = None):
+                   say: Callable[[str], None] | None = None, live: str | None = None,
+                   urscript: bool = False):
     """Run the loop and write ``report.json`` (and the recording) into the staged folder;
     returns (result, report). ``say`` gets the stage lines (default: plain lines on stderr);
     ``live``: a viewer to stream the stages to as they finish (``"spawn"`` or its address).
@@ -85,6 +111,9 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
         viewer.finish(result)
         say("streamed the run to the viewer")
     report = run_report(result, sensor_sigma_m(realized.scenario))
+    if urscript:
+        report["robot_programs"] = export_programs(result, stage.folder)
+        say(f"wrote {sum(p['written'] for p in report['robot_programs'])} robot program(s)")
     if placement is not None:
         report["placement"] = placement
     if result.failure is not None and "unreachable" in result.failure[1]:
@@ -179,11 +208,15 @@ def run(args: argparse.Namespace) -> int:
                 f"margin {placement['margin']:.2f}, {placement['time_s']:.1f} s)")
         with Staged(out) as stage:
             _, report = run_and_report(scenario, stage, rrd, strict=args.strict, placement=placement, say=say,
-                                       live=live)
+                                       live=live, urscript=args.export_urscript)
             stage.commit()
     h = headline(report)
     print_result(args, h, summary_rows(h), indent=2)
     if not report["complete"]:
         progress("run", f"stopped at {report['failed_stage']}: {report['failure']} "
                         f"(partial report in {report['report']})")
-    return exit_code(report)
+    refused = [p for p in report.get("robot_programs", []) if not p["written"]]
+    for p in refused:
+        progress("run", f"robot program not written: {p['why']}")
+    code = exit_code(report)
+    return EXIT_UNTRUSTED if refused and code == EXIT_OK else code
