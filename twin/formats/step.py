@@ -69,7 +69,7 @@ def read_step(path: Path, chord_tolerance_m: float = STEP_CHORD_TOLERANCE_M) -> 
         if rc != 0 or not glb.is_file() or glb.stat().st_size == 0:
             raise TwinError(f"STEP file {str(path)!r} could not be read or holds no solid or surface to mesh "
                             "(OpenCASCADE found no shape to transfer)")
-        scene = trimesh.load(glb, force="scene")
+        scene = trimesh.load_scene(glb)
         meshes = [g for g in scene.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
     if not meshes:
         raise TwinError(f"STEP file {str(path)!r} holds no solid or surface to mesh")
