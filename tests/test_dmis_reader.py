@@ -18,10 +18,11 @@ from algorithms.probing.cmm_planning import StylusReach, program_moves
 from algorithms.probing.dmis import geometry as geo
 from algorithms.probing.dmis import write_dmis
 from algorithms.probing.dmis.evaluation import evaluate
+from algorithms.probing.dmis.flow import MAX_STATEMENTS
 from algorithms.probing.dmis.lexer import decode, logical_lines, split_fields
 from algorithms.probing.dmis.model import DmisModel, Feature, Touch, Where, lower
 from algorithms.probing.dmis.output import write_output
-from algorithms.probing.dmis.reader import MAX_STATEMENTS, parse_program, read_program
+from algorithms.probing.dmis.reader import parse_program, read_program
 from algorithms.probing.dmis.writer import write_model
 from tests.test_dmis import programs
 

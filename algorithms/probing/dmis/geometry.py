@@ -156,6 +156,48 @@ def min_zone_roundness(uv: FloatArray, centre: FloatArray) -> float:
     return float(min(res.x[3], 1.0) * h) if res.success else float(np.ptp(r))
 
 
+def surface_normal(f: Feature, p: FloatArray) -> FloatArray:
+    """The outward surface normal of nominal ``f`` at (or nearest) ``p``.
+
+    Raises:
+        AlgorithmError: a line without a surface normal, or ``p`` on the feature's axis or centre.
+    """
+    if f.kind in ("POINT", "PLANE"):
+        return direction_of(f)
+    if f.kind == "LINE":
+        if f.normal is None:
+            raise AlgorithmError(f"line F({f.label}) has no surface normal")
+        return f.normal
+    w = p - f.point_m
+    if f.kind != "SPHERE":
+        d = direction_of(f)
+        w = w - (w @ d) * d
+    norm = float(np.linalg.norm(w))
+    if norm < 1e-9:
+        raise AlgorithmError(f"the point lies on the axis of F({f.label}): its normal is not defined; give i,j,k")
+    return -w / norm if f.inner else w / norm
+
+
+def nominal_touches(f: Feature, n: int) -> list[tuple[FloatArray, FloatArray]]:
+    """``n`` touches (surface point, outward normal) on nominal ``f`` where a program gives none:
+    the point itself, or spread evenly round a circle from its first in-plane axis.
+
+    Raises:
+        AlgorithmError: a kind other than a point or a circle (its touches are not generated).
+    """
+    if f.kind == "POINT":
+        return [(f.point_m, direction_of(f))] * n
+    if f.kind == "CIRCLE" and f.size_m is not None:
+        u, v = plane_frame(direction_of(f))
+        out = []
+        for k in range(n):
+            e = np.cos(2 * np.pi * k / n) * u + np.sin(2 * np.pi * k / n) * v
+            out.append((f.point_m + f.size_m / 2 * e, -e if f.inner else e))
+        return out
+    raise AlgorithmError(f"MEAS/{f.kind} of F({f.label}) without PTMEAS: the touches of a {f.kind} are not generated "
+                         "(only points and circles are); give each touch as PTMEAS/CART,x,y,z,i,j,k")
+
+
 def fitted(nominal: Feature, points: FloatArray) -> tuple[Feature, FloatArray]:
     """The actual feature of ``nominal``'s kind fitted to measured surface points, and each
     point's residual [m] (signed along the outward normal where the kind has one).

@@ -8,8 +8,9 @@ comments and continuation lines), and executes:
 * flow: ``DECL``, ``ASSIGN``, expressions in any numeric field, ``IF/(cond)`` ... ``ELSE`` ...
   ``ENDIF``, ``JUMPTO/(label)`` to a ``(label)`` line, ``DO/var,start,end[,step]`` ... ``ENDDO``,
   ``M(name)=MACRO/'p1',...`` ... ``ENDMAC`` and ``CALL/M(name),args``, ``CALL/EXTERN,DMIS,'file'``
-  (a path relative to the calling file); at most :data:`MAX_STATEMENTS` statements executed and
-  :data:`MAX_CALL_DEPTH` calls deep, so a loop that never ends is refused, not run forever;
+  (a path relative to the calling file), as :class:`~algorithms.probing.dmis.flow.Interpreter`
+  follows them: at most ``MAX_STATEMENTS`` statements executed and ``MAX_CALL_DEPTH`` calls deep
+  (:mod:`~algorithms.probing.dmis.flow`), so a loop that never ends is refused, not run forever;
 * setup: ``DMISMN``, ``UNITS`` (MM, CM, M, INCH, FEET; ANGDEC, ANGRAD, ANGDMS), ``MODE``,
   ``SNSET/APPRCH|RETRCT|SEARCH|CLRSRF`` at any point (``DEPTH`` is noted), ``SNSLCT/S()|SA()``;
 * motion and measurement: ``GOTO/[CART,]x,y,z`` and ``GOTO/INCR,d,i,j,k``, ``F()=FEAT`` and
@@ -35,12 +36,20 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
 
 from algorithms.errors import AlgorithmError
-from algorithms.probing.dmis import expressions, geometry, lexer
+from algorithms.probing.dmis import geometry, lexer
+from algorithms.probing.dmis.flow import (
+    REFUSED_WORDS,
+    SKIPPED_WORDS,
+    Body,
+    Interpreter,
+    read_text,
+    split_macros,
+    structure,
+)
 from algorithms.probing.dmis.model import (
     FEATURE_KINDS,
     AlignmentStep,
@@ -59,10 +68,7 @@ from algorithms.probing.dmis.model import (
 )
 from algorithms.probing.program import ProbeSettings
 
-#: The most statements one program may execute (loops and calls counted), the deepest call, and
-#: the most touches a point or circle measured without PTMEAS may ask for.
-MAX_STATEMENTS = 200_000
-MAX_CALL_DEPTH = 32
+#: The most touches a point or circle measured without PTMEAS may ask for.
 MAX_AUTO_TOUCHES = 1000
 
 #: A direction whose length is within this of 1 is taken as written, not normalised again.
@@ -72,45 +78,12 @@ UNIT_AS_WRITTEN = 2e-9
 LENGTH_UNITS_MM = {"MM": 1.0, "CM": 10.0, "M": 1000.0, "INCH": 25.4, "FEET": 304.8}
 ANGLE_UNITS_RAD = {"ANGDEC": math.pi / 180.0, "ANGRAD": 1.0, "ANGDMS": math.pi / 180.0}
 
-#: Words that move the machine or change what is measured, which this reader does not run.
-REFUSED_WORDS = {
-    "GOHOME": "moves the machine to its home position",
-    "RMEAS": "measures relative to another feature",
-    "PAMEAS": "measures along a scanning path",
-    "ROTAB": "turns a rotary table the twin's CMM does not have",
-    "ROTSET": "sets a rotary table the twin's CMM does not have",
-    "CALIB": "calibrates the probe with touches on an artefact",
-    "GOTARG": "moves the machine to a target in a separate motion mode",
-    "WRIST": "turns a motorised wrist",
-    "LOCATE": "moves the part's coordinate system from a fit the reader does not do",
-    "SCNSET": "sets up scanning, which the twin's touch probe does not do",
-    "SCNMOD": "turns scanning on, which the twin's touch probe does not do",
-}
-
 #: The ``SNSET`` words that set the program's probing distances.
 SNSET_WORDS = {"APPRCH": "approach_m", "RETRCT": "retract_m", "SEARCH": "search_m", "CLRSRF": "clearance_m"}
 
 _LABEL = re.compile(r"([A-Za-z]+)\s*\(\s*([^()]*?)\s*\)")
 _NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
 _AXES = {"XAXIS": 0, "YAXIS": 1, "ZAXIS": 2, "XDIR": 0, "YDIR": 1, "ZDIR": 2, "XORIG": 0, "YORIG": 1, "ZORIG": 2}
-_BLOCK_OPEN = {"IF": "ENDIF", "DO": "ENDDO", "MACRO": "ENDMAC"}
-
-
-@dataclass
-class _Body:
-    """A list of statements executed together (a file or a macro), with its jump targets and the
-    matching ends of its blocks."""
-
-    statements: list[lexer.Statement]
-    targets: dict[str, int] = field(default_factory=dict)
-    match: dict[int, int] = field(default_factory=dict)  # IF -> ELSE or ENDIF, ELSE -> ENDIF, DO -> ENDDO
-
-
-@dataclass
-class _Macro:
-    params: list[str]
-    body: _Body
-    where: Where
 
 
 @dataclass
@@ -122,68 +95,27 @@ class _MeasBlock:
     events: list = field(default_factory=list)
 
 
-def _structure(statements: list[lexer.Statement], source: str) -> _Body:
-    """The body of ``statements``: jump targets and matching IF/ELSE/ENDIF and DO/ENDDO (macros are
-    cut out by the caller)."""
-    body = _Body(statements)
-    stack: list[tuple[str, int]] = []
-    for k, st in enumerate(statements):
-        if st.word == "(":
-            body.targets[(st.label or "").upper()] = k
-        elif st.word in ("IF", "DO"):
-            stack.append((st.word, k))
-        elif st.word == "ELSE":
-            if not stack or stack[-1][0] != "IF":
-                raise AlgorithmError(f"{st.where()}: ELSE without IF")
-            body.match[stack[-1][1]] = k
-            stack[-1] = ("ELSE", k)
-        elif st.word in ("ENDIF", "ENDDO"):
-            opener = "DO" if st.word == "ENDDO" else "IF"
-            if not stack or stack[-1][0] not in ((opener,) if opener == "DO" else ("IF", "ELSE")):
-                raise AlgorithmError(f"{st.where()}: {st.word} without {opener}")
-            _, k0 = stack.pop()
-            body.match[k0] = k
-    if stack:
-        word, k0 = stack[-1]
-        st = statements[k0]
-        raise AlgorithmError(f"{st.where()}: the {'IF' if word == 'ELSE' else word} block is not closed by "
-                             f"{'ENDDO' if word == 'DO' else 'ENDIF'} before the end of {source}")
-    return body
-
-
-class Reader:
-    """One program's execution state (see the module docstring). Use :func:`read_program`."""
+class Reader(Interpreter):
+    """What each DMIS statement does (see the module docstring); the flow is :class:`Interpreter`'s.
+    Use :func:`read_program`."""
 
     def __init__(self, encoding: str) -> None:
+        super().__init__()
         self.model: DmisModel | None = None
         self.encoding = encoding
         self.mm_per_unit = 1.0
-        self.rad_per_unit = math.pi / 180.0
         self.settings = {name: getattr(ProbeSettings(), name) for name in SNSET_WORDS.values()}
         self.settings_set: set[str] = set()
         self.stylus: str | None = None
-        self.variables: dict[str, expressions.Value] = {}
-        self.macros: dict[str, _Macro] = {}
         self.alignment: int | None = None
         self.frames: dict[int | None, np.ndarray] = {None: np.eye(4)}
         self.saved: dict[str, int | None] = {}
         self.meas: _MeasBlock | None = None
-        self.executed = 0
-        self.depth = 0
-        self.ended = False
-        self.st: lexer.Statement | None = None
         self.sources: list[str] = []
         self.encodings: list[str] = []
         self.pending_notices: list[Notice] = []
 
     # --- reporting --------------------------------------------------------------------------
-
-    def where(self) -> Where:
-        assert self.st is not None
-        return Where(self.st.source, self.st.line)
-
-    def fail(self, message: str) -> NoReturn:
-        raise AlgorithmError(f"{self.where()}: {message}")
 
     def notice(self, kind: str, message: str) -> None:
         assert self.st is not None
@@ -205,7 +137,7 @@ class Reader:
 
     # --- files and bodies ----------------------------------------------------------------------
 
-    def load(self, path: Path, text: str | None = None) -> _Body:
+    def load(self, path: Path, text: str | None = None) -> Body:
         """The body of a file (macros cut out and registered)."""
         source = os.fspath(path)
         if text is None:
@@ -215,105 +147,11 @@ class Reader:
         for line, content in free:
             n = Notice(Where(source, line), "", "skipped", f"not a DMIS statement (free text): {content[:40]!r}")
             (self.model.notices if self.model else self.pending_notices).append(n)
-        kept: list[lexer.Statement] = []
-        k = 0
-        while k < len(statements):
-            st = statements[k]
-            if st.word == "MACRO":
-                end = next((j for j in range(k + 1, len(statements)) if statements[j].word == "ENDMAC"), None)
-                if end is None:
-                    raise AlgorithmError(f"{st.where()}: MACRO {st.label!r} is not closed by ENDMAC")
-                if st.label_kind != "M" or not st.label:
-                    raise AlgorithmError(f"{st.where()}: a macro is defined as M(name)=MACRO/'p1',..., got {st.text!r}")
-                params = [f.strip().strip("'").upper() for f in st.fields if f.strip()]
-                self.macros[st.label.upper()] = _Macro(params, _structure(statements[k + 1:end], source),
-                                                      Where(st.source, st.line))
-                k = end + 1
-                continue
-            if st.word == "ENDMAC":
-                raise AlgorithmError(f"{st.where()}: ENDMAC without MACRO")
-            kept.append(st)
-            k += 1
-        return _structure(kept, source)
-
-    def run(self, body: _Body) -> None:
-        k = 0
-        while k < len(body.statements):
-            self.st = st = body.statements[k]
-            self.executed += 1
-            if self.executed > MAX_STATEMENTS:
-                self.fail(f"more than {MAX_STATEMENTS} statements executed: a loop that never ends? (JUMPTO, DO and "
-                          "CALL are followed as the program says)")
-            if self.ended and st.word != "(":
-                self.skip("after ENDFIL: not read")
-                k += 1
-                continue
-            if st.word == "ENDFIL" and self.depth > 0:
-                return  # the end of a called file
-            if st.word == "IF":
-                if self.truth(st):
-                    k += 1
-                else:
-                    k = body.match[k] + 1  # past ELSE (into its branch) or ENDIF
-                continue
-            if st.word == "ELSE":  # the end of the IF's true branch
-                k = body.match[k] + 1
-                continue
-            if st.word == "DO":
-                k = self.loop(body, k)
-                continue
-            if st.word == "JUMPTO":
-                k = self.jump(body, st)
-                continue
-            if st.word in ("ENDIF", "ENDDO", "("):
-                k += 1
-                continue
-            self.statement(st)
-            k += 1
-
-    def truth(self, st: lexer.Statement) -> bool:
-        value = self.value(st.rest, "IF condition")
-        return bool(value)
-
-    def jump(self, body: _Body, st: lexer.Statement) -> int:
-        m = re.fullmatch(r"\(\s*([^()]+?)\s*\)", st.rest.strip())
-        if not m:
-            self.fail(f"JUMPTO takes a (label), got {st.rest!r}")
-        target = body.targets.get(m.group(1).upper())
-        if target is None:
-            self.fail(f"JUMPTO/({m.group(1)}): no ({m.group(1)}) label in the same file or macro")
-        return target + 1
-
-    def loop(self, body: _Body, k: int) -> int:
-        st = body.statements[k]
-        if len(st.fields) not in (3, 4):
-            self.fail(f"DO takes var,start,end[,step], got {st.rest!r}")
-        name = st.fields[0].upper()
-        start, stop = (self.value(f, "DO bound") for f in st.fields[1:3])
-        step = self.value(st.fields[3], "DO step") if len(st.fields) == 4 else 1.0
-        if not all(isinstance(v, float) for v in (start, stop, step)) or step == 0.0:
-            self.fail(f"DO bounds and step are numbers and the step is not zero, got {st.rest!r}")
-        end = body.match[k]
-        inner = _Body(body.statements[k + 1:end], {t: j - k - 1 for t, j in body.targets.items() if k < j < end},
-                      {a - k - 1: b - k - 1 for a, b in body.match.items() if k < a < end})
-        i = start
-        while (step > 0 and i <= stop) or (step < 0 and i >= stop):  # type: ignore[operator]
-            self.variables[name] = i
-            self.run(inner)
-            self.executed += 1
-            if self.executed > MAX_STATEMENTS:
-                self.fail(f"more than {MAX_STATEMENTS} statements executed in the DO loop of line {st.line}")
-            i = i + step  # type: ignore[operator]
-        self.st = st
-        return end + 1
+        kept, macros = split_macros(statements, source)
+        self.macros.update(macros)
+        return structure(kept, source)
 
     # --- values ---------------------------------------------------------------------------------
-
-    def value(self, text: str, what: str) -> expressions.Value:
-        try:
-            return expressions.evaluate(text, self.variables, self.rad_per_unit)
-        except AlgorithmError as e:
-            self.fail(f"{what}: {e}")
 
     def number(self, text: str, what: str) -> float:
         text = text.strip()
@@ -361,12 +199,6 @@ class Reader:
         except AlgorithmError as e:
             self.fail(str(e))
 
-    def label(self, text: str, kinds: tuple[str, ...], what: str) -> tuple[str, str]:
-        m = _LABEL.fullmatch(text.strip())
-        if not m or m.group(1).upper() not in kinds or not m.group(2):
-            self.fail(f"{what} must be {' or '.join(k + '(label)' for k in kinds)}, got {text.strip()[:40]!r}")
-        return m.group(1).upper(), m.group(2)
-
     def feature(self, text: str, what: str) -> Feature:
         """The nominal feature a field names (``F()``, ``FA()`` or a datum ``DAT()``)."""
         assert self.model is not None
@@ -392,8 +224,8 @@ class Reader:
     def statement(self, st: lexer.Statement) -> None:
         word = st.word
         if self.model is None and word != "DMISMN":
-            if word in ("FILNAM",) or word in _SKIPPED_WORDS:
-                self.skip(_SKIPPED_WORDS.get(word, "does not move the machine"))
+            if word in ("FILNAM",) or word in SKIPPED_WORDS:
+                self.skip(SKIPPED_WORDS.get(word, "does not move the machine"))
                 return
             self.fail(f"{word} before DMISMN: a DMIS program starts with DMISMN/'name',version")
         if self.meas is not None and word not in ("PTMEAS", "GOTO", "ENDMES", "SNSET", "FEDRAT", "TEXT", "PAUSE"):
@@ -406,8 +238,8 @@ class Reader:
         elif word in REFUSED_WORDS:
             self.fail(f"{word} {REFUSED_WORDS[word]}: this reader does not run it (remove it, or run the program on "
                       "the machine it was written for)")
-        elif word in _SKIPPED_WORDS:
-            self.skip(_SKIPPED_WORDS[word])
+        elif word in SKIPPED_WORDS:
+            self.skip(SKIPPED_WORDS[word])
         else:
             self.skip("not a DMIS statement this reader knows; it is taken not to move the machine")
 
@@ -582,26 +414,14 @@ class Reader:
         if len(f) not in (3, 6):
             self.fail(f"PTMEAS/CART takes x,y,z or x,y,z,i,j,k, got {len(f)} numbers")
         p = self.xyz_m(f[:3], "PTMEAS coordinate")
-        n = self.ijk(f[3:6], "PTMEAS normal") if len(f) == 6 else self.surface_normal(self.meas.feature, p)
+        if len(f) == 6:
+            n = self.ijk(f[3:6], "PTMEAS normal")
+        else:
+            try:
+                n = geometry.surface_normal(self.meas.feature, p)
+            except AlgorithmError as e:
+                self.fail(f"PTMEAS without i,j,k: {e}")
         self.add_touch(p, n)
-
-    def surface_normal(self, f: Feature, p: np.ndarray) -> np.ndarray:
-        """The outward surface normal of nominal ``f`` at (or nearest) ``p``."""
-        if f.kind in ("POINT", "PLANE"):
-            assert f.direction is not None
-            return f.direction
-        if f.kind == "LINE":
-            if f.normal is None:
-                self.fail(f"PTMEAS without i,j,k on line F({f.label}), which has no surface normal")
-            return f.normal
-        w = p - f.point_m
-        if f.kind != "SPHERE":
-            assert f.direction is not None
-            w = w - (w @ f.direction) * f.direction
-        norm = float(np.linalg.norm(w))
-        if norm < 1e-9:
-            self.fail(f"PTMEAS without i,j,k on the axis of F({f.label}): its normal is not defined; give i,j,k")
-        return -w / norm if f.inner else w / norm
 
     def add_touch(self, p: np.ndarray, n: np.ndarray) -> None:
         assert self.meas is not None and self.model is not None
@@ -628,27 +448,16 @@ class Reader:
         self.meas = None
 
     def auto_touches(self, m: _MeasBlock) -> None:
-        """The touches of a point or circle measured with no PTMEAS: the nominal point, or the
-        requested count spread evenly round the nominal circle from its first in-plane axis."""
-        f = m.feature
+        """The touches of a point or circle measured with no PTMEAS (:func:`geometry.nominal_touches`)."""
         if m.requested > MAX_AUTO_TOUCHES:
-            self.fail(f"MEAS of F({f.label}) asks for {m.requested} touches with no PTMEAS: at most {MAX_AUTO_TOUCHES} "
-                      "are generated")
-        if f.kind == "POINT":
-            assert f.direction is not None
-            for _ in range(m.requested):
-                self.add_touch(f.point_m, f.direction)
-            return
-        if f.kind == "CIRCLE":
-            assert f.direction is not None and f.size_m is not None
-            u, v = geometry.plane_frame(f.direction)
-            for k in range(m.requested):
-                a = 2 * math.pi * k / m.requested
-                e = math.cos(a) * u + math.sin(a) * v
-                self.add_touch(f.point_m + f.size_m / 2 * e, -e if f.inner else e)
-            return
-        self.fail(f"MEAS/{f.kind} of F({f.label}) without PTMEAS: the touches of a {f.kind} are not generated "
-                  "(only points and circles are); give each touch as PTMEAS/CART,x,y,z,i,j,k")
+            self.fail(f"MEAS of F({m.feature.label}) asks for {m.requested} touches with no PTMEAS: at most "
+                      f"{MAX_AUTO_TOUCHES} are generated")
+        try:
+            touches = geometry.nominal_touches(m.feature, m.requested)
+        except AlgorithmError as e:
+            self.fail(str(e))
+        for p, n in touches:
+            self.add_touch(p, n)
 
     def do_const(self, st: lexer.Statement) -> None:
         assert self.model is not None
@@ -809,120 +618,6 @@ class Reader:
         out = OutputRequest(tuple(features), tuple(tols), self.where(), self.alignment)
         self.model.outputs.append(out)
         self.model.items.append(("output", out))
-
-    # --- variables, calls -------------------------------------------------------------------
-
-    def do_decl(self, st: lexer.Statement) -> None:
-        f = [x.upper() for x in st.fields]
-        while f and f[0] in ("COMMON", "GLOBAL", "LOCAL", "EXTERN"):
-            f.pop(0)
-        if not f:
-            self.fail(f"DECL takes [scope,]type,name..., got {st.rest!r}")
-        vtype = f.pop(0)
-        if vtype == "CHAR" and f and _NUMBER.fullmatch(f[0]):
-            f.pop(0)
-        for name in f:
-            base = re.sub(r"\[.*\]$", "", name)
-            if not re.fullmatch(r"[A-Z_][A-Z0-9_]*", base):
-                self.fail(f"DECL variable name {name!r} is not a name")
-            self.variables.setdefault(base, "" if vtype == "CHAR" else 0.0)
-
-    def do_assign(self, st: lexer.Statement) -> None:
-        name, eq, expr = st.rest.partition("=")
-        name = name.strip().upper()
-        if not eq or not re.fullmatch(r"[A-Z_][A-Z0-9_]*", name):
-            self.fail(f"ASSIGN takes name=expression, got {st.rest!r}")
-        if name not in self.variables:
-            self.fail(f"ASSIGN to {name}, which no DECL declares")
-        self.variables[name] = self.value(expr, f"ASSIGN/{name}")
-
-    def do_call(self, st: lexer.Statement) -> None:
-        if not st.fields:
-            self.fail("CALL takes M(macro),args or EXTERN,DMIS,'file'")
-        head = st.fields[0].upper()
-        if head == "EXTERN":
-            self.call_file(st)
-            return
-        _, name = self.label(st.fields[0], ("M",), "CALL's macro")
-        macro = self.macros.get(name.upper())
-        if macro is None:
-            self.fail(f"CALL/M({name}): no macro M({name}) is defined (M({name})=MACRO/... ENDMAC)")
-        args = [a.strip() for a in st.fields[1:]]
-        if len(args) != len(macro.params):
-            self.fail(f"CALL/M({name}) gives {len(args)} argument(s); the macro takes {len(macro.params)}")
-        body = _substitute(macro.body, dict(zip(macro.params, args, strict=True)))
-        self.enter(body)
-
-    def call_file(self, st: lexer.Statement) -> None:
-        f = st.fields
-        if len(f) < 3 or f[1].upper() != "DMIS":
-            self.skip(f"CALL/EXTERN,{f[1] if len(f) > 1 else ''}: only DMIS files are called (EXTERN,DMIS,'file'); "
-                      "an external program is not run")
-            return
-        name = f[2].strip().strip("'")
-        path = Path(st.source).parent / name
-        if not path.is_file():
-            self.fail(f"CALL/EXTERN,DMIS,'{name}': no such file next to {Path(st.source).name} ({os.fspath(path)})")
-        body = self.load(path)
-        self.enter(body)
-
-    def enter(self, body: _Body) -> None:
-        caller = self.st
-        self.depth += 1
-        if self.depth > MAX_CALL_DEPTH:
-            self.fail(f"calls nested more than {MAX_CALL_DEPTH} deep: a macro or file that calls itself?")
-        self.run(body)
-        self.depth -= 1
-        self.st = caller
-
-
-_SKIPPED_WORDS = {w: "does not move the machine; not evaluated by the twin" for w in """
-    FILNAM DMESWV DMESWI DMEHW DMEID DMISMD DECPL VFORM DISPLY PRCOMP CRMODE FEDRAT ACLRAT TEXT PROMPT
-    PAUSE FLY WKPLAN PARTID PARTRV PARTSN PLANID OPERID LOTID PROCID MFGDEV QISDEF FIXTID FIXTSN DEVICE OPEN
-    CLOSE READ WRITE GEOM EQUATE SNSDEF SNSMNT SNSGRP TECOMP THLDEF REPORT RAPID GEOALG CZONE CZSLCT LITDEF
-    EXTFIL KEYCHAR ERROR INCLUD TOOLDF CLMPID CLMPSN CRGDEF CRSLCT DFTCAS EVAL EXTENS FINPOS GROUP ITERAT
-    OBTAIN POP PUSH PREVOP PSTHRU PTBUFF REFMNT SELECT CASE ENDCAS ENDSEL DATTRGDEF CNFRMRUL CMPNTGRP ALGDEF
-    BOUND WINDEF XTERN XTRACT VALUE ENDX ENDGO ENDAS BADTST FROM ROTDEF SIMREQT ENDSIMREQT
-""".split()}
-_SKIPPED_WORDS.update({
-    "PAUSE": "pauses for the operator; the twin does not stop",
-    "FLY": "flies through moves (rounded corners); the twin's moves stop at each point",
-    "DECPL": "sets the decimals of the output; the twin writes its own",
-    "DISPLY": "sets where output goes; the twin writes its report files",
-    "VFORM": "sets the output's columns; the twin writes nominal, actual, limits and deviation",
-    "EQUATE": "equates two alignments; the twin keeps its own",
-    "SNSDEF": "defines a sensor; the twin's styli come from its scenario",
-    "FEDRAT": "sets speeds; the twin's CMM moves at its scenario's speeds",
-})
-
-
-def _substitute(body: _Body, params: dict[str, str]) -> _Body:
-    """``body`` with each macro parameter name replaced by its argument, statement by statement."""
-    if not params:
-        return body
-    pattern = re.compile(r"(?<![A-Za-z0-9_'])(" + "|".join(re.escape(p) for p in params) + r")(?![A-Za-z0-9_'])",
-                         re.IGNORECASE)
-    out = []
-    for st in body.statements:
-        text = st.text if st.word == "(" else pattern.sub(lambda m: params[m.group(1).upper()].strip("'"), st.text)
-        new = lexer.statement(text, st.line, st.source)
-        out.append(new if new is not None else st)
-    return _Body(out, body.targets, body.match)
-
-
-def read_text(path: Path, encodings: list[str] | None = None) -> str:
-    """The text of a DMIS file (see :func:`~algorithms.probing.dmis.lexer.decode`)."""
-    source = os.fspath(path)
-    if not path.is_file():
-        raise AlgorithmError(f"no DMIS file at {source!r}: give the path of an existing file")
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise AlgorithmError(f"cannot read DMIS file {source!r}: {e.strerror or e}") from e
-    text, encoding = lexer.decode(data, source)
-    if encodings is not None:
-        encodings.append(encoding)
-    return text
 
 
 def _finish(reader: Reader, source: str) -> DmisModel:
