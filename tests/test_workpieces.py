@@ -473,10 +473,10 @@ def test_load_mesh_refuses_missing_file(tmp_path):
 
 
 def test_load_mesh_refuses_unsupported_extension(tmp_path):
-    path = tmp_path / "part.step"
-    path.write_text("ISO-10303-21;\n")
+    path = tmp_path / "part.iges"
+    path.write_text("S      1\n")
     message = _one_line_error(load_mesh, path, "mm")
-    assert "'.step'" in message
+    assert "'.iges'" in message
     for ext in MESH_EXTENSIONS:
         assert ext in message
 
