@@ -20,7 +20,6 @@ from twin.cli import COMMANDS
 from twin.cli.common import add_print_options, print_result
 from twin.errors import TwinError
 from twin.io.output import PARTIAL_MARK, check_output_file, new_file_mode, raise_if_interrupted
-from twin.parts import MESH_EXTENSIONS
 from twin.realize import load_workpiece_mesh
 from twin.scenario import load_scenario
 
@@ -29,6 +28,9 @@ from twin.scenario import load_scenario
 EXPORT_OPTIONS: dict[str, dict] = {".stl": {}, ".ply": {}, ".obj": {"include_normals": False,
                                                                     "include_texture": False, "digits": 17}}
 FORMAT_NAMES = {".stl": "binary STL", ".ply": "binary PLY", ".obj": "OBJ"}
+
+#: The formats OUT can have (STEP parts are read, not written).
+WRITTEN_EXTENSIONS = (".stl", ".obj", ".ply")
 
 
 def add_parser(sub) -> None:
@@ -40,7 +42,7 @@ def add_parser(sub) -> None:
                     "is refused unless --force. Prints the path, the triangle count and the bounds.",
     )
     p.add_argument("scenario", help="scenario TOML file")
-    p.add_argument("out", metavar="OUT", help=f"mesh file to write ({', '.join(MESH_EXTENSIONS)})")
+    p.add_argument("out", metavar="OUT", help=f"mesh file to write ({', '.join(WRITTEN_EXTENSIONS)})")
     p.add_argument("--force", action="store_true", help="replace an existing OUT")
     add_print_options(p, quiet=False)
     p.set_defaults(run=run)
@@ -49,8 +51,8 @@ def add_parser(sub) -> None:
 def check_out(path: str, force: bool) -> Path:
     """OUT, refused in one line for a suffix no mesh format has, or an existing file without ``force``."""
     suffix = Path(path).suffix.lower()
-    if suffix not in MESH_EXTENSIONS:
-        raise TwinError(f"OUT must end in {', '.join(MESH_EXTENSIONS)} (the format follows the suffix), "
+    if suffix not in WRITTEN_EXTENSIONS:
+        raise TwinError(f"OUT must end in {', '.join(WRITTEN_EXTENSIONS)} (the format follows the suffix), "
                         f"got {path!r}")
     return check_output_file(path, suffix, force, "OUT")
 
