@@ -5,7 +5,15 @@ For notebooks and scripts: ``twin.run(scenario)``, ``twin.locate(scenario)`` and
 workflows load on the first call.
 """
 
-from twin.api import locate, run, study
-from twin.errors import TwinError
+import sys
+
+# trimesh imports the OpenCASCADE wheel (cascadio) whenever it is installed, to offer STEP
+# loading; that adds its libraries to every command's start-up, and a SIGTERM that arrives while
+# they initialise ends the process with a segmentation fault. The twin reads STEP itself
+# (twin.formats.step), importing cascadio there only; here trimesh is told it is absent.
+sys.modules.setdefault("cascadio", None)  # type: ignore[arg-type]
+
+from twin.api import locate, run, study  # noqa: E402
+from twin.errors import TwinError  # noqa: E402
 
 __all__ = ["TwinError", "locate", "run", "study"]

@@ -10,6 +10,7 @@ are merged into one closed mesh by :func:`twin.formats.meshes.merge_vertices`.
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -56,6 +57,8 @@ def read_step(path: Path, chord_tolerance_m: float = STEP_CHORD_TOLERANCE_M) -> 
         head = fh.read(64).lstrip(b"\xef\xbb\xbf").lstrip()
     if not head.startswith(b"ISO-10303-21;"):
         raise TwinError(f"{str(path)!r} is not a STEP file: a STEP file starts with ISO-10303-21;")
+    if "cascadio" in sys.modules and sys.modules["cascadio"] is None:
+        del sys.modules["cascadio"]  # kept from trimesh's start-up by twin/__init__.py
     try:
         import cascadio
         import trimesh
