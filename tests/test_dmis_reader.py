@@ -513,6 +513,7 @@ def test_twin_cmm_check_runs_a_program_and_writes_its_results(tmp_path: Path) ->
     assert "PASS" in (out / "report.html").read_text() and (out / "hits.csv").exists()
 
 
+@pytest.mark.slow
 def test_twin_cmm_check_without_a_datum_fails_the_position_and_says_so(tmp_path: Path) -> None:
     """Without datum C the bore's y is the machine's: its position is 0.2 mm off, exit 3, FAIL."""
     import json
