@@ -113,30 +113,8 @@ def logical_lines(text: str) -> list[tuple[int, str]]:
     return out
 
 
-def split_fields(rest: str) -> tuple[str, ...]:
-    """``rest`` split at commas outside quotes and parentheses, each field stripped."""
-    if not rest.strip():
-        return ()
-    fields: list[str] = []
-    depth, quoted, start = 0, False, 0
-    for k, ch in enumerate(rest):
-        if ch == "'":
-            quoted = not quoted
-        elif quoted:
-            continue
-        elif ch == "(":
-            depth += 1
-        elif ch == ")":
-            depth -= 1
-        elif ch == "," and depth == 0:
-            fields.append(rest[start:k].strip())
-            start = k + 1
-    fields.append(rest[start:].strip())
-    return tuple(fields)
-
-
-def _slash(text: str) -> int:
-    """The index of the first ``/`` outside quotes and parentheses, or -1."""
+def _top_level(text: str):
+    """(index, character) of each character of ``text`` outside quotes and parentheses."""
     depth, quoted = 0, False
     for k, ch in enumerate(text):
         if ch == "'":
@@ -147,9 +125,22 @@ def _slash(text: str) -> int:
             depth += 1
         elif ch == ")":
             depth -= 1
-        elif ch == "/" and depth == 0:
-            return k
-    return -1
+        elif depth == 0:
+            yield k, ch
+
+
+def split_fields(rest: str) -> tuple[str, ...]:
+    """``rest`` split at commas outside quotes and parentheses, each field stripped."""
+    if not rest.strip():
+        return ()
+    cuts = [k for k, ch in _top_level(rest) if ch == ","]
+    starts, ends = [0, *(k + 1 for k in cuts)], [*cuts, len(rest)]
+    return tuple(rest[a:b].strip() for a, b in zip(starts, ends, strict=True))
+
+
+def _slash(text: str) -> int:
+    """The index of the first ``/`` outside quotes and parentheses, or -1."""
+    return next((k for k, ch in _top_level(text) if ch == "/"), -1)
 
 
 def statement(text: str, line: int, source: str) -> Statement | None:
