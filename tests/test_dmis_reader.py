@@ -534,6 +534,18 @@ def test_twin_cmm_check_without_a_datum_fails_the_position_and_says_so(tmp_path:
     assert out == ["POS_BORE"]
 
 
+@pytest.mark.slow
+def test_twin_cmm_check_on_a_part_file_at_a_fixture_pose(tmp_path: Path) -> None:
+    """--part: the plate's mesh file on the twin's CMM where the program expects it: PASS."""
+    from tests.helpers import run_cli
+
+    assert run_cli("export-mesh", str(CMM / "bore_and_face.toml"), str(tmp_path / "plate.stl")).returncode == 0
+    r = run_cli("cmm", "check", str(DATA / "plate_bore.dmi"), "--part", str(tmp_path / "plate.stl"), "--units", "m",
+                "--out", str(tmp_path / "o"), "--stylus", "T1A0B0=S1", "--quiet")
+    assert r.returncode == 0, r.stderr + r.stdout
+    assert "every tolerance in         pass" in r.stdout
+
+
 def test_twin_cmm_check_reads_without_a_machine_and_refuses_in_one_line(tmp_path: Path) -> None:
     """Without a scenario: the summary (and check.json with --out); a statement that moves the
     machine, a stylus the machine lacks, a run without --out: exit 2, one line, nothing written."""
@@ -554,7 +566,9 @@ def test_twin_cmm_check_reads_without_a_machine_and_refuses_in_one_line(tmp_path
         ((str(DATA / "plate_bore.dmi"), str(CMM / "bore_and_face.toml"), "--out", str(tmp_path / "x")),
          "--stylus T1A0B0=NAME"),
         ((str(DATA / "plate_bore.dmi"), str(CMM / "bore_and_face.toml")), "give --out DIR"),
-        ((str(DATA / "plate_bore.dmi"), "--stylus", "T1A0B0=S1"), "need a SCENARIO"),
+        ((str(DATA / "plate_bore.dmi"), "--stylus", "T1A0B0=S1"), "need a SCENARIO or --part"),
+        ((str(DATA / "plate_bore.dmi"), "--part", "x.stl", "--fixture", "1,2", "--out", str(tmp_path / "x")),
+         "--fixture '1,2' is not X,Y,Z,RX,RY,RZ"),
         ((str(DATA / "plate_bore.dmi"), "--stylus", "T1A0B0"), "is not PROGRAM=MACHINE"),
     ]:
         r = run_cli("cmm", "check", *args)

@@ -48,6 +48,9 @@ DMO_FILE = "output.dmo"
 RESULTS_FILE = "results.csv"
 PAGE_FILE = "report.html"
 CHECK_FILE = "check.json"
+#: The template of a --part run (its machine, probe and stylus S1), and the part's default pose.
+PART_TEMPLATE = "cmm/bore_and_face.toml"
+DEFAULT_FIXTURE = (0.35, 0.50, 0.12, 0.0, 0.0, 0.0)
 PLANNER_CHOICES = ("all", "baseline", "document", "full_check")
 
 
@@ -107,7 +110,17 @@ def add_parser(sub) -> None:
                                f"machine and is not run (nothing written); {EXIT_UNTRUSTED} ran, but a touch missed, "
                                "the probe hit the part, or a tolerance is out or could not be evaluated")
     pk.add_argument("program", help="DMIS program (.dmi, .dms, ...)")
-    pk.add_argument("scenario", nargs="?", help='scenario TOML file with machine = "cmm" (omit to only read)')
+    pk.add_argument("scenario", nargs="?", help='scenario TOML file with machine = "cmm" (omit to only read, or '
+                                                 "give --part)")
+    pk.add_argument("--part", metavar="FILE",
+                    help="run on the twin's bridge CMM with this part (STL, OBJ, PLY or STEP) on the table at "
+                         "--fixture, where the program expects it, instead of a scenario's")
+    pk.add_argument("--units", choices=("m", "mm"), default="mm",
+                    help="units of a --part mesh file (default mm; a STEP file states its own)")
+    pk.add_argument("--fixture", default=",".join(f"{x:g}" for x in DEFAULT_FIXTURE), metavar="X,Y,Z,RX,RY,RZ",
+                    help="the --part's pose on the table: the part frame's origin [m] and its roll, pitch, yaw "
+                         "[deg] in the machine frame (default: on the riser in the middle of the table, "
+                         f"{','.join(f'{x:g}' for x in DEFAULT_FIXTURE)})")
     pk.add_argument("--stylus", action="append", default=[], metavar="PROGRAM=MACHINE",
                     help="run the program's stylus PROGRAM (its SNSLCT label) as the machine's stylus MACHINE; "
                          "repeat for each")
@@ -263,6 +276,31 @@ def _stylus_map(items: list[str]) -> dict[str, str]:
     return out
 
 
+def _part_setup(part: str, units: str, fixture: str):
+    """The twin's bridge CMM (:data:`PART_TEMPLATE`'s machine, probe and styli) with ``part`` on the
+    table at ``fixture`` (X,Y,Z [m], RX,RY,RZ [deg]), its true pose the one the program expects."""
+    from pathlib import Path
+
+    from twin.cmm_machine import cmm_setup
+    from twin.errors import TwinError
+    from twin.formats.toml_files import read_toml
+    from twin.scenario import merge_tables, parse_scenario
+
+    try:
+        values = [float(x) for x in fixture.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 6 or not all(np.isfinite(values)):
+        raise TwinError(f"--fixture {fixture!r} is not X,Y,Z,RX,RY,RZ (six numbers: metres, then degrees)")
+    template = Path(__file__).resolve().parents[2] / "scenarios" / PART_TEMPLATE
+    raw = read_toml(template, "scenario")
+    pose = {"xyz": values[:3], "rpy_deg": values[3:]}
+    workpiece = {"mesh": str(Path(part).resolve()), "units": units, "true_pose": pose, "nominal_pose": pose}
+    raw = merge_tables({k: v for k, v in raw.items() if k != "workpiece"},
+                       {"name": f"cmm_{Path(part).stem}", "workpiece": workpiece})
+    return cmm_setup(parse_scenario(raw, name=Path(part).stem, base_dir=template.parent, source=str(template)))
+
+
 def _check_rows(s: dict) -> list[tuple[str, str]]:
     skipped = [n for n in s["notices"] if n["kind"] == "skipped"]
     rows = [("program", f"{s['program']} ({s['encoding']}, {len(s['files'])} file(s), "
@@ -289,16 +327,19 @@ def run_check(args: argparse.Namespace) -> int:
     from twin.io.dmis_files import summary
 
     stylus_names = _stylus_map(args.stylus)
-    if args.scenario is not None and args.out is None:
-        raise TwinError("twin cmm check with a SCENARIO runs the program: give --out DIR for its results")
-    if args.scenario is None and (args.rrd or args.stylus or args.seed is not None):
-        raise TwinError("--rrd, --stylus and --seed need a SCENARIO to run the program on")
+    if args.scenario is not None and args.part is not None:
+        raise TwinError("give a SCENARIO or --part FILE to run the program on, not both")
+    runs = args.scenario is not None or args.part is not None
+    if runs and args.out is None:
+        raise TwinError("twin cmm check with a SCENARIO or --part runs the program: give --out DIR for its results")
+    if not runs and (args.rrd or args.stylus or args.seed is not None):
+        raise TwinError("--rrd, --stylus and --seed need a SCENARIO or --part to run the program on")
     try:
         model = read_program(args.program)
     except AlgorithmError as exc:
         raise TwinError(str(exc)) from None
     info = summary(model)
-    if args.scenario is None:
+    if not runs:
         if args.out is not None:
             out, _ = checked_outputs(args)
             with Staged(out) as stage:
@@ -315,7 +356,7 @@ def _run_check(args: argparse.Namespace, model, info: dict, stylus_names: dict[s
     from twin.io.dmis_files import results, write_results_csv, write_results_html
     from twin.workflows.cmm import run_dmis
 
-    setup = _setup(args.scenario)
+    setup = _setup(args.scenario) if args.scenario is not None else _part_setup(args.part, args.units, args.fixture)
     out, rrd = checked_outputs(args)
     t0 = time.perf_counter()
     with reporting(args, "cmm check") as say, Staged(out) as stage:
@@ -332,7 +373,8 @@ def _run_check(args: argparse.Namespace, model, info: dict, stylus_names: dict[s
         verdict = "PASS" if all(ok for _, ok, _ in checks) else "FAIL"
         report: dict[str, Any] = {"verdict": verdict, "checks": [{"check": c, "pass": ok, "detail": d}
                                                                  for c, ok, d in checks],
-                                  "scenario": str(args.scenario), "dmis": str(args.program), "program": info,
+                                  "scenario": str(args.scenario or setup.scenario.source), "part": args.part,
+                                  "dmis": str(args.program), "program": info,
                                   "results": results(ev), "run": run}
         (stage.folder / DMO_FILE).write_text(write_output(model, ev), encoding="utf-8")
         write_results_csv(stage.folder / RESULTS_FILE, ev)
