@@ -491,6 +491,7 @@ def test_the_dmis_output_reads_back_as_the_actuals() -> None:
 CMM = Path(__file__).resolve().parents[1] / "scenarios" / "cmm"
 
 
+@pytest.mark.slow
 def test_twin_cmm_check_runs_a_program_and_writes_its_results(tmp_path: Path) -> None:
     """The plate program on the bore_and_face cell: every touch hit, no contact, all 8 tolerances
     in (the part lies 0.1 mm and 0.01 deg off; its datums give its frame); the DMIS output reads

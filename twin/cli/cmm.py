@@ -334,30 +334,32 @@ def run_check(args: argparse.Namespace) -> int:
         raise TwinError("twin cmm check with a SCENARIO or --part runs the program: give --out DIR for its results")
     if not runs and (args.rrd or args.stylus or args.seed is not None):
         raise TwinError("--rrd, --stylus and --seed need a SCENARIO or --part to run the program on")
+    outputs = checked_outputs(args) if args.out is not None else None  # before any work
     try:
         model = read_program(args.program)
     except AlgorithmError as exc:
         raise TwinError(str(exc)) from None
     info = summary(model)
     if not runs:
-        if args.out is not None:
-            out, _ = checked_outputs(args)
-            with Staged(out) as stage:
+        if outputs is not None:
+            with Staged(outputs[0]) as stage:
                 write_json(stage.folder / CHECK_FILE, info)
                 stage.commit()
         print_result(args, info, _check_rows(info), indent=2)
         return EXIT_OK
-    return _run_check(args, model, info, stylus_names)
+    assert outputs is not None
+    return _run_check(args, model, info, stylus_names, outputs)
 
 
-def _run_check(args: argparse.Namespace, model, info: dict, stylus_names: dict[str, str]) -> int:
+def _run_check(args: argparse.Namespace, model, info: dict, stylus_names: dict[str, str],
+               outputs: tuple) -> int:
     from algorithms.probing.dmis.output import write_output
     from twin.io.cmm_files import run_report, write_hits_csv
     from twin.io.dmis_files import results, write_results_csv, write_results_html
     from twin.workflows.cmm import run_dmis
 
     setup = _setup(args.scenario) if args.scenario is not None else _part_setup(args.part, args.units, args.fixture)
-    out, rrd = checked_outputs(args)
+    out, rrd = outputs
     t0 = time.perf_counter()
     with reporting(args, "cmm check") as say, Staged(out) as stage:
         dr = run_dmis(model, setup, _rng(setup, args.seed), stylus_names)
