@@ -45,6 +45,7 @@ def _episode(env, seed, actions):
     return out
 
 
+@pytest.mark.slow  # the default suite's five minutes (issue 31): CI's slow tier runs it
 def test_check_env_passes_without_a_warning(env):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

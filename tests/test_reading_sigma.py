@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 
 from algorithms.geometry.kinematics import dh_forward
 from tests.helpers import SCENARIOS, scenario
@@ -56,6 +57,7 @@ max_lines = 4
     assert all(r["mahalanobis2"] < 22.5 for r in rows)   # chi-square(6) at 99.9 %
 
 
+@pytest.mark.slow  # the default suite's five minutes (issue 31): CI's slow tier runs it
 def test_the_loop_under_encoder_noise_is_ok_and_within_its_covariance(tmp_path):
     from twin.cli.run import run_and_report
     from twin.io.output import Staged

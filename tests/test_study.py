@@ -92,6 +92,7 @@ def test_bad_study_refused_in_one_line(tmp_path, capsys, text, words):
     assert out == "" and not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow  # the default suite's five minutes (issue 31): CI's slow tier runs it
 def test_workers_give_identical_tables(reference, tmp_path):
     study, table = reference
     assert table.num_rows == 12 and set(table.column("status").to_pylist()) <= {"ok", "not_converged", "poor_fit"}
@@ -173,6 +174,7 @@ def test_a_random_subset_of_points_per_trial_whatever_the_workers(tmp_path):
     assert all(v > 1000 for c, v in zip(cells, n, strict=True) if c == 1)
 
 
+@pytest.mark.slow  # the default suite's five minutes (issue 31): CI's slow tier runs it
 def test_sigkill_leaves_no_worker_behind(tmp_path):
     """SIGKILL of ``twin study --workers 2``: its workers end with it (they would otherwise run
     on for minutes, holding the command's stdout and stderr open: a ``| tee`` or a CI step would

@@ -27,6 +27,7 @@ def test_document_000_dome_on_a_block_is_never_ok_at_a_wrong_pose():
     assert any(o.review is not None and o.review.startswith("wrong minimum") for o in out)
 
 
+@pytest.mark.slow  # the default suite's five minutes (issue 31): CI's slow tier runs it
 def test_the_battery_small_version():
     """One trial of every kind on every part: no false ok, no false alarm on sound fits."""
     out = battery(1, first_seed=7)
