@@ -5,6 +5,7 @@ place, the text of a file; and the words the reader refuses or skips, with why."
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -148,19 +149,9 @@ def substitute(body: Body, params: dict[str, str]) -> Body:
     return Body(out, body.targets, body.match)
 
 
-def read_text(path: Path, encodings: list[str] | None = None) -> str:
-    """The text of a DMIS file (see :func:`~algorithms.probing.dmis.lexer.decode`)."""
-    source = os.fspath(path)
-    if not path.is_file():
-        raise AlgorithmError(f"no DMIS file at {source!r}: give the path of an existing file")
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise AlgorithmError(f"cannot read DMIS file {source!r}: {e.strerror or e}") from e
-    text, encoding = lexer.decode(data, source)
-    if encodings is not None:
-        encodings.append(encoding)
-    return text
+def read_file(path: Path) -> tuple[str, str]:
+    """The text of a DMIS file and its encoding (:func:`~algorithms.probing.dmis.lexer.decode`)."""
+    return lexer.decode(lexer.read_bytes(path), os.fspath(path))
 
 
 class Interpreter:
@@ -175,7 +166,7 @@ class Interpreter:
         self.ended = False
         self.variables: dict[str, expressions.Value] = {}
         self.macros: dict[str, Macro] = {}
-        self.rad_per_unit = 3.141592653589793 / 180.0
+        self.rad_per_unit = math.pi / 180.0
 
     def statement(self, st: lexer.Statement) -> None:
         raise NotImplementedError

@@ -12,8 +12,10 @@ stay whole.
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 from algorithms.errors import AlgorithmError
 
@@ -78,6 +80,21 @@ def decode(data: bytes, source: str) -> tuple[str, str]:
         return data.decode("utf-8"), "utf-8"
     except UnicodeDecodeError:
         return data.decode("latin-1"), "latin-1"
+
+
+def read_bytes(path: str | os.PathLike[str]) -> bytes:
+    """The bytes of the DMIS file ``path``.
+
+    Raises:
+        AlgorithmError: no such file, or it cannot be read.
+    """
+    source = os.fspath(path)
+    if not Path(path).is_file():
+        raise AlgorithmError(f"no DMIS file at {source!r}: give the path of an existing file")
+    try:
+        return Path(path).read_bytes()
+    except OSError as e:
+        raise AlgorithmError(f"cannot read DMIS file {source!r}: {e.strerror or e}") from e
 
 
 def strip_comment(line: str) -> str:

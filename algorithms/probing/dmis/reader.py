@@ -46,7 +46,7 @@ from algorithms.probing.dmis.flow import (
     SKIPPED_WORDS,
     Body,
     Interpreter,
-    read_text,
+    read_file,
     split_macros,
     structure,
 )
@@ -112,7 +112,6 @@ class Reader(Interpreter):
         self.saved: dict[str, int | None] = {}
         self.meas: _MeasBlock | None = None
         self.sources: list[str] = []
-        self.encodings: list[str] = []
         self.pending_notices: list[Notice] = []
 
     # --- reporting --------------------------------------------------------------------------
@@ -141,7 +140,7 @@ class Reader(Interpreter):
         """The body of a file (macros cut out and registered)."""
         source = os.fspath(path)
         if text is None:
-            text = read_text(path, self.encodings)
+            text, _ = read_file(path)
         self.sources.append(source)
         statements, free = lexer.statements(text, source)
         for line, content in free:
@@ -441,7 +440,7 @@ class Reader(Interpreter):
         if len(m.touches) != m.requested:
             self.notice("warning", f"MEAS of F({m.feature.label}) asked for {m.requested} points and the block holds "
                                    f"{len(m.touches)}: all {len(m.touches)} are measured")
-        measurement = Measurement(m.feature.label, m.requested, tuple(m.touches), m.where, self.current_alignment(),
+        measurement = Measurement(m.feature.label, m.requested, tuple(m.touches), m.where, self.alignment,
                                   tuple(m.events))
         self.model.measurements.append(measurement)
         self.model.items.append(("meas", measurement))
@@ -476,7 +475,7 @@ class Reader(Interpreter):
         except AlgorithmError as e:
             self.fail(str(e))
         self.model.features[name.upper()] = nominal
-        c = Construction(name, kind, method, tuple(f.label for f in inputs), self.where(), self.current_alignment())
+        c = Construction(name, kind, method, tuple(f.label for f in inputs), self.where(), self.alignment)
         self.model.constructions.append(c)
         self.model.items.append(("const", c))
 
@@ -490,9 +489,6 @@ class Reader(Interpreter):
         self.model.items.append(("datdef", (letter, f.label)))
 
     # --- alignments -------------------------------------------------------------------------
-
-    def current_alignment(self) -> int | None:
-        return self.alignment
 
     def new_alignment(self, op: str, args: tuple, st: lexer.Statement) -> None:
         from algorithms.probing.dmis.evaluation import alignment_frame
@@ -655,6 +651,5 @@ def parse_program(text: str, source: str = "program", encoding: str = "utf-8") -
 def read_program(path: str | os.PathLike[str]) -> DmisModel:
     """The model of the DMIS program in file ``path`` (UTF-8 with or without a byte-order mark, or Latin-1)."""
     p = Path(path)
-    encodings: list[str] = []
-    text = read_text(p, encodings)
-    return parse_program(text, os.fspath(path), encodings[0])
+    text, encoding = read_file(p)
+    return parse_program(text, os.fspath(path), encoding)

@@ -49,6 +49,7 @@ import numpy as np
 
 from algorithms.arraytypes import FloatArray
 from algorithms.errors import AlgorithmError
+from algorithms.probing.dmis.lexer import read_bytes
 from algorithms.probing.program import (
     LABEL_PATTERN,
     NORMAL_DECIMALS,
@@ -188,13 +189,7 @@ def write_dmis_file(program: Program, path: str | os.PathLike[str]) -> None:
 
 def read_dmis(path: str | os.PathLike[str]) -> Program:
     """The program in the DMIS file ``path`` (UTF-8, an optional byte-order mark)."""
-    p = Path(path)
-    if not p.is_file():
-        raise AlgorithmError(f"no DMIS file at {os.fspath(path)!r}: give the path of an existing file")
-    try:
-        data = p.read_bytes()
-    except OSError as e:
-        raise AlgorithmError(f"cannot read DMIS file {os.fspath(path)!r}: {e.strerror or e}") from e
+    data = read_bytes(path)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
