@@ -25,6 +25,11 @@ from twin.formats.toml_files import read_toml
 
 SENSOR_WINDOW_M = (0.055, 0.105)  # Keyence IL-065 measuring window
 
+#: While a list, every key the validator reads is noted in it as ``(table, key, kind, default,
+#: allowed, given)``: the scenario key reference is generated from these notes
+#: (:func:`twin.schema.scenario_keys`), so it lists exactly what the validator accepts.
+KEY_LOG: list[tuple[str, str, str, Any, str, bool]] | None = None
+
 
 def pose_from_table(value: Any, where: str) -> np.ndarray:
     """Parse a pose table into a (4, 4) rigid transform, or raise TwinError naming ``where``."""
@@ -76,28 +81,30 @@ class _Section:
         self.where = where
         self.allowed: list[str] = []
 
-    def _get(self, key: str, default: Any) -> Any:
+    def _get(self, key: str, default: Any, kind: str = "value", allowed: str = "") -> Any:
         self.allowed.append(key)
+        if KEY_LOG is not None:
+            KEY_LOG.append((self.where, key, kind, default, allowed, key in self.table))
         return self.table.pop(key, default)
 
     def number(self, key: str, default: float, lo: float = -np.inf, hi: float = np.inf,
                lo_open: bool = False) -> float:
-        v = self._get(key, default)
+        rng = f"({lo:g}, {hi:g}]" if lo_open else f"[{lo:g}, {hi:g}]"
+        v = self._get(key, default, "number", rng)
         if not _is_number(v) or not np.isfinite(v):
             raise TwinError(f"{self.where}.{key} must be a finite number, got {v!r}")
         if v < lo or v > hi or (lo_open and v <= lo):
-            rng = f"({lo:g}, {hi:g}]" if lo_open else f"[{lo:g}, {hi:g}]"
             raise TwinError(f"{self.where}.{key} = {v!r} is outside the allowed range {rng}")
         return float(v)
 
     def integer(self, key: str, default: int, lo: int, hi: int) -> int:
-        v = self._get(key, default)
+        v = self._get(key, default, "integer", f"[{lo}, {hi}]")
         if not isinstance(v, int) or isinstance(v, bool) or v < lo or v > hi:
             raise TwinError(f"{self.where}.{key} must be an integer in [{lo}, {hi}], got {v!r}")
         return int(v)
 
     def boolean(self, key: str, default: bool) -> bool:
-        v = self._get(key, default)
+        v = self._get(key, default, "boolean", "true, false")
         if not isinstance(v, bool):
             raise TwinError(f"{self.where}.{key} must be true or false, got {v!r}")
         return v
@@ -110,7 +117,7 @@ class _Section:
 
     def choice(self, key: str, default: str | None, choices: tuple[str, ...]) -> str | None:
         """One of ``choices``; None only when the key is absent and ``default`` is None."""
-        v = self._get(key, default)
+        v = self._get(key, default, "string", ", ".join(f'"{c}"' for c in choices))
         if v is None and default is None:
             return None
         if v not in choices:
@@ -125,14 +132,16 @@ class _Section:
 
     def string(self, key: str, default: str | None) -> str | None:
         """A string; None only when the key is absent and ``default`` is None."""
-        v = self._get(key, default)
+        v = self._get(key, default, "string")
         if v is not None and not isinstance(v, str):
             raise TwinError(f"{self.where}.{key} must be a string, got {v!r}")
         return v
 
     def pose(self, key: str, default: np.ndarray | None = None) -> np.ndarray:
-        v = self._get(key, None)
-        if v is None:
+        given = key in self.table
+        v = self._get(key, "required" if default is None else default, "pose",
+                      "{ xyz = [x, y, z], rpy_deg = [r, p, y] } or { matrix = 4x4 }")
+        if not given:
             if default is None:
                 raise TwinError(f"{self.where}.{key} is required (a pose: xyz/rpy_deg or matrix)")
             return default.copy()
@@ -146,13 +155,13 @@ class _Section:
 
     def vector(self, key: str, default: list[float] | None, n: int) -> np.ndarray | None:
         """An (n,) float array; None only when the key is absent and ``default`` is None."""
-        v = self._get(key, default)
+        v = self._get(key, default, "list", f"{n} finite numbers")
         if v is None:
             return None
         return _vector(v, n, f"{self.where}.{key}")
 
     def table_value(self, key: str) -> dict:
-        v = self._get(key, {})
+        v = self._get(key, {}, "table")
         if not isinstance(v, dict):
             raise TwinError(f"{self.where}.{key} must be a table, got {v!r}")
         return v
@@ -635,12 +644,12 @@ def parse_scenario(raw: dict, name: str = "scenario", base_dir: Path | None = No
     noise = _parse_noise(_Section(top.table_value("noise"), "noise"))
     scan = _parse_scan(_Section(top.table_value("scan"), "scan"), sensor)
     path = _parse_path(_Section(top.table_value("path"), "path"))
-    probe_table = top._get("probe", None)
+    probe_table = top._get("probe", None, "table", "the touch probe (its keys: [probe] below)")
     probe = None if probe_table is None else _parse_probe(_Section(probe_table, "probe"))
     locate = _parse_locate(_Section(top.table_value("locate"), "locate"))
     machine = str(top.choice("machine", "arm", MACHINES))
     tolerances = _parse_tolerances(_Section(top.table_value("tolerances"), "tolerances"))
-    cmm_table = top._get("cmm", None)
+    cmm_table = top._get("cmm", None, "table", "machine = \"cmm\" only (its keys: [cmm] below)")
     top.done()
     cmm = None
     if machine == "cmm":
@@ -705,13 +714,12 @@ def _parse_sensor(s: _Section) -> SensorSpec:
 
 def _linearity_phase(s: _Section) -> float | None:
     """``linearity_phase_deg``: a number in [0, 360) or "random" (None: drawn per realization)."""
-    v = s.table.get("linearity_phase_deg", 0.0)
+    v = s._get("linearity_phase_deg", 0.0, "number or string", '[0, 360) or "random"')
     if v == "random":
-        s._get("linearity_phase_deg", None)
         return None
     if not _is_number(v) or not (0.0 <= v < 360.0):
         raise TwinError(f'sensor.linearity_phase_deg must be a number in [0, 360) or "random", got {v!r}')
-    return s.number("linearity_phase_deg", 0.0)
+    return float(v)
 
 
 def _default_hand_eye() -> np.ndarray:
@@ -739,7 +747,7 @@ def _parse_noise(s: _Section) -> NoiseSpec:
 
 
 def _parse_scan(s: _Section, sensor: SensorSpec) -> ScanSpec:
-    region = s._get("region_m", None)
+    region = s._get("region_m", None, "list", "[[xmin, ymin], [xmax, ymax]], min < max")
     if region is not None:
         ok = (isinstance(region, list) and len(region) == 2
               and all(isinstance(r, list) and len(r) == 2 and all(_is_number(v) for v in r) for r in region))
@@ -756,7 +764,7 @@ def _parse_scan(s: _Section, sensor: SensorSpec) -> ScanSpec:
     retract = s.number("retract_m", 0.020, 0.0, 0.5)
     axis = s.choice("line_axis", "x", ("x", "y"))
     max_lines = s.integer("max_lines", 1000, 1, 100000)
-    passes_raw = s._get("passes", None)
+    passes_raw = s._get("passes", None, "string or tables", '"auto" or a list of [[scan.passes]] tables')
     clearance = s.number("transit_clearance_m", 0.03, 0.0, 1.0)
     auto_keys = ("auto_tilts_deg", "auto_azimuths", "auto_max_passes", "auto_min_relative_eigenvalue")
     auto_given = [k for k in auto_keys if k in s.table]
@@ -791,7 +799,7 @@ def _check_standoff(standoff: float, sensor: SensorSpec, where: str) -> None:
 
 
 def _parse_auto(s: _Section) -> AutoPlanSpec:
-    tilts = s._get("auto_tilts_deg", [30.0, 45.0, 60.0])
+    tilts = s._get("auto_tilts_deg", [30.0, 45.0, 60.0], "list", "tilts in (0, 80] deg")
     if (not isinstance(tilts, list) or not tilts or not all(_is_number(v) and np.isfinite(v) for v in tilts)
             or not all(0.0 < v <= 80.0 for v in tilts)):
         raise TwinError(f"scan.auto_tilts_deg must be a non-empty list of tilts in (0, 80] deg, got {tilts!r}")
@@ -814,8 +822,8 @@ def _unit(v: np.ndarray, where: str) -> np.ndarray:
 def _parse_pass(s: _Section, i: int, scan: ScanSpec, sensor: SensorSpec) -> PassSpec:
     where = s.where
     name = s.string("name", f"pass {i + 1}")
-    beam_raw = s._get("beam", [0.0, 0.0, -1.0])
-    view_raw = s._get("view", None)
+    beam_raw = s._get("beam", [0.0, 0.0, -1.0], "string or list", '"normal" or a direction [x, y, z]')
+    view_raw = s._get("view", None, "list", "a direction [x, y, z]; beam = \"normal\" only")
     if beam_raw == "normal":
         beam = "normal"
         view = _unit(_vector(view_raw if view_raw is not None else [0.0, 0.0, -1.0], 3, f"{where}.view"),
@@ -827,8 +835,9 @@ def _parse_pass(s: _Section, i: int, scan: ScanSpec, sensor: SensorSpec) -> Pass
             raise TwinError(f"{where}.view applies to beam = \"normal\" only (a fixed beam is its own view)")
         beam = "fixed"
         view = _unit(_vector(beam_raw, 3, f"{where}.beam"), f"{where}.beam")
-    region = _parse_box(s._get("region_m", None), f"{where}.region_m")
-    axis_raw = s._get("line_axis", None)
+    region = _parse_box(s._get("region_m", None, "list", "[[xmin, ymin, zmin], [xmax, ymax, zmax]] or [[xmin, ymin], [xmax, ymax]]"),
+                        f"{where}.region_m")
+    axis_raw = s._get("line_axis", None, "string or list", '"x", "y", "z" or a direction [x, y, z]')
     if axis_raw is None:
         axis = np.array(_AXIS_NAMES["x"] if abs(view[0]) < 0.9 else _AXIS_NAMES["y"])
     elif isinstance(axis_raw, str):
@@ -903,8 +912,8 @@ def _parse_path(s: _Section) -> PathSpec:
     region_axis = s.vector("region_axis", [0.0, 0.0, 1.0], 3)
     cone = s.number("region_cone_deg", 60.0, 0.0, 90.0, lo_open=True)
     max_tilt = s.number("max_tilt_deg", 0.0, 0.0, 89.0)
-    box = s._get("region_box_m", None)
-    features = s._get("region_features", [])
+    box = s._get("region_box_m", None, "list", "[[xmin, ymin, zmin], [xmax, ymax, zmax]]")
+    features = s._get("region_features", [], "string or list", "named features of the part")
     s.done()
     if isinstance(features, str):
         features = [features]
@@ -998,7 +1007,7 @@ def _parse_tolerances(s: _Section) -> ToleranceSpec:
 
 
 def _parse_cmm(s: _Section) -> CmmSpec:
-    raw = s._get("styli", {"S1": [0.0, 0.0]})
+    raw = s._get("styli", {"S1": [0.0, 0.0]}, "table", "stylus name = [A_deg, B_deg]")
     if not isinstance(raw, dict) or not raw:
         raise TwinError("cmm.styli must be a table of stylus name = [A_deg, B_deg], e.g. { S1 = [0, 0] }")
     styli = {}

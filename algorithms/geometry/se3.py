@@ -82,7 +82,7 @@ def exp_se3(xi: ArrayLike) -> Pose:
 
 
 def rotation_vector(R: FloatArray) -> FloatArray:
-    """The rotation vector (axis times angle in [0, pi] [rad]) of a rotation matrix.
+    """The rotation vector (axis times angle in [0, pi], radians) of a rotation matrix.
 
     The algorithm of scipy's ``Rotation.from_matrix(R).as_rotvec()`` (the unit quaternion from
     the largest of the trace and the diagonal, Markley's method; the angle from ``atan2``; a

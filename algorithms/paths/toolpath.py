@@ -150,7 +150,8 @@ def tool_frames(T_contact: ArrayLike, lead_rad: float = 0.0, tilt_rad: float = 0
 
     Args:
         T_contact: (K, 4, 4) contact frames (z = outward normal or the fixed axis).
-        lead_rad, tilt_rad: tool inclination [rad], |angle| < pi/2.
+        lead_rad: tool lead [rad], |angle| < pi/2.
+        tilt_rad: tool tilt [rad], |angle| < pi/2.
         tip_radius_m: ball-end radius [m] (0 for a point or flat tip).
 
     Returns:
@@ -372,7 +373,8 @@ def build_path(lines_contact: Sequence[ArrayLike], lines_normal: Sequence[ArrayL
         settings: tool orientation options.
         T_frame_ref: optional (4, 4) pose of the frame the fixed directions are given in
             (e.g. ``T_base_workpiece``: heading along the part's x); default: the points' frame.
-        clear, safe_plane: collision-checked transits (:func:`assemble_path`).
+        clear: collision check of transits (:func:`assemble_path`).
+        safe_plane: the plane transits go over (:func:`assemble_path`).
         lines_axis: optional L arrays (n_i, 3) of unit tool axes, one per contact point (a
             ball-end tool tilted about its ball's centre: the ball touches the same point, the
             tip sits at ``c + r (n - axis)``); they replace the settings' axis, lead and tilt.

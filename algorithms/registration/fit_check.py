@@ -80,7 +80,8 @@ def poor_fit_reason(rmse_m: float, n_inliers: int, n_points: int, extent_m: floa
 
     Args:
         rmse_m: RMS residual of the inliers [m].
-        n_inliers, n_points: inliers kept and finite points given.
+        n_inliers: inliers kept.
+        n_points: finite points given.
         extent_m: the model's size (bounding-box diagonal) [m].
         sigma_m: the given noise sigma [m], or None.
         white_sigma_m: :func:`white_noise_sigma_m` of the inliers' residuals [m].

@@ -328,7 +328,8 @@ def localize_hybrid(
             :func:`algorithms.registration.global_search.global_localize`.
         stock_m: nominal stock [m] for the inside-the-model check (default: the 10th
             percentile of the rough points' stock at the max-min placement).
-        sigma, outlier: for the finished points (see :func:`localize_symmetric`).
+        sigma: noise sigma of the finished points (see :func:`localize_symmetric`).
+        outlier: outlier rule of the finished points (see :func:`localize_symmetric`).
         max_iterations: cap on LP steps per stage.
         tolerance: ``delta`` of ``1 - e_k/e_(k-1) < delta``.
         index: prebuilt MeshIndex of ``mesh``.

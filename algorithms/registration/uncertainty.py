@@ -304,7 +304,8 @@ def systematic_covariance(points: ArrayLike, normals: ArrayLike, directions: Arr
     shrink with the number of points.
 
     Args:
-        points, normals: (N, 3) model feet and unit normals (workpiece frame).
+        points: (N, 3) model feet (workpiece frame).
+        normals: (N, 3) unit normals at the feet (workpiece frame).
         directions: (q, 6) twists the covariance is expressed along.
         bias_basis: (N, K) the basis functions' values at the points.
         bias_std: (K,) their coefficients' standard deviations [m].

@@ -79,6 +79,17 @@ SUCCESS_KEYS: dict[str, tuple[Any, Any, str]] = {
     "distance_m": (0.001, lambda v: _is_number(v) and 0 < v <= 1.0, "a number in (0, 1]"),
 }
 MAX_TRIALS = 1_000_000
+#: The study's own keys: name -> (default, what is allowed); the tables are the *_KEYS above.
+HEADER_KEYS: dict[str, tuple[Any, str]] = {
+    "name": ("study", "a non-empty string"),
+    "seed": (0, "an integer in [0, 2^63)"),
+    "scenario": ("required", "the base scenario file, relative to the study file"),
+    "trials": (10, f"an integer in [1, {MAX_TRIALS}]: trials per grid cell (the most, with [adaptive])"),
+    "kind": ("fast", f"one of {', '.join(KINDS)}"),
+    "overrides": ({}, "a table of scenario tables merged over the base scenario"),
+    "grid": ({}, 'dotted key paths to value lists: "sensor.sigma_m", "localize.method", "points.count", '
+                 '"scenario", "overrides"'),
+}
 
 
 def _is_number(v: Any) -> bool:
@@ -277,19 +288,19 @@ def _header(raw: dict, base_dir: Path) -> _Header:
     unknown = sorted(set(raw) - set(TOP_KEYS))
     if unknown:
         raise TwinError(f"unknown study key(s) {', '.join(unknown)}; allowed: {', '.join(TOP_KEYS)}")
-    name = raw.get("name", "study")
+    name = raw.get("name", HEADER_KEYS["name"][0])
     if not isinstance(name, str) or not name:
         raise TwinError(f"study name must be a non-empty string, got {name!r}")
-    seed = raw.get("seed", 0)
+    seed = raw.get("seed", HEADER_KEYS["seed"][0])
     if not _is_int(seed) or not 0 <= seed < 2**63:
         raise TwinError(f"study seed must be an integer in [0, 2^63), got {seed!r}")
     if "scenario" not in raw or not isinstance(raw["scenario"], str):
         raise TwinError("study scenario is required: the base scenario file, relative to the study file")
     scenario_path = (base_dir / raw["scenario"]).resolve()
-    trials = raw.get("trials", 10)
+    trials = raw.get("trials", HEADER_KEYS["trials"][0])
     if not _is_int(trials) or not 1 <= trials <= MAX_TRIALS:
         raise TwinError(f"study trials must be an integer in [1, {MAX_TRIALS}], got {trials!r}")
-    kind = raw.get("kind", "fast")
+    kind = raw.get("kind", HEADER_KEYS["kind"][0])
     if kind not in KINDS:
         raise TwinError(f"study kind = {kind!r} is not one of {', '.join(KINDS)}")
     overrides = raw.get("overrides", {})

@@ -280,13 +280,17 @@ def global_localize(
         n_coarse: points used in the coarse phases (farthest-point subset).
         n_verify: points used to refine and compare candidate minima (random subset).
         max_candidates: distinct coarse minima refined with exact closest points.
-        ga_bits, ga_mutation, ga_population, ga_generations: GA settings (defaults: the
-            document's 100 / 100 and our 10 bits, per-bit mutation).
+        ga_bits: GA bits per pose coordinate (default: our 10).
+        ga_mutation: GA mutation probability (default: the document's, per bit).
+        ga_population: GA population (default: the document's 100).
+        ga_generations: GA generations (default: the document's 100).
         ga_restarts: at most this many GA runs, until one passes Algorithm 5's acceptance (needs
             ``noise_sigma_m``; without it one run, the document's algorithm).
-        pso_particles, pso_iterations: PSO settings (defaults: the patent's 40 / 100).
-        pso_rotation_range_rad, pso_translation_range_m: PSO search range around the coarse
-            pre-registration (defaults 5 degrees and 2 % of the model's size).
+        pso_particles: PSO swarm size (default: the patent's 40).
+        pso_iterations: PSO iterations (default: the patent's 100).
+        pso_rotation_range_rad: PSO rotation search range around the coarse pre-registration
+            (default 5 degrees).
+        pso_translation_range_m: PSO translation search range (default 2 % of the model's size).
         pso_fitness: ``"exact"`` (patent: nearest model points) or ``"field"`` (coarse field).
 
     Returns:
