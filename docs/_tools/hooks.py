@@ -20,14 +20,15 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from reports import ROOT, stamp, stamp_markdown  # noqa: E402
+from report_stamps import ROOT, stamp, stamp_markdown  # noqa: E402
 
 MARKER = re.compile(r"<!--\s*twin:([\w-]+)\s*(.*?)\s*-->")
 _IMAGE = re.compile(r"!\[([^\]]*)\]\(([^)\s]+)\)")
 _LINK = re.compile(r"(?<!!)\[([^\]]+)\]\(([^)\s]+)\)")
 _HEADING = re.compile(r"^(#{1,5}) ", re.MULTILINE)
-_ROW = re.compile(r"^\|\s*((?:`[^`]+`(?:,\s*)?)+)\s*\|[^|]*\|\s*(.*?)\s*\|\s*$")
-_SECTION = re.compile(r"^\|\s*\*\*\[{1,2}([\w.]+)\]{1,2}\*\*")
+_ROW = re.compile(r"^\|\s*((?:`[^`]+`(?:,\s*)?)+)\s*\|(?:[^|]*\|)?\s*(.*?)\s*\|\s*$")
+_SECTION = re.compile(r"^\|\s*\*\*\[{1,2}([\w.]+)\]{1,2}\*\*\s*\|[^|]*\|(.*)$")
+_TABLE_HEADING = re.compile(r"^#{2,4} \[{1,2}([\w.]+)\]{1,2}(.*)$")
 
 #: Images of included reports: (report path, image name) -> the file's place in the site.
 _IMAGES: dict[tuple[str, str], str] = {}
@@ -99,19 +100,32 @@ def generated(name: str, docs_dir: Path) -> str:
 
 def meanings(page: Path) -> dict[tuple[str, str], str]:
     """What each key means, from the key tables of a file-format page: rows ``| `key` | default |
-    meaning |`` under section rows ``| **[table]** |``."""
+    meaning |`` under a section row ``| **[table]** |`` or a heading ``### [table]: what it is``;
+    a dotted key (``localize.method``) names its table, a ``[table]`` key the table itself."""
     out: dict[tuple[str, str], str] = {}
     table = ""
     for line in page.read_text(encoding="utf-8").splitlines():
-        section = _SECTION.match(line)
+        section = _SECTION.match(line) or _TABLE_HEADING.match(line)
         if section:
             table = section.group(1).replace("scan.passes", "scan.passes[]")
+            what = section.group(2).strip(" |:")
+            out[("", table)] = what or f"the `[{table}]` table"
             continue
         row = _ROW.match(line)
         if row:
             for key in re.findall(r"`([^`]+)`", row.group(1)):
-                out[(table, key)] = row.group(2)
+                out[_key_of(table, key)] = row.group(2)
     return out
+
+
+def _key_of(table: str, key: str) -> tuple[str, str]:
+    """(table, key) of a key as a page writes it: ``kind``, ``localize.method``, ``[grid]``."""
+    if key.startswith("["):
+        return "", key.strip("[]")
+    if table:
+        return table, key
+    where, _, name = key.rpartition(".")
+    return where, name
 
 
 def include_report(report: str, modules: list[str], depth: int) -> str:
@@ -131,9 +145,21 @@ def include_report(report: str, modules: list[str], depth: int) -> str:
             return m.group(0)
         return f"{m.group(1)} (`{(path.parent / target).resolve().relative_to(ROOT)}`)"
 
-    text = _LINK.sub(link, _IMAGE.sub(image, text))
-    text = _HEADING.sub(lambda m: "#" + m.group(1) + " ", text)
+    text = _demote(_LINK.sub(link, _IMAGE.sub(image, text)))
     return stamp_markdown(stamp(path, modules), report) + "\n" + text
+
+
+def _demote(text: str) -> str:
+    """Headings two levels down (a report's title under the page's section), code left alone."""
+    out, fenced = [], False
+    for line in text.split("\n"):
+        if line.startswith(("```", "~~~")):
+            fenced = not fenced
+        elif not fenced and _HEADING.match(line):
+            hashes = len(line) - len(line.lstrip("#"))
+            line = "#" * min(hashes + 2, 6) + line[hashes:]
+        out.append(line)
+    return "\n".join(out)
 
 
 def reports_table(docs_dir: Path, here: str) -> str:

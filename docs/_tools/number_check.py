@@ -30,10 +30,12 @@ _NUMBER = re.compile(r"(?<![\w.^])(\d{1,3}(?:,\d{3})+|\d+(?:_\d+)*)(\.\d+)?(?:[e
 _NAME_WORDS = {"document", "documents", "doc", "algorithm", "algorithms", "eq", "eq.", "eqs", "equation", "equations",
                "section", "sections", "step", "steps", "table", "figure", "python", "dmis", "jcgm", "iso", "issue",
                "exit", "code", "codes", "status", "version", "part", "stage", "claim", "rule", "chapter", "page",
-               "gum", "annex", "clause", "tier", "level", "appendix"}
+               "gum", "annex", "clause", "tier", "level", "appendix", "supplement", "eq.(", "documents'"}
+#: Words that continue a list of names: documents 001 and 002, Algorithms 1-3.
+_LIST_WORDS = {"and", "or", "to", "of"}
 _FENCE = re.compile(r"^(```|~~~).*?^\1", re.MULTILINE | re.DOTALL)
 _INDENTED_CODE = re.compile(r"^(?: {4}|\t)(?![-*\d]).*$", re.MULTILINE)
-_CODE = re.compile(r"`[^`\n]*`")
+_CODE = re.compile(r"`[^`]*`")
 _COMMENT = re.compile(r"<!--.*?-->", re.DOTALL)
 _LINK_TARGET = re.compile(r"\]\(([^)\s]+)\)")
 _URL = re.compile(r"https?://\S+")
@@ -126,12 +128,18 @@ def _cited(raw_block: str, page: Path) -> list[Path]:
 
 
 def _is_name(prose_line: str, start: int) -> bool:
-    """A number that is part of a name (document 001, Algorithm 5, UR5e, IL-065, DMIS 5.3)."""
+    """A number that is part of a name (document 001, Algorithm 5, eq. (2), documents 001 and 002,
+    UR5e, IL-065, DMIS 5.3)."""
     before = prose_line[:start]
-    if before.endswith(("-", "v", "V")) and re.search(r"[A-Za-z]-?$|[vV]$", before):
+    if re.search(r"[A-Za-z]-?$|[vV]$", before):
         return True
-    words = before.split()
-    return bool(words) and words[-1].lower().strip("(,") in _NAME_WORDS
+    for word in reversed(before.replace("(", " ").replace(",", " ").split()):
+        word = word.lower()
+        if word in _NAME_WORDS:
+            return True
+        if not (word in _LIST_WORDS or re.fullmatch(r"[\d.-]+", word)):
+            return False
+    return False
 
 
 def check_page(page: Path, text: str | None = None) -> list[Problem]:
