@@ -85,7 +85,7 @@ def test_the_front_door_refuses_a_bad_study_scheduler(tmp_path):
         twin.study(ROOT / "studies" / "sensor_sigma.toml", tmp_path / "out", scheduler="carrier-pigeon")
 
 
-# Modules allowed past MAX_MODULE_LINES, each for a reason the README names.
+# Modules allowed past MAX_MODULE_LINES, each for the reason given beside it.
 DECLARATIVE_MODULES = {
     "twin/scenario.py": "the scenario file's schema: a documented dataclass per TOML table and its parser",
 }

@@ -6,7 +6,7 @@ on stderr, nothing on stdout and no output folder; for a finished run, outputs t
 complete and consistent with themselves. An exception escaping ``main`` (a traceback) fails.
 
 CI runs a fixed, derandomized budget (about a minute); ``TWIN_FUZZ=slow pytest -m long
-tests/test_fuzz.py`` runs the large random one (2,000 cases; README, "Hardening").
+tests/test_fuzz.py`` runs the large random one (2,000 cases).
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 
 A scenario describes one cell: the workpiece and its TRUE and NOMINAL poses, the robot base,
 the laser sensor, the error sources switched on, the scan plan and the seed. Every key is
-documented in ``scenarios/README.md``; unknown keys are an error.
+documented in ``docs/concepts/scenario-files.md`` (every key with its default, generated from
+this validator: the documentation's "Scenario keys"); unknown keys are an error.
 
 Poses are written either as ``{ xyz = [x, y, z], rpy_deg = [roll, pitch, yaw] }`` (metres,
 degrees, extrinsic x-y-z rotations) or as ``{ matrix = [[...4x4...]] }``.

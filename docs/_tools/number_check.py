@@ -34,6 +34,7 @@ _NAME_WORDS = {"document", "documents", "doc", "algorithm", "algorithms", "eq", 
 #: Words that continue a list of names: documents 001 and 002, Algorithms 1-3.
 _LIST_WORDS = {"and", "or", "to", "of"}
 _FENCE = re.compile(r"^(```|~~~).*?^\1", re.MULTILINE | re.DOTALL)
+_LIST_MARKER = re.compile(r"^\s*\d+\.(?= )", re.MULTILINE)
 _INDENTED_CODE = re.compile(r"^(?: {4}|\t)(?![-*\d]).*$", re.MULTILINE)
 _CODE = re.compile(r"`[^`]*`")
 _COMMENT = re.compile(r"<!--.*?-->", re.DOTALL)
@@ -91,7 +92,7 @@ def _blank(m: re.Match) -> str:
 
 def _prose(text: str) -> str:
     """The page with code, comments and link targets blanked out."""
-    for pattern in (_FENCE, _COMMENT, _INDENTED_CODE):
+    for pattern in (_FENCE, _COMMENT, _INDENTED_CODE, _LIST_MARKER):
         text = pattern.sub(_blank, text)
     text = _LINK_TARGET.sub(lambda m: "](" + " " * len(m.group(1)) + ")", text)
     return _CODE.sub(_blank, _URL.sub(_blank, text))
@@ -134,7 +135,7 @@ def _is_name(prose_line: str, start: int) -> bool:
     if re.search(r"[A-Za-z]-?$|[vV]$", before):
         return True
     for word in reversed(before.replace("(", " ").replace(",", " ").split()):
-        word = word.lower()
+        word = word.lower().strip("*_")
         if word in _NAME_WORDS:
             return True
         if not (word in _LIST_WORDS or re.fullmatch(r"[\d.-]+", word)):

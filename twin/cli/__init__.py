@@ -4,7 +4,7 @@ Each subcommand lives in its own module ``twin/cli/<name>.py`` exposing
 ``add_parser(subparsers)`` and ``run(args) -> int``. stdout carries the result only (a short
 summary, or one JSON object with ``--json``); progress and errors go to stderr (``--quiet``
 keeps the errors only). Whatever goes wrong ends in one line on stderr and a documented exit
-status, never a traceback (README, "Exit status"):
+status, never a traceback (docs/concepts/verdicts.md, "Exit status"):
 
 - 0: done, and the result can be trusted;
 - 2: bad input (a file, an option, an output location, a file system error): nothing written;

@@ -19,7 +19,7 @@ from typing import Any, NoReturn, TextIO
 from twin.errors import TwinError
 from twin.io.output import check_output_file, check_output_folder, raise_if_interrupted
 
-#: Exit statuses of every command (README, "Exit status").
+#: Exit statuses of every command (docs/concepts/verdicts.md, "Exit status").
 EXIT_OK, EXIT_BAD_INPUT, EXIT_UNTRUSTED, EXIT_STAGE_FAILED = 0, 2, 3, 4
 EXIT_BROKEN_PIPE, EXIT_SIGINT, EXIT_SIGTERM = 141, 130, 143
 

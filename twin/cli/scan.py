@@ -36,7 +36,7 @@ def add_parser(sub) -> None:
         epilog="exit status: 0 a scan with valid points; 2 bad input; 3 the scan measured no point (every beam "
                "missed or fell outside the sensor's window: the files are written and say so)",
     )
-    p.add_argument("scenario", help="scenario TOML file (see scenarios/README.md)")
+    p.add_argument("scenario", help="scenario TOML file (its keys: docs/concepts/scenario-files.md)")
     add_output_options(p, "output folder (created; refused if it exists, unless --force)")
     p.add_argument("--noise-off", action="store_true", help="switch every error source off")
     p.set_defaults(run=run)

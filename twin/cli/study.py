@@ -26,7 +26,7 @@ def add_parser(sub) -> None:
                     "DIR/results/ in batches; --resume skips the finished trials. The same study gives the "
                     "same table whatever the workers, the scheduler or the resume.",
     )
-    p.add_argument("study", help="study TOML file (studies/README.md documents its keys)")
+    p.add_argument("study", help="study TOML file (its keys: docs/concepts/study-files.md)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--workers", type=positive_int, default=1,
                    help="worker processes (default 1: this process; with --scheduler dask the cluster's size); "

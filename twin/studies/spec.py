@@ -2,7 +2,7 @@
 
 A study names a base scenario, optional overrides of it, the localization settings, for
 ``kind = "points"`` the sampled point sets, a grid of factors and how many trials each grid
-cell gets, or an adaptive rule (``studies/README.md`` documents every key). A grid key is a
+cell gets, or an adaptive rule (``docs/concepts/study-files.md`` documents every key). A grid key is a
 dotted key path into the scenario (``"sensor.sigma_m"``), into the localization
 (``"localize.method"``), into the point sets (``"points.noise_sigma_m"``), ``"scenario"``
 (a list of scenario files: several base scenarios in one study) or ``"overrides"`` (a list of
