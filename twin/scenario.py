@@ -836,8 +836,8 @@ def _parse_pass(s: _Section, i: int, scan: ScanSpec, sensor: SensorSpec) -> Pass
             raise TwinError(f"{where}.view applies to beam = \"normal\" only (a fixed beam is its own view)")
         beam = "fixed"
         view = _unit(_vector(beam_raw, 3, f"{where}.beam"), f"{where}.beam")
-    region = _parse_box(s._get("region_m", None, "list", "[[xmin, ymin, zmin], [xmax, ymax, zmax]] or [[xmin, ymin], [xmax, ymax]]"),
-                        f"{where}.region_m")
+    box = "[[xmin, ymin, zmin], [xmax, ymax, zmax]] or [[xmin, ymin], [xmax, ymax]]"
+    region = _parse_box(s._get("region_m", None, "list", box), f"{where}.region_m")
     axis_raw = s._get("line_axis", None, "string or list", '"x", "y", "z" or a direction [x, y, z]')
     if axis_raw is None:
         axis = np.array(_AXIS_NAMES["x"] if abs(view[0]) < 0.9 else _AXIS_NAMES["y"])

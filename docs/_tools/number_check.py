@@ -162,15 +162,22 @@ def check_page(page: Path, text: str | None = None) -> list[Problem]:
                     continue
                 numbers = [n for f in files for n in cache.setdefault(f, file_numbers(f))]
                 if not _found(_value(m), numbers):
-                    problems.append(Problem(str(page.relative_to(ROOT) if page.is_absolute() else page), i + 1,
-                                            m.group(0), raw_lines[i], tuple(str(f.relative_to(ROOT)) for f in files)))
+                    problems.append(Problem(_shown(page), i + 1, m.group(0), raw_lines[i],
+                                            tuple(_shown(f) for f in files)))
     return problems
+
+
+def _shown(path: Path) -> str:
+    """A path as a message shows it: relative to the repository where it lies inside it."""
+    path = path.resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
 
 
 def documentation_pages() -> list[Path]:
     """The hand-written pages: the README, every page of ``docs/`` and the folders' READMEs."""
     pages = [ROOT / "README.md"] + sorted((ROOT / "docs").rglob("*.md"))
-    pages += [ROOT / d / "README.md" for d in ("scenarios", "studies", "benchmarks") if (ROOT / d / "README.md").is_file()]
+    folders = ("scenarios", "studies", "benchmarks")
+    pages += [ROOT / d / "README.md" for d in folders if (ROOT / d / "README.md").is_file()]
     return [p for p in pages if "_tools" not in p.parts]
 
 
