@@ -258,19 +258,15 @@ def global_localize(
     document 001's genetic coarse + fine stages, or document 003's particle swarm.
 
     Args:
-        points: (N, 3) [m] measured points, world frame; rows with NaN or infinite
-            coordinates are dropped (at least 6 finite rows). They may hold outliers: the
-            polish rejects them by ``outlier`` and the verification uses its inliers.
-        mesh: the CAD model (``trimesh.Trimesh``) in the workpiece frame [m]; may be None when
-            ``index`` is given.
+        points: (N, 3) [m] measured points, world frame; rows with NaN or infinite coordinates
+            are dropped (at least 6 finite rows); outliers are left to the polish's ``outlier``.
+        mesh: the CAD model (``trimesh.Trimesh``), workpiece frame [m]; None when ``index`` is given.
         method: ``"multistart"`` | ``"genetic"`` | ``"pso"``.
         rng: random generator (perturbations, GA, PSO, subsets); default ``default_rng(0)``.
         index: a prebuilt :class:`algorithms.geometry.mesh_index.MeshIndex` of ``mesh``.
-        noise_sigma_m: measurement noise sigma [m] along the normals: Algorithm 5's ``delta2``,
-            the perturbations and the residual check (POOR_FIT). None: estimated from the best
-            fit (the residual check then cannot reject it; ambiguity is still tested).
-        model_error_m: allowance for model error (tessellation, form) [m], added in
-            quadrature to sigma in the residual and ambiguity tests.
+        noise_sigma_m: noise sigma [m] along the normals (Algorithm 5's ``delta2``, perturbations,
+            POOR_FIT check); None: estimated from the best fit (then only ambiguity is tested).
+        model_error_m: model error (tessellation, form) [m], added in quadrature to sigma.
         polish: local method of :func:`algorithms.registration.local.localize` applied to the
             best pose with all points (None: no polish; the GA's fine stage still runs).
         outlier: the outlier rule of the polish and the GA's fine stage: ``"mad"`` (default),
@@ -281,16 +277,16 @@ def global_localize(
         n_verify: points used to refine and compare candidate minima (random subset).
         max_candidates: distinct coarse minima refined with exact closest points.
         ga_bits: GA bits per pose coordinate (default: our 10).
-        ga_mutation: GA mutation probability (default: the document's, per bit).
+        ga_mutation: ``"per_bit"`` (default) or ``"per_chromosome"``: what the document's
+            mutation probability applies to.
         ga_population: GA population (default: the document's 100).
         ga_generations: GA generations (default: the document's 100).
         ga_restarts: at most this many GA runs, until one passes Algorithm 5's acceptance (needs
             ``noise_sigma_m``; without it one run, the document's algorithm).
         pso_particles: PSO swarm size (default: the patent's 40).
         pso_iterations: PSO iterations (default: the patent's 100).
-        pso_rotation_range_rad: PSO rotation search range around the coarse pre-registration
-            (default 5 degrees).
-        pso_translation_range_m: PSO translation search range (default 2 % of the model's size).
+        pso_rotation_range_rad: PSO rotation range around the pre-registration (default 5 deg).
+        pso_translation_range_m: PSO translation range (default 2 % of the model's size).
         pso_fitness: ``"exact"`` (patent: nearest model points) or ``"field"`` (coarse field).
 
     Returns:
