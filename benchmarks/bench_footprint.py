@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
         "| what | size [GiB] |",
         "|---|---|",
-        f"| the environment (`{sys.prefix}`: {packages} installed distributions) | {env_gb:.2f} |",
+        f"| the environment (`{Path(sys.prefix).name}`: {packages} installed distributions) | {env_gb:.2f} |",
         f"| of it, the installed packages (`{purelib.name}`) | {_tree_bytes(purelib) / GB:.2f} |",
         "",
         "## Peak memory of a command",
