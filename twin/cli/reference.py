@@ -1,6 +1,6 @@
 """Every ``twin`` command as Markdown, read from the parsers the commands run with.
 
-The documentation's command reference is generated from here (``docs/_tools/gen_pages.py``),
+The documentation's command reference is generated from here (``docs/_tools/hooks.py``),
 so an option added to a command's ``add_parser`` appears there without editing a page.
 """
 
