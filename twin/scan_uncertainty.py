@@ -23,7 +23,7 @@ every point of the scan (GUM: a Type B effect, not white noise; :func:`linearity
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import chdtri
@@ -96,10 +96,20 @@ def reading_sigma_m(scenario: Scenario, q: np.ndarray, points_base: np.ndarray,
     return point_sigma_m(scenario.sensor, scenario.noise, q, points_base, T_base_workpiece_nominal, index)
 
 
+def white_reading_sigma_m(scenario: Scenario, q: np.ndarray, points_base: np.ndarray,
+                          T_base_workpiece_nominal: np.ndarray, index: MeshIndex) -> float:
+    """The part of :func:`reading_sigma_m` that is independent from reading to reading [m]: the
+    repeatability, the quantisation and the encoders' noise, without the linearity curve (a
+    systematic error shared by neighbouring readings). The Cramer-Rao bound is taken with it."""
+    return point_sigma_m(scenario.sensor, scenario.noise, q, points_base, T_base_workpiece_nominal, index,
+                         white_only=True)
+
+
 def point_sigma_m(sensor: SensorSpec, noise: NoiseSpec, q: np.ndarray, points_base: np.ndarray,
-                  T_base_workpiece_nominal: np.ndarray, index: MeshIndex) -> float:
-    """:func:`reading_sigma_m` from the sensor's and the noise's settings."""
-    u_sensor = reading_uncertainty_m(sensor, noise)
+                  T_base_workpiece_nominal: np.ndarray, index: MeshIndex, white_only: bool = False) -> float:
+    """:func:`reading_sigma_m` from the sensor's and the noise's settings (``white_only``: without
+    the linearity curve, :func:`white_reading_sigma_m`)."""
+    u_sensor = reading_uncertainty_m(sensor, replace(noise, linearity=False) if white_only else noise)
     sigma_enc = noise.encoder_sigma_rad
     if sigma_enc == 0.0 or len(points_base) == 0:
         return u_sensor
@@ -109,11 +119,13 @@ def point_sigma_m(sensor: SensorSpec, noise: NoiseSpec, q: np.ndarray, points_ba
     return float(np.sqrt(u_sensor**2 + np.mean(var)))
 
 
-def scan_reading_sigma_m(scan: Scan, index: MeshIndex) -> float:
-    """:func:`reading_sigma_m` of a scan's points on its lines (those the loop localizes)."""
+def scan_reading_sigma_m(scan: Scan, index: MeshIndex, white_only: bool = False) -> float:
+    """:func:`reading_sigma_m` of a scan's points on its lines (those the loop localizes);
+    ``white_only``: :func:`white_reading_sigma_m`."""
     mask = scan.valid & (scan.line >= 0)[:, None]
     q = np.broadcast_to(scan.q[:, None, :], (*mask.shape, 6))[mask]
-    return reading_sigma_m(scan.scenario, q, scan.points_base[mask], scan.T_base_workpiece_nominal, index)
+    return point_sigma_m(scan.scenario.sensor, scan.scenario.noise, q, scan.points_base[mask],
+                         scan.T_base_workpiece_nominal, index, white_only)
 
 
 def beam_directions_base(q: np.ndarray, beam_dirs_sensor: np.ndarray, T_flange_sensor: np.ndarray) -> np.ndarray:

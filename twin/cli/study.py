@@ -4,8 +4,10 @@ Runs every trial of the study's grid not yet in ``DIR`` on one process, a proces
 (``--workers N``) or Dask (``--scheduler dask``: a LocalCluster of N workers; ``tcp://HOST:PORT``:
 a running scheduler), streams the results to ``DIR/results/`` in batches, then writes
 ``DIR/results.parquet`` (sorted by cell and trial) and ``DIR/report.md`` with its plot.
-``--resume`` continues a study whose run was stopped; the results do not depend on the worker
-count, the scheduler or the resume.
+``--resume`` continues a study whose run was stopped, or extends one whose ``trials`` or
+``[adaptive]`` were raised; the results do not depend on the worker count, the scheduler or the
+resume. Exit 3 when an adaptive rule was not met within ``trials`` (stdout names the cells and
+quantities).
 """
 
 from __future__ import annotations
@@ -13,9 +15,9 @@ from __future__ import annotations
 import argparse
 
 from twin.cli import COMMANDS
-from twin.cli.common import add_print_options, positive_int, print_result
+from twin.cli.common import EXIT_UNTRUSTED, add_print_options, positive_int, print_result, progress
 from twin.studies.runner import progress_printer, run_study
-from twin.studies.spec import load_study
+from twin.studies.spec import GUIDE_BATCH, load_study
 
 
 def add_parser(sub) -> None:
@@ -43,13 +45,20 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     study = load_study(args.study)
+    if study.adaptive and study.adaptive["batch"] < GUIDE_BATCH:
+        progress("study", f"warning: [adaptive] batch = {study.adaptive['batch']}, fewer trials per batch than "
+                          f"JCGM 101 7.9.4 asks ({GUIDE_BATCH}); the report says so")
     summary = run_study(study, args.out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                         force=args.force, on_progress=progress_printer(args.quiet))
     rows = [("study", f"{summary['study']} ({summary['cells']} cell(s) x {summary['trials_per_cell']} trial(s))"),
             ("trials", f"{summary['trials']} ({summary['trials_run']} run now, {summary['trials_resumed']} resumed)"),
-            ("success rate", f"{summary['success_rate'] * 100:.1f} %"),
+            ("ok", f"{summary['trials_ok']} of {summary['trials']}"),
             ("time", f"{summary['seconds']:.1f} s"),
             ("results", summary["results"]),
             ("report", summary["report"])]
+    unmet = [(c, r["trials"], r["unstable"]) for c, r in enumerate(summary.get("adaptive") or []) if not r["stable"]]
+    if unmet:
+        rows.append(("adaptive rule", "NOT met: " + "; ".join(
+            f"cell {c} after {n} trials ({', '.join(q)})" for c, n, q in unmet)))
     print_result(args, summary, rows)
-    return 0
+    return EXIT_UNTRUSTED if unmet else 0

@@ -25,17 +25,21 @@ Plots, each where the grid has the factor it needs (series: the other factors' v
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import ScalarFormatter
 
-from twin.studies.spec import Study
+from twin.studies.jcgm101 import BATCHES, INDICATIVE_BELOW, MIN_BATCH, decimals, fmt, fmt_se, summarize
+from twin.studies.report_plots import cell_plots as _cell_plots
+from twin.studies.report_plots import figure as _figure
+from twin.studies.report_plots import save as _save
+from twin.studies.spec import GUIDE_BATCH, Study
 from twin.studies.trials import TWIST_COLUMNS
 
 REPORT = "report.md"
@@ -74,16 +78,28 @@ def cell_stats(table: pa.Table, cell: int, success: dict | None = None) -> dict:
     time_s = _col(table, "time_s")[sel]
     m2 = _col(table, "mahalanobis2")[sel][ok] if "mahalanobis2" in table.column_names else np.array([])
     n = int(sel.sum())
-    out: dict = {"n": n, "success_rate": float(ok.mean()) if n else float("nan"),
+    status = _col(table, "status", object)[sel]
+    posed = np.isfinite(rot) & np.isfinite(tra)
+    out: dict = {"n": n, "n_ok": int(ok.sum()), "n_within": int(within.sum()), "n_posed": int(posed.sum()),
+                 "statuses": {k: int(v) for k, v in sorted(Counter(status.tolist()).items(),
+                                                             key=lambda kv: (kv[0] != "ok", kv[0]))},
+                 "all_translation_error_um": float(np.mean(tra[posed])) if posed.any() else float("nan"),
+                 "all_rotation_error_deg": float(np.mean(rot[posed])) if posed.any() else float("nan"),
+                 "success_rate": float(ok.mean()) if n else float("nan"),
                  "within_rate": float(within.mean()) if n else float("nan"),
                  "mean_time_s": float(np.mean(time_s)) if n else float("nan"),
                  "median_time_s": float(np.median(time_s)) if n else float("nan"),
                  "determined": bool(len(m2)) and bool(np.all(np.isfinite(m2))),
                  "crlb_ratio": float(np.sqrt(np.mean(m2) / 6.0)) if len(m2) and np.all(np.isfinite(m2))
                  else float("nan")}
+    order = np.argsort(_col(table, "trial", np.int64)[sel], kind="stable") if "trial" in table.column_names \
+        else np.arange(n)
+    out["outputs"] = {}
     for c in STAT_COLUMNS + ("path_error_max_um",):
         if c in table.column_names:
-            out[c] = summary_stats(_col(table, c)[sel][ok])
+            x = _col(table, c)[sel]
+            out[c] = summary_stats(x[ok])
+            out["outputs"][c] = summarize(x[order][ok[order]])
     return out
 
 
@@ -93,65 +109,125 @@ def write_report(study: Study, table: pa.Table, out: Path, adaptive: list[dict] 
     out = Path(out)
     if study.kind == "normals":
         return _write_normals_report(study, table, out)
-    cells = study.cells
     stats = [cell_stats(table, i, study.success) for i in range(study.n_cells)]
     plots = _plots(study, table, stats, out)
+    lines = _head(study) + [f"![{p.stem}]({p.name})" for p in plots] + [""] + _summary_table(study, table, stats)
+    cell_plots = []
+    for i in range(study.n_cells):
+        section, pngs = _cell_section(study, table, stats[i], i, out, None if adaptive is None else adaptive[i])
+        lines += section
+        cell_plots += pngs
+    report = out / REPORT
+    _write_atomic_text(report, "\n".join(lines) + "\n")
+    return [report, *plots, *cell_plots]
+
+
+def _head(study: Study) -> list[str]:
+    """The report's title and what was run, measured and how the statistics are made."""
     tol = study.success
     head = [f"# Study `{study.name}`", "",
             f"Base scenario `{study.scenario_path.name}`, {study.kind} trials, seed {study.seed}, "
             f"{study.n_cells} cell(s), " + (f"adaptive (JCGM 101, 7.9: {study.adaptive['digits']} significant "
-                                           f"digit(s), batches of {study.adaptive['batch']}, at most "
+                                           f"digit(s), M = {study.adaptive['batch']} trials per batch, at most "
                                            f"{study.trials} trials per cell)" if study.adaptive
                                            else f"{study.trials} trial(s) per cell") + ". Localization: "
             + ", ".join(f"{k} = {v}" for k, v in study.localize.items()) + ".", ""]
+    if study.adaptive and study.adaptive["batch"] < GUIDE_BATCH:
+        head += [f"**Warning**: {study.adaptive['batch']} trials per batch, fewer than the {GUIDE_BATCH} JCGM 101 "
+                 "(7.9.4 a) asks for a 95 % interval: the batches' interval ends scatter more, and the rule can "
+                 "stop on an interval that is not yet stable to the digits asked.", ""]
     if study.kind == "points":
         head += ["Point sets: " + ", ".join(f"{k} = {v}" for k, v in study.points.items()) + ".", ""]
     head += ["Pose error: the twist `[omega, v]` with `T_est = T_true exp(xi)`, workpiece frame "
              "(omega in urad, v in um). `ok`: the localization's own verdict; `within`: rotation error "
              f"<= {tol['angle_deg']} deg and translation error <= {tol['distance_m'] * 1e3:g} mm. CRLB ratio: "
              "`sqrt(mean(xi^T C^-1 xi) / 6)` over the `ok` trials, C the Cramer-Rao bound of the trial's "
-             "points at the truth (1.00 attains the bound). Statistics over the `ok` trials; the 95 % "
-             "coverage interval is the 2.5 and 97.5 percentiles.", ""]
-    head += [f"![{p.stem}]({p.name})" for p in plots] + [""]
+             "points at the truth with the white reading noise (1.00 attains the bound).", "",
+             "Per cell and output quantity, as JCGM 101 (GUM Supplement 1) states a Monte Carlo result, over "
+             "the trials with status `ok`: the estimate (the average) and its standard uncertainty `u` (the "
+             "standard deviation) to two significant digits, the other values to the same decimal place; the "
+             "95 % coverage intervals, probabilistically symmetric (7.7.1) and shortest (7.7.2); the Monte "
+             f"Carlo standard error of each, from {BATCHES} batches of the trials in trial order (fewer below "
+             f"{BATCHES * MIN_BATCH} trials, each of {MIN_BATCH} at least; 7.9.4), and "
+             "whether twice each is within the numerical tolerance of `u`'s two digits (`stable`). Intervals "
+             f"from fewer than {INDICATIVE_BELOW} trials are marked indicative. Every trial that is not `ok` "
+             "is counted by its status; the error magnitudes are also given over every trial that returned "
+             "a pose.", ""]
+    return head
+
+
+def _summary_table(study: Study, table: pa.Table, stats: list[dict]) -> list[str]:
+    """One row per cell: factors, trials, ok and within counts, mean errors, CRLB ratio, time."""
     factors = list(study.factors)
     path = study.kind == "full"  # the compensated CAD path's error is known
-    head += ["| cell | " + " | ".join(f"`{f}`" for f in factors) + " | trials | ok | within | "
-             "translation error mean [um] | rotation error mean [deg] | CRLB ratio | "
-             + ("compensated path error, max, mean [um] | " if path else "") + "median time [ms] |",
-             "|---" * (len(factors) + 8 + path) + "|"]
-    for i, values in enumerate(cells):
+    head = (["cell"] + [f"`{f}`" for f in factors]
+            + ["trials", "ok", "within", "translation error mean [um]", "rotation error mean [deg]", "CRLB ratio"]
+            + (["compensated path error, max, mean [um]"] if path else []) + ["median time [ms]"])
+    rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for i, values in enumerate(study.cells):
         s = stats[i]
-        head.append(f"| {i} | " + " | ".join(str(values[f]) for f in factors) + f" | {s['n']} | "
-                    f"{s['success_rate'] * 100:.0f} % | {s['within_rate'] * 100:.0f} % | "
-                    f"{_fmt(s['translation_error_um'][0])} | {_fmt(s['rotation_error_deg'][0])} | "
-                    f"{_fmt(s['crlb_ratio'])} | " + (f"{_fmt(s['path_error_max_um'][0])} | " if path else "")
-                    + f"{s['median_time_s'] * 1e3:.3g} |")
-    head.append("")
-    lines = head
-    for i, values in enumerate(cells):
-        s = stats[i]
-        factors_txt = ", ".join(f"`{k}` = {v}" for k, v in values.items()) or "(no factor)"
-        extra = ""
-        if adaptive is not None:
-            a = adaptive[i]
-            extra = (f" The adaptive rule {'was met' if a['stable'] else 'was NOT met'} after {a['trials']} trials.")
-        lines += [f"## Cell {i}: {factors_txt}", "",
-                  f"{s['n']} trials, status ok {s['success_rate'] * 100:.1f} %, within tolerance "
-                  f"{s['within_rate'] * 100:.1f} %, median localization time {s['median_time_s'] * 1e3:.3g} ms, "
-                  f"CRLB ratio {_fmt(s['crlb_ratio'])}.{extra}", ""]
-        columns = (STAT_COLUMNS if s["determined"] else MAGNITUDE_COLUMNS) + (("path_error_max_um",) if path else ())
-        if not s["determined"]:
-            lines += ["The points of some trials leave a direction free or weak: no component is reported.", ""]
-        lines += ["| quantity | mean | std | 2.5 % | 97.5 % |", "|---|---|---|---|---|"]
-        for c in columns:
-            m, sd, lo, hi = s[c]
-            lines.append(f"| {c} | {_fmt(m)} | {_fmt(sd)} | {_fmt(lo)} | {_fmt(hi)} |")
-        lines.append("")
-    report = out / REPORT
-    tmp = out / f".{REPORT}.partial"
-    tmp.write_text("\n".join(lines))
-    tmp.replace(report)
-    return [report, *plots]
+        cells = ([str(i)] + [str(values[f]) for f in factors]
+                 + [str(s["n"]), _count(s["n_ok"], s["n"]), _count(s["n_within"], s["n"]),
+                    _fmt(s["translation_error_um"][0]), _fmt(s["rotation_error_deg"][0]), _fmt(s["crlb_ratio"])]
+                 + ([_fmt(s["path_error_max_um"][0])] if path else []) + [f"{s['median_time_s'] * 1e3:.3g}"])
+        rows.append("| " + " | ".join(cells) + " |")
+    return rows + [""]
+
+
+def _count(k: int, n: int) -> str:
+    """``k of n`` with the share, never rounded up to 100 % or down to 0 %."""
+    if n == 0:
+        return "0 of 0"
+    share = 100.0 * k / n
+    text = f"{share:.0f}" if k in (0, n) or 1 <= share <= 99 else f"{share:.1f}"
+    return f"{k} of {n} ({text} %)"
+
+
+def _cell_section(study: Study, table: pa.Table, s: dict, i: int, out: Path,
+                  adaptive: dict | None) -> tuple[list[str], list[Path]]:
+    """One cell: its trials by status, the JCGM 101 outputs of each quantity, its plots."""
+    values = study.cells[i]
+    factors_txt = ", ".join(f"`{k}` = {v}" for k, v in values.items()) or "(no factor)"
+    extra = ""
+    if adaptive is not None:
+        met = "was met" if adaptive["stable"] else "was NOT met"
+        extra = f" The adaptive rule {met} after {adaptive['trials']} trials."
+        if not adaptive["stable"] and adaptive.get("unstable"):
+            extra += " Not stable: " + ", ".join(f"`{q}`" for q in adaptive["unstable"]) + "."
+    statuses = ", ".join(f"{k} {v}" for k, v in s["statuses"].items())
+    lines = [f"## Cell {i}: {factors_txt}", "",
+             f"{s['n']} trials ({statuses}), within tolerance {_count(s['n_within'], s['n'])}, median "
+             f"localization time {s['median_time_s'] * 1e3:.3g} ms, CRLB ratio {_fmt(s['crlb_ratio'])}.{extra}", ""]
+    path = study.kind == "full"
+    columns = (STAT_COLUMNS if s["determined"] else MAGNITUDE_COLUMNS) + (("path_error_max_um",) if path else ())
+    if not s["determined"]:
+        lines += ["The points of some trials leave a direction free or weak: no component is reported.", ""]
+    lines += _outputs_table(s, columns)
+    lines += [f"Over every trial that returned a pose ({s['n_posed']}): translation error mean "
+              f"{_fmt(s['all_translation_error_um'])} um, rotation error mean {_fmt(s['all_rotation_error_deg'])} "
+              "deg" + (" (the same trials as above)." if s["n_posed"] == s["n_ok"] else
+                       f" ({s['n_posed'] - s['n_ok']} trial(s) not `ok` included)."), ""]
+    pngs = _cell_plots(study, table, i, columns, out)
+    lines += [f"![{p.stem}]({p.name})" for p in pngs] + [""]
+    return lines, pngs
+
+
+def _outputs_table(s: dict, columns: tuple[str, ...]) -> list[str]:
+    """The JCGM 101 outputs of the cell's quantities (module docstring of :mod:`twin.studies.jcgm101`)."""
+    note = " (indicative)" if s["n_ok"] < INDICATIVE_BELOW else ""
+    lines = ["| quantity | trials | estimate | u | 95 % interval, symmetric" + note + " | 95 % interval, shortest"
+             + note + " | MC standard error: estimate, u, ends (symmetric; shortest) | stable |",
+             "|---|---|---|---|---|---|---|---|"]
+    for c in columns:
+        o = s["outputs"][c]
+        v, e = o.values, o.mc_se
+        places = decimals(v[1])
+        se = (f"{fmt_se(e[0])}, {fmt_se(e[1])}, {fmt_se(e[2])} / {fmt_se(e[3])}; {fmt_se(e[4])} / {fmt_se(e[5])}"
+              if np.all(np.isfinite(e)) else f"too few trials ({2 * MIN_BATCH} at least)")
+        stable = "yes" if o.stable else ("n/a" if not np.all(np.isfinite(e)) else "no")
+        lines.append(f"| {c} | {o.n} | {fmt(v[0], places)} | {fmt(v[1], places)} | [{fmt(v[2], places)}, "
+                     f"{fmt(v[3], places)}] | [{fmt(v[4], places)}, {fmt(v[5], places)}] | {se} | {stable} |")
+    return lines + [""]
 
 
 def _write_atomic_text(path: Path, text: str) -> None:
@@ -211,22 +287,6 @@ def _series(study: Study, x_factor: str, skip: tuple[str, ...] = ()) -> dict[str
         label = ", ".join(f"{k.split('.')[-1]}={v}" for k, v in values.items() if k != x_factor and k not in skip)
         groups.setdefault(label or "all", []).append(i)
     return groups
-
-
-def _figure(title: str) -> tuple[Figure, Axes]:
-    fig = Figure(figsize=(6.4, 4.0), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, alpha=0.3)
-    return fig, ax
-
-
-def _save(fig: Figure, path: Path) -> Path:
-    tmp = path.with_name(f".{path.name}.partial.png")
-    fig.savefig(tmp)
-    tmp.replace(path)
-    return path
 
 
 def _plots(study: Study, table: pa.Table, stats: list[dict], out: Path) -> list[Path]:

@@ -52,10 +52,10 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 import pyarrow as pa
@@ -363,18 +363,21 @@ def _run_in(out: Path, study: Study, done: set[tuple[int, int]], workers: int, s
             rounds = None
         else:
             rounds = _run_adaptive(study, study.adaptive, out, done, run_ids)
-    table = final_table(out)
+    table = final_table(out, [study.trials] * study.n_cells if rounds is None else [r["trials"] for r in rounds])
     expected = total if rounds is None else sum(r["trials"] for r in rounds)
     if table.num_rows != expected:
         raise TwinError(f"{out}: {table.num_rows} trials in the batch files, expected {expected}")
+    reused = sum((c, t) in done for c, t in zip(table.column("cell").to_pylist(), table.column("trial").to_pylist(),
+                                                 strict=True))
     files = write_report(study, table, out, rounds)
     # the final table last: its presence says the study is complete
     _write_table_atomic(out / RESULTS, table)
     summary = {"study": study.name, "study_hash": study.content_hash, "out": str(out), "cells": study.n_cells,
-               "trials_per_cell": study.trials, "trials": table.num_rows, "trials_run": table.num_rows - resumed,
-               "trials_resumed": resumed, "seconds": time.perf_counter() - t0,
+               "trials_per_cell": study.trials, "trials": table.num_rows, "trials_run": table.num_rows - reused,
+               "trials_resumed": reused, "seconds": time.perf_counter() - t0,
                "results": str(out / RESULTS), "report": str(files[0]), "plots": [str(p) for p in files[1:]],
-               "success_rate": _success_rate(table)}
+               "success_rate": _success_rate(table),
+               "trials_ok": table.column("status").to_pylist().count("ok")}
     if rounds is not None:
         summary["adaptive"] = rounds
     return summary
@@ -394,23 +397,25 @@ def _run_adaptive(study: Study, adaptive: dict, out: Path, done: set, run_ids: C
     from twin.studies.adaptive import is_stable
 
     h, digits = adaptive["batch"], adaptive["digits"]
-    rounds = [{"trials": 0, "stable": False} for _ in range(study.n_cells)]
+    rounds: list[dict[str, Any]] = [{"trials": 0, "stable": False, "unstable": []} for _ in range(study.n_cells)]
     active = list(range(study.n_cells))
     r = 0
     while active:
         hi = min((r + 1) * h, study.trials)
         run_ids([(c, t) for c in active for t in range(r * h, hi) if (c, t) not in done])
-        table = final_table(out)
+        table = final_table(out, [hi] * study.n_cells)  # as an uninterrupted run sees it after this round
         for c in list(active):
             rounds[c]["trials"] = hi
-            rounds[c]["stable"] = _cell_stable(table, c, h, digits, is_stable)
+            rounds[c]["unstable"] = _cell_unstable(table, c, h, digits, is_stable)
+            rounds[c]["stable"] = not rounds[c]["unstable"]
             if rounds[c]["stable"] or hi >= study.trials:
                 active.remove(c)
         r += 1
     return rounds
 
 
-def _cell_stable(table: pa.Table, cell: int, h: int, digits: int, is_stable) -> bool:
+def _cell_unstable(table: pa.Table, cell: int, h: int, digits: int, is_stable) -> list[str]:
+    """The quantities of ``cell`` whose batches do not yet meet the adaptive rule (empty: stable)."""
     from twin.studies.report import MAGNITUDE_COLUMNS, cell_stats
 
     sel = [i for i, c in enumerate(table.column("cell").to_pylist()) if c == cell]
@@ -418,6 +423,7 @@ def _cell_stable(table: pa.Table, cell: int, h: int, digits: int, is_stable) -> 
     ok = [s == "ok" for s in sub.column("status").to_pylist()]
     batch = [t // h for t in sub.column("trial").to_pylist()]
     columns = TWIST_COLUMNS if cell_stats(sub, cell)["determined"] else MAGNITUDE_COLUMNS[:2]
+    unstable: list[str] = []
     for name in columns:
         x = sub.column(name).to_pylist()
         groups: dict[int, list] = {}
@@ -425,8 +431,8 @@ def _cell_stable(table: pa.Table, cell: int, h: int, digits: int, is_stable) -> 
             if k:
                 groups.setdefault(b, []).append(v)
         if not is_stable([np.asarray(groups[b], dtype=np.float64) for b in sorted(groups)], digits):
-            return False
-    return True
+            unstable.append(name)
+    return unstable
 
 
 def _success_rate(table: pa.Table) -> float:
@@ -521,8 +527,10 @@ def _handshake(address: str) -> None:
                         f"'dask worker {address}')")
 
 
-def final_table(out: Path) -> pa.Table:
-    """Every batch of ``out`` in one table sorted by (cell, trial); a duplicated trial is an error."""
+def final_table(out: Path, trials_per_cell: Sequence[int] | None = None) -> pa.Table:
+    """Every batch of ``out`` in one table sorted by (cell, trial); a duplicated trial is an error.
+    ``trials_per_cell``: keep only the trials below each cell's count (a resumed study may hold
+    trials past what its current settings run: they stay in the batch files for a later extension)."""
     files = batch_files(out)
     if not files:
         raise TwinError(f"{out}: no finished batch")
@@ -531,6 +539,10 @@ def final_table(out: Path) -> pa.Table:
     ids = list(zip(table.column("cell").to_pylist(), table.column("trial").to_pylist(), strict=True))
     if len(set(ids)) != len(ids):
         raise TwinError(f"{out}: a trial appears twice in the batch files")
+    if trials_per_cell is not None:
+        limit = np.asarray(trials_per_cell)
+        cell, trial = np.asarray(table.column("cell").to_pylist()), np.asarray(table.column("trial").to_pylist())
+        table = table.filter(pa.array(trial < limit[cell]))
     return table
 
 

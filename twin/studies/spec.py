@@ -68,10 +68,13 @@ NORMALS_KEYS: dict[str, tuple[Any, Any, str]] = {
     "k": (16, lambda v: _is_int(v) and 3 <= v <= 1000, "an integer in [3, 1000]"),
     "cloud": ("raw", lambda v: v in ("raw", "simplified", "bspline"), "'raw', 'simplified' or 'bspline'"),
 }
+#: JCGM 101 7.9.4 a)'s batch size for a 95 % interval: M = max(100 / (1 - p), 10^4).
+GUIDE_BATCH = 10_000
 #: The adaptive rule (JCGM 101, 7.9): name -> (default, check, allowed).
 ADAPTIVE_KEYS: dict[str, tuple[Any, Any, str]] = {
     "digits": (1, lambda v: _is_int(v) and 1 <= v <= 3, "an integer in [1, 3]"),
-    "batch": (100, lambda v: _is_int(v) and 10 <= v <= 100_000, "an integer in [10, 10^5]"),
+    "batch": (GUIDE_BATCH, lambda v: _is_int(v) and 10 <= v <= 100_000,
+              "an integer in [10, 10^5]: M, the trials per batch (JCGM 101, 7.9.4 a: 10^4; fewer with a warning)"),
 }
 #: What counts as a success in the report, besides the status: name -> (default, check, allowed).
 SUCCESS_KEYS: dict[str, tuple[Any, Any, str]] = {
@@ -79,6 +82,8 @@ SUCCESS_KEYS: dict[str, tuple[Any, Any, str]] = {
     "distance_m": (0.001, lambda v: _is_number(v) and 0 < v <= 1.0, "a number in (0, 1]"),
 }
 MAX_TRIALS = 1_000_000
+#: Keys that choose how many trials run, not what a trial gives: a resumed study may change them.
+EXTENDING_KEYS = ("trials", "adaptive")
 #: The study's own keys: name -> (default, what is allowed); the tables are the *_KEYS above.
 HEADER_KEYS: dict[str, tuple[Any, str]] = {
     "name": ("study", "a non-empty string"),
@@ -249,8 +254,10 @@ class Study:
     def content_hash(self) -> str:
         """SHA-256 of the study's canonical content, its scenarios' text and the bytes of every file
         they read (not of the study file's layout or comments): two files meaning the same study
-        on the same inputs have the same hash."""
-        body = {k: v for k, v in self.raw.items() if k != "scenario"}
+        on the same inputs have the same hash. ``trials`` and ``[adaptive]`` are left out: they say
+        how many trials run, not what a trial gives (trial t of cell c is the same trial whatever
+        they are), so raising them extends a study with ``--resume``."""
+        body = {k: v for k, v in self.raw.items() if k not in ("scenario",) + EXTENDING_KEYS}
         canon = json.dumps({"study": body, "scenario": self.scenario_text, "files": self.input_files},
                            sort_keys=True, default=str)
         return hashlib.sha256(canon.encode()).hexdigest()

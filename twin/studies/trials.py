@@ -29,7 +29,10 @@ Kinds:
   by ``localize.method`` (:mod:`twin.studies.methods`), after the subsampling rule.
 
 Every kind also reports the Cramer-Rao bound of its point set at the truth (smooth normals of
-the model, the sensor's or the points' sigma): the root of the trace of its rotation and
+the model; the white reading noise: the sensor's repeatability and quantisation and the
+encoders' noise, :func:`twin.scan_uncertainty.white_reading_sigma_m`, without the linearity
+curve, a systematic error no number of points averages out; for points trials the points'
+sigma), so that it is a bound: the root of the trace of its rotation and
 translation blocks, and the squared Mahalanobis distance ``xi^T C^-1 xi`` of the pose error
 (mean 6 at the bound), NaN where the points do not fix all six directions. A full trial also
 reports ``path_error_max_um``, how far the CAD path compensated with the estimate lies from
@@ -60,10 +63,9 @@ from twin.plan import ScanPlan, plan_scan
 from twin.realize import Realized, realize
 from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
-from twin.scan_uncertainty import reading_sigma_m
+from twin.scan_uncertainty import reading_sigma_m, scan_reading_sigma_m, white_reading_sigma_m
 from twin.scenario import Scenario, load_scenario, merge_tables
 from twin.sensors.base import Measurement, RawRays, RaySensor
-from twin.sensors.laser import sensor_sigma_m
 from twin.sim import simulate
 from twin.studies.methods import Outcome, run_method
 from twin.studies.point_sets import Design, make_design, measured_points, model_points
@@ -193,9 +195,11 @@ def _failed(status: str, n_points: int = 0, time_s: float = 0.0, C: np.ndarray |
 
 
 def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init: np.ndarray, sigma_m: float | None,
-              rng: np.random.Generator) -> dict:
-    """Localize by ``loc["method"]`` and measure against the truth (the metric columns)."""
-    C = bound(pts, T_true, workpiece.index, sigma_m)
+              rng: np.random.Generator, white_sigma_m: float | None = None) -> dict:
+    """Localize by ``loc["method"]`` (its fit check with ``sigma_m``, every random and systematic
+    effect of a reading) and measure against the truth (the metric columns), with the Cramer-Rao
+    bound of the white reading noise ``white_sigma_m`` (default: ``sigma_m``, all of it white)."""
+    C = bound(pts, T_true, workpiece.index, sigma_m if white_sigma_m is None else white_sigma_m)
     t0 = time.perf_counter()
     try:
         out = run_method(loc["method"], pts, workpiece, T_init, sigma_m, rng, loc["init_distance_m"])
@@ -249,8 +253,10 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
         pts, q_pts = pts[keep], q_pts[keep]
     workpiece = geo.realized.workpiece
     T_init = start_pose(T_true, loc, pts, workpiece.mesh, rng_init)
-    sigma = reading_sigma_m(scenario, q_pts, pts, geo.realized.T_base_workpiece_nominal, workpiece.index)
-    return _localize(loc, pts, workpiece, T_true, T_init, sigma or None, rng_method)
+    T_nominal = geo.realized.T_base_workpiece_nominal
+    sigma = reading_sigma_m(scenario, q_pts, pts, T_nominal, workpiece.index)
+    white = white_reading_sigma_m(scenario, q_pts, pts, T_nominal, workpiece.index)
+    return _localize(loc, pts, workpiece, T_true, T_init, sigma or None, rng_method, white or None)
 
 
 _PARTS: dict[str, tuple[Realized, dict]] = {}
@@ -301,7 +307,9 @@ def full_trial(study: Study, cell: int, trial: int) -> dict:
     T_true = evaluate.Evaluation(realized).T_base_workpiece
     out = Outcome(loc.T_world_workpiece, loc.rmse_m, loc.iterations, loc.status.value,
                   result.timings_s.get("localize_s", loc.time_s))
-    m = _metrics(out, T_true, len(pts), bound(pts, T_true, realized.workpiece.index, sensor_sigma_m(scenario)))
+    white = (scan_reading_sigma_m(result.scan, realized.workpiece.index, white_only=True)
+             if result.scan is not None else None)
+    m = _metrics(out, T_true, len(pts), bound(pts, T_true, realized.workpiece.index, white))
     m["path_error_max_um"] = path_error_max_um(result.cad_path_workpiece, loc.T_world_workpiece, T_true)
     return m
 

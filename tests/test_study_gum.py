@@ -1,0 +1,156 @@
+"""A study's Monte Carlo result as JCGM 101 states it: coverage intervals (symmetric and
+shortest), Monte Carlo standard errors, values to their numerical tolerance, every trial counted;
+a Cramer-Rao bound of the white noise; studies that extend and resume to the same rows."""
+
+import math
+import shutil
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from tests.helpers import run_cli
+from tests.test_study import assert_same_table
+from tests.test_study_kinds import A_REGION, points_study
+from twin.studies import jcgm101
+from twin.studies.runner import BATCH_DIR, RESULTS, run_study
+
+POINTS = '[points]\ncount = 150\nnoise_sigma_m = 5e-6\nnoise_direction = "normal"\n' + A_REGION + "\n"
+
+
+# --- the statistics ----------------------------------------------------------------------------
+
+
+def test_intervals_of_a_gaussian_sample_are_its_2_5_and_97_5_percent_points():
+    y = np.random.default_rng(1).normal(0.0, 1.0, 10_000)
+    lo, hi = jcgm101.symmetric_interval(y)
+    s = np.sort(y)
+    assert (lo, hi) == (s[249], s[9749])  # JCGM 101 7.7.1: q = 9500, r = 250 (1-based)
+    assert abs(lo + 1.96) < 0.06 and abs(hi - 1.96) < 0.06
+    short = jcgm101.shortest_interval(y)
+    assert short[1] - short[0] <= hi - lo + 1e-12
+    assert np.mean((y >= short[0]) & (y <= short[1])) >= 0.95
+
+
+def test_the_shortest_interval_of_a_skewed_quantity_is_shorter_and_shifted():
+    y = np.random.default_rng(2).exponential(1.0, 20_000)
+    sym, short = jcgm101.symmetric_interval(y), jcgm101.shortest_interval(y)
+    assert short[0] < sym[0] and short[1] < sym[1]
+    assert short[1] - short[0] < 0.85 * (sym[1] - sym[0])  # exact: 2.996 against 3.664
+
+
+def test_monte_carlo_standard_error_of_the_mean_is_sigma_over_root_m():
+    outputs = [jcgm101.summarize(np.random.default_rng(k).normal(5.0, 2.0, 1000)) for k in range(40)]
+    se_mean = np.array([o.mc_se[0] for o in outputs])
+    assert 0.05 < np.median(se_mean) < 0.08  # 2 / sqrt(1000) = 0.063
+    spread = np.std([o.values[0] for o in outputs])  # the estimates' actual scatter
+    assert 0.6 < np.median(se_mean) / spread < 1.6
+
+
+def test_too_few_values_give_no_standard_error_and_are_indicative():
+    o = jcgm101.summarize(np.arange(39.0))
+    assert np.all(np.isnan(o.mc_se)) and not o.stable and o.indicative
+    assert np.isnan(jcgm101.symmetric_interval(np.arange(3.0))[0])  # q = 3 of 3 values: no interval
+
+
+def test_values_are_given_to_the_two_digits_of_u():
+    assert jcgm101.decimals(0.0123) == 3 and jcgm101.decimals(8.0) == 1 and jcgm101.decimals(37.0) == 0
+    assert jcgm101.fmt(3.14159, jcgm101.decimals(0.0123)) == "3.142"
+    o = jcgm101.summarize(np.random.default_rng(3).normal(0.0, 0.0123, 10_000))
+    assert math.isclose(o.tolerance, 0.0005)  # half a unit in the last of u's two digits
+
+
+# --- the report ---------------------------------------------------------------------------------
+
+
+def test_report_gives_each_quantity_s_jcgm_101_outputs_and_counts_every_trial(tmp_path):
+    study = points_study(tmp_path, POINTS, trials=40)  # no grid factor
+    run_study(study, tmp_path / "out")
+    report = (tmp_path / "out" / "report.md").read_text()
+    table = [line for line in report.splitlines() if line.startswith("| cell ") or line.startswith("| 0 |")]
+    assert len({line.count("|") for line in table}) == 1  # header and row have as many cells
+    assert "95 % interval, symmetric (indicative)" in report and "95 % interval, shortest" in report
+    assert "40 trials (ok 40)" in report and "40 of 40 (100 %)" in report
+    row = next(line for line in report.splitlines() if line.startswith("| v_x_um |"))
+    assert "too few" not in row and row.count("[") == 2  # both intervals, standard errors from 2 batches
+    for name in ("histogram_cell0.png", "convergence_cell0.png"):
+        assert (tmp_path / "out" / name).stat().st_size > 10_000 and f"({name})" in report
+
+
+def test_report_counts_trials_that_are_not_ok(tmp_path):
+    """A start far from the truth: some trials fail; they are counted, and the magnitudes over
+    every trial that returned a pose say how far the not-ok ones were."""
+    body = POINTS + '[localize]\ninit_angle_deg = 120.0\n'
+    study = points_study(tmp_path, body, trials=12)
+    run_study(study, tmp_path / "out")
+    report = (tmp_path / "out" / "report.md").read_text()
+    table = pq.read_table(tmp_path / "out" / RESULTS)
+    n_ok = table.column("status").to_pylist().count("ok")
+    assert f"ok {n_ok}" in report
+    if n_ok < 12:
+        assert "not `ok` included" in report
+
+
+# --- the Cramer-Rao bound ---------------------------------------------------------------------
+
+
+def test_the_bound_is_taken_with_the_white_noise_only():
+    from tests.helpers import scenario
+    from twin.realize import realize
+    from twin.scan_uncertainty import reading_sigma_m, white_reading_sigma_m
+
+    sc = scenario("s_surface")
+    realized = realize(sc)
+    pts = np.array([[0.45, 0.0, 0.03], [0.46, 0.01, 0.03]])
+    q = np.zeros((2, 6))
+    T, idx = realized.T_base_workpiece_nominal, realized.workpiece.index
+    white = white_reading_sigma_m(sc, q, pts, T, idx)
+    assert math.isclose(white, math.hypot(sc.sensor.sigma_m, sc.sensor.resolution_m / math.sqrt(12)))
+    assert reading_sigma_m(sc, q, pts, T, idx) > 2 * white  # the linearity band is the larger part
+
+
+# --- extend and resume --------------------------------------------------------------------------
+
+
+def test_raising_trials_extends_a_study_to_what_a_fresh_run_gives(tmp_path):
+    small = points_study(tmp_path, POINTS, trials=6, name="small.toml")
+    big = points_study(tmp_path, POINTS, trials=12, name="big.toml")
+    run_study(small, tmp_path / "ext")
+    extended = run_study(big, tmp_path / "ext", resume=True)
+    assert extended["trials_resumed"] == 6 and extended["trials_run"] == 6
+    run_study(big, tmp_path / "fresh")
+    assert_same_table(pq.read_table(tmp_path / "ext" / RESULTS), pq.read_table(tmp_path / "fresh" / RESULTS))
+    # and back: fewer trials reuse the first ones, the others stay in the batch files
+    again = run_study(small, tmp_path / "ext", resume=True)
+    assert again["trials"] == 6 and again["trials_run"] == 0
+
+
+def _adaptive(tmp_path, name="a.toml", digits=1):
+    body = POINTS + f'[adaptive]\ndigits = {digits}\nbatch = 10\n[grid]\n"points.noise_sigma_m" = [5e-6, 2e-5]\n'
+    return points_study(tmp_path, body, trials=60, name=name)
+
+
+@pytest.mark.slow
+def test_an_adaptive_study_stopped_mid_run_and_resumed_equals_an_uninterrupted_one(tmp_path):
+    study = _adaptive(tmp_path)
+    whole = run_study(study, tmp_path / "whole")
+    # A run stopped after its first rounds: the batch files of the later trials are not there yet.
+    shutil.copytree(tmp_path / "whole", tmp_path / "cut")
+    batches = sorted((tmp_path / "cut" / BATCH_DIR).iterdir())
+    for p in batches[len(batches) // 2:]:
+        p.unlink()
+    (tmp_path / "cut" / RESULTS).unlink()
+    resumed = run_study(study, tmp_path / "cut", resume=True)
+    assert resumed["adaptive"] == whole["adaptive"]
+    assert_same_table(pq.read_table(tmp_path / "cut" / RESULTS), pq.read_table(tmp_path / "whole" / RESULTS))
+
+
+def test_an_adaptive_rule_not_met_exits_3_and_names_the_quantities(tmp_path):
+    study_file = tmp_path / "a.toml"
+    _adaptive(tmp_path, name="a.toml", digits=3)
+    done = run_cli("study", study_file, "--out", tmp_path / "out", "--quiet")
+    code, out, err = done.returncode, done.stdout, done.stderr
+    assert code == 3, (out, err)
+    assert "adaptive rule" in out and "NOT met" in out and "cell 0 after 60 trials" in out
+    assert "warning: [adaptive] batch = 10" in err
+    assert "**Warning**: 10 trials per batch" in (tmp_path / "out" / "report.md").read_text()
