@@ -25,6 +25,7 @@ Plots, each where the grid has the factor it needs (series: the other factors' v
 from __future__ import annotations
 
 import math
+import subprocess
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
@@ -46,6 +47,9 @@ REPORT = "report.md"
 PLOT = "translation_error.png"
 STAT_COLUMNS = TWIST_COLUMNS + ("rotation_error_deg", "translation_error_um", "rmse_um")
 MAGNITUDE_COLUMNS = ("rotation_error_deg", "translation_error_um", "rmse_um")
+#: Cells that get a histogram and a convergence plot (a grid of tens of cells would fill the
+#: folder with figures; the tables hold every cell).
+MAX_CELL_PLOTS = 12
 SIGMA_FACTORS = ("sensor.sigma_m", "points.noise_sigma_m")
 
 
@@ -94,6 +98,9 @@ def cell_stats(table: pa.Table, cell: int, success: dict | None = None) -> dict:
                  else float("nan")}
     order = np.argsort(_col(table, "trial", np.int64)[sel], kind="stable") if "trial" in table.column_names \
         else np.arange(n)
+    for prefix in ("u_crlb_", "u_lpu_"):  # root mean square over the ok trials (the mean variance)
+        out[prefix] = {c: _rms(_col(table, prefix + c)[sel][ok]) if prefix + c in table.column_names
+                       else float("nan") for c in TWIST_COLUMNS}
     out["outputs"] = {}
     for c in STAT_COLUMNS + ("path_error_max_um",):
         if c in table.column_names:
@@ -125,7 +132,7 @@ def write_report(study: Study, table: pa.Table, out: Path, adaptive: list[dict] 
 def _head(study: Study) -> list[str]:
     """The report's title and what was run, measured and how the statistics are made."""
     tol = study.success
-    head = [f"# Study `{study.name}`", "",
+    head = [f"# Study `{study.name}`", "", f"Made with {provenance()}.", "",
             f"Base scenario `{study.scenario_path.name}`, {study.kind} trials, seed {study.seed}, "
             f"{study.n_cells} cell(s), " + (f"adaptive (JCGM 101, 7.9: {study.adaptive['digits']} significant "
                                            f"digit(s), M = {study.adaptive['batch']} trials per batch, at most "
@@ -136,6 +143,7 @@ def _head(study: Study) -> list[str]:
         head += [f"**Warning**: {study.adaptive['batch']} trials per batch, fewer than the {GUIDE_BATCH} JCGM 101 "
                  "(7.9.4 a) asks for a 95 % interval: the batches' interval ends scatter more, and the rule can "
                  "stop on an interval that is not yet stable to the digits asked.", ""]
+    head += _inputs(study)
     if study.kind == "points":
         head += ["Point sets: " + ", ".join(f"{k} = {v}" for k, v in study.points.items()) + ".", ""]
     head += ["Pose error: the twist `[omega, v]` with `T_est = T_true exp(xi)`, workpiece frame "
@@ -154,6 +162,54 @@ def _head(study: Study) -> list[str]:
              "is counted by its status; the error magnitudes are also given over every trial that returned "
              "a pose.", ""]
     return head
+
+
+def _inputs(study: Study) -> list[str]:
+    """How each error source of the base scenario enters the trials: random per reading, drawn
+    per trial from its distribution, or held fixed (a known value, or one draw for the whole
+    study) -- so that a reader knows what the coverage intervals cover."""
+    if study.kind not in ("fast", "full"):
+        return []
+    sc = study.cell_scenario(0)
+    n, sensor = sc.noise, sc.sensor
+    fast = study.kind == "fast"
+    rows = [("repeatability, quantisation, incidence", "random per reading" if n.gaussian else "off"),
+            ("linearity curve", "off" if not n.linearity or sensor.linearity_m == 0 else
+             "drawn per trial (a sensor unit: the phase uniform)" if sensor.linearity_phase_deg is None else
+             f"fixed: phase {sensor.linearity_phase_deg:g} deg, one known curve in every trial (its effect is a bias "
+             'of the estimate, not in the intervals; `linearity_phase_deg = "random"` draws it per trial)'),
+            ("encoder noise", "random per reading" if n.encoder_sigma_rad > 0 else "off"),
+            ("time skew", f"fixed: {n.time_skew_s:g} s in every trial" if n.time_skew_s else "off")]
+    robot = n.kinematic_sigma_m > 0 or n.kinematic_sigma_rad > 0 or not np.allclose(n.T_hand_eye_error, np.eye(4))
+    if robot:
+        rows.append(("kinematic and hand-eye errors", "drawn per trial (the scenario's seed per trial)" if not fast else
+                     "fixed: one draw for the whole study (fast trials reuse one scan); `kind = \"full\"` draws them "
+                     "per trial"))
+    lines = ["Uncertain inputs of cell 0's scenario and how the trials treat them:", "",
+             "| input | in the trials |", "|---|---|"]
+    return lines + [f"| {name} | {how} |" for name, how in rows] + [""]
+
+
+def provenance() -> str:
+    """What made the report: the package's version and, in a git checkout, its commit (with a
+    note when tracked files differ from it)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        made = f"scan-twin {version('scan-twin')}"
+    except PackageNotFoundError:
+        made = "scan-twin"
+    root = Path(__file__).resolve().parents[2]
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                             timeout=10, check=False)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, timeout=10, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return made
+    if rev.returncode != 0 or not rev.stdout.strip():
+        return made
+    return f"{made} at commit {rev.stdout.strip()}" + (" with uncommitted changes" if dirty.stdout.strip() else "")
 
 
 def _summary_table(study: Study, table: pa.Table, stats: list[dict]) -> list[str]:
@@ -203,13 +259,48 @@ def _cell_section(study: Study, table: pa.Table, s: dict, i: int, out: Path,
     if not s["determined"]:
         lines += ["The points of some trials leave a direction free or weak: no component is reported.", ""]
     lines += _outputs_table(s, columns)
+    if s["determined"]:
+        lines += _propagation_table(s)
     lines += [f"Over every trial that returned a pose ({s['n_posed']}): translation error mean "
               f"{_fmt(s['all_translation_error_um'])} um, rotation error mean {_fmt(s['all_rotation_error_deg'])} "
               "deg" + (" (the same trials as above)." if s["n_posed"] == s["n_ok"] else
                        f" ({s['n_posed'] - s['n_ok']} trial(s) not `ok` included)."), ""]
-    pngs = _cell_plots(study, table, i, columns, out)
-    lines += [f"![{p.stem}]({p.name})" for p in pngs] + [""]
+    pngs = _cell_plots(study, table, i, columns, out) if i < MAX_CELL_PLOTS else []
+    if pngs:
+        lines += [f"![{p.stem}]({p.name})" for p in pngs] + [""]
+    elif i == MAX_CELL_PLOTS:
+        lines += [f"Histograms and convergence plots are drawn for the first {MAX_CELL_PLOTS} cells; the tables "
+                  "above and below hold every cell.", ""]
     return lines, pngs
+
+
+def _propagation_table(s: dict) -> list[str]:
+    """Each twist component's Monte Carlo ``u`` beside the law of propagation's and the white
+    noise's Cramer-Rao bound, and JCGM 101 section 8's check of the GUM's interval (the nominal
+    zero error +- 1.96 u_LPU) against the Monte Carlo's symmetric one."""
+    crlb, lpu = s["u_crlb_"], s["u_lpu_"]
+    if not any(math.isfinite(v) for v in crlb.values()):
+        return []
+    has_lpu = any(math.isfinite(v) for v in lpu.values())
+    head = ["component", "MC u", "Cramer-Rao (white noise)"]
+    if has_lpu:
+        head += ["LPU u", "of it: linearity curve", "GUM interval against MC: d_low, d_high", "GUM validated (8)"]
+    lines = ["Monte Carlo against the Cramer-Rao bound of the white reading noise"
+             + (" and the GUM law of propagation (LPU: that bound and the linearity curve, a Type B effect, "
+                "propagated at the truth; root mean square over the trials)" if has_lpu else "") + ":", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for c in TWIST_COLUMNS:
+        o = s["outputs"][c]
+        places = decimals(o.values[1])
+        row = [c, fmt(o.values[1], places), fmt(crlb[c], places)]
+        if has_lpu:
+            lin = math.sqrt(max(lpu[c] ** 2 - crlb[c] ** 2, 0.0)) if math.isfinite(lpu[c]) else float("nan")
+            d_low, d_high = abs(-1.96 * lpu[c] - o.values[2]), abs(1.96 * lpu[c] - o.values[3])
+            ok = d_low <= o.tolerance and d_high <= o.tolerance
+            row += [fmt(lpu[c], places), fmt(lin, places), f"{fmt(d_low, places)}, {fmt(d_high, places)}",
+                    ("yes" if ok else "no") + f" (tolerance {fmt_se(o.tolerance)})"]
+        lines.append("| " + " | ".join(row) + " |")
+    return lines + [""]
 
 
 def _outputs_table(s: dict, columns: tuple[str, ...]) -> list[str]:

@@ -121,7 +121,8 @@ def cell_plots(study: Study, table: pa.Table, cell: int, columns: tuple[str, ...
         fig, axes = _grid(len(columns), f"study {study.name}, cell {cell}: {what}")
         for ax, name in zip(axes, columns, strict=True):
             draw(ax, name, values[name])
-        axes[0].legend(fontsize=6)
+        if axes[0].get_legend_handles_labels()[0]:
+            axes[0].legend(fontsize=6)
         fig.tight_layout()
         paths.append(save(fig, Path(out) / f"{stem}_cell{cell}.png"))
     return paths

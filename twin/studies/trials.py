@@ -63,7 +63,13 @@ from twin.plan import ScanPlan, plan_scan
 from twin.realize import Realized, realize
 from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
-from twin.scan_uncertainty import reading_sigma_m, scan_reading_sigma_m, white_reading_sigma_m
+from twin.scan_uncertainty import (
+    beam_directions_base,
+    linearity_covariance,
+    reading_sigma_m,
+    scan_reading_sigma_m,
+    white_reading_sigma_m,
+)
 from twin.scenario import Scenario, load_scenario, merge_tables
 from twin.sensors.base import Measurement, RawRays, RaySensor
 from twin.sim import simulate
@@ -74,9 +80,14 @@ from twin.workflows.loop import run as run_loop
 
 #: The metric columns of a trial, in order (units in :mod:`twin.studies.runner`'s docstring).
 TWIST_COLUMNS = ("omega_x_urad", "omega_y_urad", "omega_z_urad", "v_x_um", "v_y_um", "v_z_um")
+#: Per twist component, the standard uncertainty of the Cramer-Rao bound of the white reading noise
+#: and the GUM law of propagation's (fast trials: that bound and the linearity curve propagated as
+#: a Type B effect; NaN for the other kinds).
+CRLB_COLUMNS = tuple(f"u_crlb_{c}" for c in TWIST_COLUMNS)
+LPU_COLUMNS = tuple(f"u_lpu_{c}" for c in TWIST_COLUMNS)
 METRIC_COLUMNS = TWIST_COLUMNS + ("rotation_error_deg", "translation_error_um", "rmse_um", "iterations", "status",
                                   "time_s", "n_points", "crlb_rotation_urad", "crlb_translation_um", "mahalanobis2",
-                                  "path_error_max_um")
+                                  "path_error_max_um") + CRLB_COLUMNS + LPU_COLUMNS
 
 
 @dataclass(frozen=True)
@@ -174,7 +185,7 @@ def _metrics(out: Outcome, T_true: np.ndarray, n_points: int, C: np.ndarray | No
     m.update(rotation_error_deg=float(np.degrees(rotation_error_rad(T_est, T_true))),
              translation_error_um=float(translation_error_m(T_est, T_true) * 1e6), rmse_um=float(out.rmse_m * 1e6),
              iterations=int(out.iterations), status=out.status, time_s=float(out.time_s), n_points=int(n_points),
-             path_error_max_um=float("nan"), **_bound_columns(C, xi))
+             path_error_max_um=float("nan"), **_bound_columns(C, xi), **_lpu_columns(C, None))
     return m
 
 
@@ -186,20 +197,29 @@ def _bound_columns(C: np.ndarray | None, xi: np.ndarray | None) -> dict:
             "crlb_translation_um": float(np.sqrt(np.trace(C[3:, 3:])) * 1e6), "mahalanobis2": m2}
 
 
+def _lpu_columns(C_white: np.ndarray | None, C_total: np.ndarray | None) -> dict:
+    """The standard uncertainties (urad, um) of the twist components of the white noise's bound
+    and of the law of propagation's covariance."""
+    out = {}
+    for names, C in ((CRLB_COLUMNS, C_white), (LPU_COLUMNS, C_total)):
+        u = np.full(6, np.nan) if C is None else np.sqrt(np.clip(np.diag(C), 0.0, None)) * 1e6
+        out.update({name: float(v) for name, v in zip(names, u, strict=True)})
+    return out
+
+
 def _failed(status: str, n_points: int = 0, time_s: float = 0.0, C: np.ndarray | None = None) -> dict:
     out: dict[str, Any] = {name: float("nan") for name in TWIST_COLUMNS}
     out.update(rotation_error_deg=float("nan"), translation_error_um=float("nan"), rmse_um=float("nan"),
                iterations=0, status=status, time_s=float(time_s), n_points=int(n_points),
-               path_error_max_um=float("nan"), **_bound_columns(C, None))
+               path_error_max_um=float("nan"), **_bound_columns(C, None), **_lpu_columns(None, None))
     return out
 
 
 def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init: np.ndarray, sigma_m: float | None,
-              rng: np.random.Generator, white_sigma_m: float | None = None) -> dict:
+              rng: np.random.Generator, C: np.ndarray | None) -> dict:
     """Localize by ``loc["method"]`` (its fit check with ``sigma_m``, every random and systematic
-    effect of a reading) and measure against the truth (the metric columns), with the Cramer-Rao
-    bound of the white reading noise ``white_sigma_m`` (default: ``sigma_m``, all of it white)."""
-    C = bound(pts, T_true, workpiece.index, sigma_m if white_sigma_m is None else white_sigma_m)
+    effect of a reading) and measure against the truth (the metric columns), with ``C`` the
+    Cramer-Rao bound of the white reading noise (:func:`bound`)."""
     t0 = time.perf_counter()
     try:
         out = run_method(loc["method"], pts, workpiece, T_init, sigma_m, rng, loc["init_distance_m"])
@@ -245,18 +265,36 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
     geo = noise_free_scan(scenario)
     rng_init, rng_err, rng_subset, rng_method = trial_streams(study.seed, cell, trial)
     T_true = evaluate.Evaluation(geo.realized).T_base_workpiece
-    points, valid, q_log = scan_points(scenario, geo, rng_err)
-    mask = valid & (geo.plan.line >= 0)[:, None]
-    pts, q_pts = points[mask], np.broadcast_to(q_log[:, None, :], (*mask.shape, 6))[mask]
+    T_fs = scenario.sensor.T_flange_sensor
+    meas, q_log = scan_measurement(scenario, geo, rng_err)
+    mask = meas.valid & (geo.plan.line >= 0)[:, None]
+    pts = geo.sensor.reconstruct(q_log, meas.d, UR5E_DH, T_fs)[mask]
+    q_pts = np.broadcast_to(q_log[:, None, :], (*mask.shape, 6))[mask]
+    d_pts = meas.d[mask]
+    beams = beam_directions_base(q_log, geo.sensor.beam_dirs_sensor(), T_fs)[mask]
     if 0 < loc["points"] < len(pts):  # a random subset of the valid points, drawn per trial
         keep = np.sort(rng_subset.choice(len(pts), loc["points"], replace=False))
-        pts, q_pts = pts[keep], q_pts[keep]
+        pts, q_pts, d_pts, beams = pts[keep], q_pts[keep], d_pts[keep], beams[keep]
     workpiece = geo.realized.workpiece
     T_init = start_pose(T_true, loc, pts, workpiece.mesh, rng_init)
     T_nominal = geo.realized.T_base_workpiece_nominal
     sigma = reading_sigma_m(scenario, q_pts, pts, T_nominal, workpiece.index)
     white = white_reading_sigma_m(scenario, q_pts, pts, T_nominal, workpiece.index)
-    return _localize(loc, pts, workpiece, T_true, T_init, sigma or None, rng_method, white or None)
+    C = bound(pts, T_true, workpiece.index, white or None)
+    row = _localize(loc, pts, workpiece, T_true, T_init, sigma or None, rng_method, C)
+    if C is not None:
+        row.update(_lpu_columns(C, C + _linearity_part(scenario, d_pts, beams, pts, T_true, workpiece.index)))
+    return row
+
+
+def _linearity_part(scenario: Scenario, d: np.ndarray, beams: np.ndarray, pts: np.ndarray, T_true: np.ndarray,
+                    index) -> np.ndarray:
+    """The pose covariance (6, 6) the sensor's linearity curve causes, propagated by the GUM's law
+    of propagation at the truth (:func:`twin.scan_uncertainty.linearity_covariance`); zero when
+    the scenario switches the curve off."""
+    if not scenario.noise.linearity or scenario.sensor.linearity_m == 0.0:
+        return np.zeros((6, 6))
+    return linearity_covariance(scenario.sensor, d, beams, pts, T_true, np.eye(6), index)
 
 
 _PARTS: dict[str, tuple[Realized, dict]] = {}
@@ -287,7 +325,8 @@ def points_trial(study: Study, cell: int, trial: int) -> dict:
     cp = workpiece.index.query(x)
     pts = measured_points(x, workpiece.index.smooth_normals(cp.face, cp.foot), T_true, spec, rng_err)
     T_init = start_pose(T_true, loc, pts, workpiece.mesh, rng_init)
-    return _localize(loc, pts, workpiece, T_true, T_init, spec["noise_sigma_m"], rng_method)
+    sigma = spec["noise_sigma_m"]
+    return _localize(loc, pts, workpiece, T_true, T_init, sigma, rng_method, bound(pts, T_true, workpiece.index, sigma))
 
 
 def full_trial(study: Study, cell: int, trial: int) -> dict:
