@@ -343,8 +343,9 @@ def _write_normals_report(study: Study, table: pa.Table, out: Path) -> list[Path
              "Angles between the estimated normals and the model's smooth normals at the true pose, per "
              "trial over every point of the cloud (PCA unsigned); the table gives the mean and the standard "
              "deviation over the trials with status `ok`.", "", "![normals](normals.png)", "",
-             "| cell | " + " | ".join(f"`{f}`" for f in factors) + " | trials | ok | points | RMS angle [deg] | "
-             "95 % angle [deg] | max angle [deg] | share > 5 deg | median time [ms] |",
+             "| " + " | ".join(["cell"] + [f"`{f}`" for f in factors] + [
+                 "trials", "ok", "points", "RMS angle [deg]", "95 % angle [deg]", "max angle [deg]", "share > 5 deg",
+                 "median time [ms]"]) + " |",
              "|---" * (len(factors) + 9) + "|"]
     labels, rms = [], []
     for i, values in enumerate(study.cells):
@@ -352,7 +353,7 @@ def _write_normals_report(study: Study, table: pa.Table, out: Path) -> list[Path
         st = {c: summary_stats(_col(table, c)[sel]) for c in NORMALS_STATS}
         n_pts = _col(table, "n_points")[cell == i]
         t_ms = float(np.median(_col(table, "time_s")[cell == i])) * 1e3
-        lines.append(f"| {i} | " + " | ".join(str(values[f]) for f in factors) + f" | {int((cell == i).sum())} | "
+        lines.append("| " + " | ".join([str(i)] + [str(values[f]) for f in factors]) + f" | {int((cell == i).sum())} | "
                      f"{ok[cell == i].mean() * 100:.0f} % | {np.mean(n_pts):.0f} | "
                      + " | ".join(f"{_fmt(st[c][0])} ± {_fmt(st[c][1])}" for c in NORMALS_STATS[:3])
                      + f" | {st['over_5deg_share'][0] * 100:.2f} % | {t_ms:.3g} |")
