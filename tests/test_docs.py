@@ -150,16 +150,28 @@ def _history() -> bool:
 
 
 @pytest.mark.skipif(not _history(), reason="needs the repository's full git history")
-def test_a_report_older_than_the_code_it_measured_is_marked():
-    report = ROOT / "studies" / "reports" / "sensor_sigma" / "report.md"
-    # twin/schema.py was written after this report: the report is older than it.
-    old = report_stamps.stamp(report, ["twin/schema.py"])
-    assert old.commit and old.changed_since >= 1
-    assert "Older than the code it measured" in report_stamps.stamp_markdown(old, "r.md")
-    # The report's own file has not changed since the commit that wrote it.
-    fresh = report_stamps.stamp(report, [str(report.relative_to(ROOT))])
+def test_a_report_older_than_the_code_it_measured_is_marked(tmp_path):
+    first = report_stamps.git("rev-list", "--max-parents=0", "HEAD").split()[0][:7]
+    old_report = tmp_path / "old.md"
+    old_report.write_text(f"# A report\n\nCommand: `python -m benchmarks.bench_scan`; commit {first}.\n")
+    old = report_stamps.stamp(old_report, ["twin/schema.py"])  # written long after the first commit
+    assert old.commit == first and old.stamped and old.changed_since >= 1
+    assert "benchmarks/bench_scan.py" in old.measured  # the benchmark its command names
+    assert "Older than the code it measured" in report_stamps.stamp_markdown(old, "old.md")
+    head = report_stamps.git("rev-parse", "--short", "HEAD")
+    new_report = tmp_path / "new.md"
+    new_report.write_text(f"# A report\n\nMade at commit {head}.\n")
+    fresh = report_stamps.stamp(new_report, ["twin/schema.py"])
     assert fresh.changed_since == 0
-    assert "unchanged since" in report_stamps.stamp_markdown(fresh, "r.md")
+    assert "unchanged since" in report_stamps.stamp_markdown(fresh, "new.md")
+
+
+@pytest.mark.skipif(not _history(), reason="needs the repository's full git history")
+def test_a_report_without_a_commit_is_stamped_with_the_commit_that_wrote_it():
+    report = ROOT / "benchmarks" / "results_closest_point.md"  # names no commit
+    s = report_stamps.stamp(report, [])
+    assert s.commit and not s.stamped
+    assert s.commit == report_stamps.git("log", "-1", "--format=%h", "--", str(report.relative_to(ROOT)))[:7]
 
 
 def test_an_included_report_keeps_its_text_under_its_stamp():

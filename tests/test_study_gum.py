@@ -73,8 +73,12 @@ def test_report_gives_each_quantity_s_jcgm_101_outputs_and_counts_every_trial(tm
     assert "40 trials (ok 40)" in report and "40 of 40 (100 %)" in report
     row = next(line for line in report.splitlines() if line.startswith("| v_x_um |"))
     assert "too few" not in row and row.count("[") == 2  # both intervals, standard errors from 2 batches
+    from PIL import Image
+
     for name in ("histogram_cell0.png", "convergence_cell0.png"):
         assert (tmp_path / "out" / name).stat().st_size > 10_000 and f"({name})" in report
+        with Image.open(tmp_path / "out" / name) as image:
+            assert image.mode == "P"  # a palette PNG: committed reports stay small
 
 
 def test_report_counts_trials_that_are_not_ok(tmp_path):

@@ -60,9 +60,9 @@ def measured_paths(text: str, modules: list[str]) -> tuple[str, ...]:
 def stamp(report: Path, modules: list[str]) -> Stamp:
     """The stamp of ``report`` (a path in the repository)."""
     text = report.read_text(encoding="utf-8")
-    rel = str(report.resolve().relative_to(ROOT))
     named = _named_commit(text)
-    commit = named or git("log", "-1", "--format=%H", "--", rel)
+    inside = report.resolve().is_relative_to(ROOT)
+    commit = named or (git("log", "-1", "--format=%H", "--", str(report.resolve().relative_to(ROOT))) if inside else "")
     measured = measured_paths(text, modules)
     if not commit:
         return Stamp("", "", False, measured, 0, "")

@@ -49,7 +49,7 @@ STAT_COLUMNS = TWIST_COLUMNS + ("rotation_error_deg", "translation_error_um", "r
 MAGNITUDE_COLUMNS = ("rotation_error_deg", "translation_error_um", "rmse_um")
 #: Cells that get a histogram and a convergence plot (a grid of tens of cells would fill the
 #: folder with figures; the tables hold every cell).
-MAX_CELL_PLOTS = 12
+MAX_CELL_PLOTS = 6
 SIGMA_FACTORS = ("sensor.sigma_m", "points.noise_sigma_m")
 
 
@@ -336,7 +336,7 @@ def _write_normals_report(study: Study, table: pa.Table, out: Path) -> list[Path
     cell = _col(table, "cell", np.int64)
     ok = _col(table, "status", object) == "ok"
     factors = list(study.factors)
-    lines = [f"# Study `{study.name}`", "",
+    lines = [f"# Study `{study.name}`", "", f"Made with {provenance()}.", "",
              f"Base scenario `{study.scenario_path.name}`, normals trials (document 004), seed {study.seed}, "
              f"{study.n_cells} cell(s), {study.trials} trial(s) per cell. Normals: "
              + ", ".join(f"{k} = {v}" for k, v in study.normals.items()) + ".", "",

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import io
 import math
 from pathlib import Path
 
@@ -19,12 +20,15 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullFormatter, ScalarFormatter
+from PIL import Image
 
 from twin.studies.jcgm101 import symmetric_interval
 from twin.studies.spec import Study
 
 #: Points along the trial count at which the convergence curves are evaluated.
 CONVERGENCE_POINTS = 60
+#: Colours of a report's PNG.
+PALETTE_COLOURS = 64
 
 
 def figure(title: str, size: tuple[float, float] = (6.4, 4.0)) -> tuple[Figure, Axes]:
@@ -38,9 +42,14 @@ def figure(title: str, size: tuple[float, float] = (6.4, 4.0)) -> tuple[Figure, 
 
 
 def save(fig: Figure, path: Path) -> Path:
-    """Write the figure under a hidden name, then move it into place."""
+    """Write the figure under a hidden name, as a palette PNG (reports are committed: a plot in
+    64 colours is a third of its size and reads the same), then move it into place."""
     tmp = path.with_name(f".{path.name}.partial.png")
-    fig.savefig(tmp)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    buffer.seek(0)
+    with Image.open(buffer) as image:
+        image.convert("RGB").quantize(colors=PALETTE_COLOURS).save(tmp, format="PNG", optimize=True)
     tmp.replace(path)
     return path
 
@@ -48,7 +57,7 @@ def save(fig: Figure, path: Path) -> Path:
 def _grid(n: int, title: str) -> tuple[Figure, list[Axes]]:
     cols = min(3, n)
     rows = math.ceil(n / cols)
-    fig = Figure(figsize=(3.6 * cols, 2.6 * rows + 0.4), dpi=100)
+    fig = Figure(figsize=(3.6 * cols, 2.6 * rows + 0.4), dpi=80)
     FigureCanvasAgg(fig)
     axes = list(np.atleast_1d(fig.subplots(rows, cols)).ravel())
     for ax in axes[n:]:
