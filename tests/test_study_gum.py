@@ -56,6 +56,7 @@ def test_too_few_values_give_no_standard_error_and_are_indicative():
 def test_values_are_given_to_the_two_digits_of_u():
     assert jcgm101.decimals(0.0123) == 3 and jcgm101.decimals(8.0) == 1 and jcgm101.decimals(37.0) == 0
     assert jcgm101.fmt(3.14159, jcgm101.decimals(0.0123)) == "3.142"
+    assert jcgm101.fmt(-0.0004, 1) == "0.0" and jcgm101.fmt(-0.06, 1) == "-0.1"
     o = jcgm101.summarize(np.random.default_rng(3).normal(0.0, 0.0123, 10_000))
     assert math.isclose(o.tolerance, 0.0005)  # half a unit in the last of u's two digits
 

@@ -118,8 +118,11 @@ def decimals(u: float, digits: int = DIGITS) -> int:
 
 
 def fmt(value: float, places: int) -> str:
-    """``value`` rounded to ``places`` decimals ("n/a" when not finite)."""
-    return "n/a" if not math.isfinite(value) else f"{value:.{places}f}"
+    """``value`` rounded to ``places`` decimals ("n/a" when not finite; no sign on a zero)."""
+    if not math.isfinite(value):
+        return "n/a"
+    text = f"{value:.{places}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0.0 else text
 
 
 def fmt_se(value: float) -> str:
