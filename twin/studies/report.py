@@ -50,6 +50,8 @@ MAGNITUDE_COLUMNS = ("rotation_error_deg", "translation_error_um", "rmse_um")
 #: Cells that get a histogram and a convergence plot (a grid of tens of cells would fill the
 #: folder with figures; the tables hold every cell).
 MAX_CELL_PLOTS = 6
+#: What a study's results depend on besides its own inputs (which its manifest hashes).
+CODE_PATHS = ("algorithms", "twin", "models", "pyproject.toml")
 SIGMA_FACTORS = ("sensor.sigma_m", "points.noise_sigma_m")
 
 
@@ -192,7 +194,8 @@ def _inputs(study: Study) -> list[str]:
 
 def provenance() -> str:
     """What made the report: the package's version and, in a git checkout, its commit (with a
-    note when tracked files differ from it)."""
+    note when the code differs from it: the packages, the models, the project file; reports and
+    study files being written are not code)."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:
@@ -203,8 +206,8 @@ def provenance() -> str:
     try:
         rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
                              timeout=10, check=False)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
-                               capture_output=True, text=True, timeout=10, check=False)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHS],
+                               cwd=root, capture_output=True, text=True, timeout=10, check=False)
     except (OSError, subprocess.TimeoutExpired):
         return made
     if rev.returncode != 0 or not rev.stdout.strip():
