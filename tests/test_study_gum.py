@@ -82,6 +82,7 @@ def test_report_gives_each_quantity_s_jcgm_101_outputs_and_counts_every_trial(tm
             assert image.mode == "P"  # a palette PNG: committed reports stay small
 
 
+@pytest.mark.slow  # the default suite's five minutes
 def test_report_counts_trials_that_are_not_ok(tmp_path):
     """A start far from the truth: some trials fail; they are counted, and the magnitudes over
     every trial that returned a pose say how far the not-ok ones were."""
@@ -117,6 +118,7 @@ def test_the_bound_is_taken_with_the_white_noise_only():
 # --- extend and resume --------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # the default suite's five minutes
 def test_raising_trials_extends_a_study_to_what_a_fresh_run_gives(tmp_path):
     small = points_study(tmp_path, POINTS, trials=6, name="small.toml")
     big = points_study(tmp_path, POINTS, trials=12, name="big.toml")
@@ -150,6 +152,7 @@ def test_an_adaptive_study_stopped_mid_run_and_resumed_equals_an_uninterrupted_o
     assert_same_table(pq.read_table(tmp_path / "cut" / RESULTS), pq.read_table(tmp_path / "whole" / RESULTS))
 
 
+@pytest.mark.slow  # the default suite's five minutes
 def test_an_adaptive_rule_not_met_exits_3_and_names_the_quantities(tmp_path):
     study_file = tmp_path / "a.toml"
     _adaptive(tmp_path, name="a.toml", digits=3)
