@@ -13,7 +13,10 @@ import sys
 # (twin.formats.step), importing cascadio there only; here trimesh is told it is absent.
 sys.modules.setdefault("cascadio", None)  # type: ignore[arg-type]
 
+from twin import _gym_registration  # noqa: E402
 from twin.api import locate, run, study  # noqa: E402
 from twin.errors import TwinError  # noqa: E402
 
 __all__ = ["TwinError", "locate", "run", "study"]
+
+_gym_registration.install()   # gymnasium.make("twin/ActiveScan-v0") after import twin

@@ -46,21 +46,7 @@ A ball that touches a tessellated curved surface on an edge or a vertex of its f
 2 % of ball centres 1 mm off random points of the hemisphere and bottle punches) is fitted by
 its distance to that edge or vertex (``localize_map`` with ``offset_m``), as the ball touches it.
 
-Observation (float64, 20 values, ``OBSERVATION_LAYOUT``): as ``ActiveScan-v0``'s: the estimate
-relative to the nominal pose (twist, 6), the log-eigenvalues of the posterior information (6),
-the number of points (ball centres, 1), the last information gain [nats] (1), the joints [rad] (6).
-
-Reward: the information gain of the step [nats] minus ``time_cost_per_s`` per second of
-motion; a target that is refused or missed measures nothing and costs
-``unreachable_penalty`` (a miss pays for its motion too); a collision (the arm, the laser
-housing, the probe's body or stylus, or the ball outside a probing move, against the part or
-the table) costs ``collision_penalty`` and ends the episode.
-
-Terminated when the largest standard deviation of any rotation is under ``tolerance_deg``
-and of any translation under ``tolerance_m`` (directions the shape cannot fix excepted), for a
-trusted fit confirmed by a point it had not seen, or on a collision; truncated after
-``max_steps`` steps. Episodes are drawn from the ``reset`` seed alone as ``ActiveScan-v0``'s
-(scenario, placement twist, random streams): the same seed and actions give the same episode.
+The spaces, rewards and episode rules are in :class:`ActiveProbeEnv`'s docstring.
 
 Actions outside [-1, 1] are clipped (``info["clipped"]``); an action of the wrong shape or with a
 non-finite value is refused with ``ValueError``; so is, at construction, a scenario without a
@@ -79,14 +65,12 @@ from algorithms.probing.point_planning import REASONS, feasible_candidates
 from algorithms.registration.bayes import MapResult, localize_map, normalized_innovations
 from twin.cell import Cell
 from twin.env.base import (
-    OBSERVATION_LAYOUT,
-    OBSERVATION_SIZE,
     ActiveLocalizationEnv,
     EnvScenario,
     prepare,
     seed_realized,
 )
-from twin.env.views import ELEVATION_MIN_DEG, decode_action, segment_centre
+from twin.env.views import ELEVATION_MIN_DEG, VIEW_AIM_OFFSETS, decode_action, segment_centre, view_directions
 from twin.errors import TwinError
 from twin.probing import (
     STYLUS_AXIS_WORLD,
@@ -104,7 +88,7 @@ from twin.replay import contact_records
 from twin.scenario import Scenario
 from twin.sensors.touch_probe import probe_spec
 
-__all__ = ["ACTION_SIZE", "DEFAULT_SCENARIOS", "OBSERVATION_LAYOUT", "OBSERVATION_SIZE", "ActiveProbeEnv",
+__all__ = ["ACTION_SIZE", "DEFAULT_SCENARIOS", "ActiveProbeEnv",
            "ProbeResult", "ProbeScenario", "probe_target", "view_action"]
 
 DEFAULT_SCENARIOS = ("locate_hemisphere_punch.toml",)
@@ -204,31 +188,110 @@ def _check_action(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
 
 
 class ActiveProbeEnv(ActiveLocalizationEnv):
-    """Active localization with a touch-trigger probe (module docstring).
+    """Choose the next touch-probe point to pin a clamped part down fastest.
+
+    ## Description
+
+    A UR5e with a touch-trigger probe (stylus straight down) stands before a part clamped near
+    its nominal pose; where exactly, only the simulator knows. Each step the agent names a line
+    of sight onto the part; the probe makes one probing move to where it meets the CAD model at
+    the current estimate, along the surface normal, in the true cell at 1 ms (module
+    docstring); the recorded ball centre is added and the part re-localized on every point so
+    far, starting from the fixture's placement prior. The probe is qualified on the reference
+    sphere once per scenario, at construction (a few seconds each).
+
+    ## Action Space
+
+    ``actions="box"`` (default): ``Box(-1, 1, (4,), float32)``, mapped linearly (values outside
+    are clipped, ``info["clipped"]``):
+
+    | index | component | range |
+    |---|---|---|
+    | 0 | azimuth of the line of sight (from the part towards the viewer) | [-180, 180] deg about world z |
+    | 1 | elevation | [20, 90] deg above the table |
+    | 2, 3 | aim offsets in the plane normal to the line | [-R, R], R the part's bounding radius |
+
+    ``actions="views"``: ``Discrete(100)``, an index into ``view_table`` (the 20 view
+    directions of :func:`twin.env.views.view_directions` times 5 aim offsets);
+    ``info["action_mask"]`` and ``action_masks()`` say which targets can be probed at the
+    part's nominal pose (:func:`probe_target`).
+
+    ## Observation Space
+
+    ``Dict`` of float32 boxes, as ``ActiveScan-v0``'s (:mod:`twin.env.observation`;
+    ``gymnasium.wrappers.FlattenObservation`` makes it one vector of 66):
+
+    | key | size | bounds | meaning |
+    |---|---|---|---|
+    | pose | 6 | [-1, 1] | estimate relative to the nominal pose, in prior sigmas (tanh) |
+    | std | 6 | [-1, 1] | posterior standard deviation of each pose component: 1 prior, 0 tolerance (log scale) |
+    | correlation | 15 | [-1, 1] | posterior correlations (upper triangle), workpiece frame |
+    | worst_std | 2 | [-1, 1] | the stopping rule's worst rotation and translation deviation, scaled as std |
+    | coverage | 14 | [0, 1] | ball centres per surface-normal direction (workpiece frame) |
+    | surface | 14 | [0, 1] | the part's area per surface-normal direction |
+    | joints | 6 | [-1, 1] | the arm's joints over their ranges |
+    | progress | 3 | [0, 1] | steps left, last information gain, points so far |
+
+    ## Rewards
+
+    | term | value |
+    |---|---|
+    | information gain | the increase of ``log det`` of the posterior pose information [nats] |
+    | motion | ``-time_cost_per_s`` per second of motion |
+    | a target refused before moving, or a move that found no surface | ``-unreachable_penalty`` |
+    | a collision (arm, housing, probe, or the ball outside a probing move) | ``-collision_penalty``, the end |
+
+    ## Starting State
+
+    ``reset(seed=...)`` draws, from that seed alone, the scenario, the part's true pose (the
+    nominal pose moved by a Gaussian twist of ``placement_sigma_m`` and ``placement_sigma_deg``
+    per axis) and the seeds of the cell's random streams; the probe starts at its safe
+    position, nothing measured, the estimate at the nominal pose. The same seed and actions
+    give the same episode.
+
+    ## Episode End
+
+    Terminated when the worst rotation and translation standard deviations (directions the
+    part's shape cannot fix excepted) are within the tolerances, for a trusted fit that the
+    next point confirms (``info["is_success"]``), or on a collision. Truncated after the step
+    budget: ``max_steps``, else the registration's ``max_episode_steps`` (30).
+
+    ## Arguments
 
     Args:
         scenarios: a scenario file with a ``[probe]`` table, a :class:`Scenario`, or a list of
             them (names resolve in the project's ``scenarios/`` folder); each episode draws one.
         tolerance_m, tolerance_deg: the standard deviations that end an episode.
-        max_steps: the step budget (truncation).
+        max_steps: the step budget (None: the registration's ``max_episode_steps``, else 30).
         time_cost_per_s: reward lost per second of motion.
         unreachable_penalty: reward lost by a target that is refused or missed.
         collision_penalty: reward lost by a collision (the episode ends).
         placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis.
-        render_mode: None or ``"rgb_array"``; width, height: the rendered image [pixels].
+        actions: ``"box"`` or ``"views"`` (Action Space).
+        render_mode: None or ``"rgb_array"`` (EGL, else OSMesa, without a display); width,
+            height: the rendered image [pixels].
     """
 
     action_size = ACTION_SIZE
 
     def __init__(self, scenarios=DEFAULT_SCENARIOS, tolerance_m: float = 10e-6, tolerance_deg: float = 0.01,
-                 max_steps: int = 30, time_cost_per_s: float = 0.5, unreachable_penalty: float = 1.0,
+                 max_steps: int | None = None, time_cost_per_s: float = 0.5, unreachable_penalty: float = 1.0,
                  collision_penalty: float = 10.0, placement_sigma_m: float = 1e-3, placement_sigma_deg: float = 0.5,
-                 render_mode: str | None = None, width: int = 640, height: int = 480):
+                 actions: str = "box", render_mode: str | None = None, width: int = 640, height: int = 480):
         super().__init__(scenarios, tolerance_m=tolerance_m, tolerance_deg=tolerance_deg, max_steps=max_steps,
                          time_cost_per_s=time_cost_per_s, unreachable_penalty=unreachable_penalty,
                          collision_penalty=collision_penalty, placement_sigma_m=placement_sigma_m,
                          placement_sigma_deg=placement_sigma_deg, render_mode=render_mode, width=width,
-                         height=height)
+                         height=height, actions=actions)
+
+    def _view_table(self) -> np.ndarray:
+        return np.array([[az, el, o1, o2] for az, el in view_directions() for o1, o2 in VIEW_AIM_OFFSETS])
+
+    def _view_mask(self, es: EnvScenario, table: np.ndarray) -> np.ndarray:
+        if not isinstance(es, ProbeScenario):
+            raise TypeError(f"ActiveProbe-v0 runs on a ProbeScenario, got {type(es).__name__}")
+        T_base_nominal = inv_pose(es.scenario.T_world_base) @ es.scenario.workpiece.T_world_workpiece_nominal
+        return np.array([not isinstance(probe_target(a, es, es.reach, T_base_nominal), str) for a in table])
 
     # ------------------------------------------------------------------ scenarios
     def _prepare(self, scenario: Scenario) -> ProbeScenario:

@@ -1,40 +1,13 @@
-"""``twin/ActiveScan-v0``: choose the next laser scan segment to pin the part down fastest.
+"""``twin/ActiveScan-v0``: choose the next laser scan segment to pin the part down fastest
+(:class:`ActiveScanEnv`; its docstring has the spaces, rewards and episode rules).
 
-Each step the agent names a short scan segment (:mod:`twin.env.views`); the environment
-solves the joints with mink, simulates the motion and the line in the true cell at 1 ms with
-the scenario's sensor model and arm (:mod:`twin.env.arm`), adds the points and re-localizes
-on every point so far (:func:`algorithms.registration.bayes.localize_map`: maximum a posteriori
+How a step is simulated: the segment the action names (:mod:`twin.env.views`) is planned with
+mink and the motion and the line are simulated in the true cell at 1 ms with the scenario's
+sensor model and arm (:mod:`twin.env.arm`); the points are added and the part re-localized on
+every point so far (:func:`algorithms.registration.bayes.localize_map`: maximum a posteriori
 with the placement prior, so directions the points do not fix yet stay at the prior; one
 linearity offset per ``LINEARITY_BIN_M`` of readings; points near sharp edges left out; from
 the current estimate, falling back to the prior mean when that fit is not trusted).
-
-Observation (float64, 20 values, ``OBSERVATION_LAYOUT``):
-
-- ``pose`` (6): the estimate relative to the nominal pose, the twist ``log(T_nom^-1 T_est)``
-  ``[omega (rad), v (m)]`` in the workpiece frame;
-- ``log_eigenvalues`` (6): ascending log-eigenvalues of the posterior pose information
-  (prior + points), rotations scaled by the part's size (:mod:`twin.env.information`);
-- ``points`` (1): the number of points measured so far;
-- ``last_gain`` (1): the information gain of the last segment [nats];
-- ``joints`` (6): the arm's joint positions [rad].
-
-Reward: the information gain of the segment [nats] minus ``time_cost_per_s`` per second of
-motion; a view that misses the part or that the arm cannot reach measures nothing and costs
-``unreachable_penalty``; a collision costs ``collision_penalty`` and ends the episode.
-
-Terminated when the largest standard deviation of any rotation is under ``tolerance_deg``
-and of any translation under ``tolerance_m`` (directions the shape cannot fix excepted), for a
-trusted fit (:mod:`twin.env.base`) confirmed by a segment it had not seen (``is_success``), or
-on a collision; truncated after ``max_steps`` steps.
-
-Episodes: ``reset(seed=...)`` draws, from that seed alone, the scenario (one of
-``scenarios``), the part's true pose (the nominal pose moved by a Gaussian twist of
-``placement_sigma_m`` and ``placement_sigma_deg`` per axis: the prior the information starts
-from) and the seed of every random stream of the cell (sensor, encoders, kinematic errors).
-The same seed and the same actions give the same episode, bit for bit.
-
-Actions outside [-1, 1] are clipped (``info["clipped"]``); an action of the wrong shape or
-with a non-finite value is refused with ``ValueError``.
 """
 
 from __future__ import annotations
@@ -53,8 +26,6 @@ from twin.env.base import (
     EDGE_BAND_SIGMAS,
     INNOVATION_GATE,
     MAX_OUTLIER_FRACTION,
-    OBSERVATION_LAYOUT,
-    OBSERVATION_SIZE,
     PRIOR_MAHALANOBIS_MAX,
     SCENARIOS_DIR,
     ActiveLocalizationEnv,
@@ -62,7 +33,7 @@ from twin.env.base import (
     prepare,
     seed_realized,
 )
-from twin.env.views import ACTION_SIZE, View, decode_action, segment_centre, sensor_line
+from twin.env.views import ACTION_SIZE, ELEVATION_MIN_DEG, decode_action, segment_centre, sensor_line, view_table
 from twin.realize import Realized
 from twin.robot import UR5E_DH
 from twin.scenario import NoiseSpec, Scenario, SensorSpec
@@ -70,7 +41,7 @@ from twin.scenario import NoiseSpec, Scenario, SensorSpec
 # The episodes, the estimate and the stopping rule live in twin.env.base (shared with the
 # touch-probe sibling); its constants stay importable from here.
 __all__ = ["ActiveScanEnv", "DEFAULT_SCENARIOS", "EDGE_BAND_MIN_M", "EDGE_BAND_SIGMAS", "EnvScenario",
-           "INNOVATION_GATE", "LINEARITY_BIN_M", "MAX_OUTLIER_FRACTION", "OBSERVATION_LAYOUT", "OBSERVATION_SIZE",
+           "INNOVATION_GATE", "LINEARITY_BIN_M", "MAX_OUTLIER_FRACTION",
            "PRIOR_MAHALANOBIS_MAX", "SCENARIOS_DIR", "bias_sigma_m", "point_sigma_m", "prepare"]
 
 DEFAULT_SCENARIOS = ("bracket.toml",)
@@ -87,30 +58,41 @@ class ScanScenario(EnvScenario):
     clearance: Cell
 
 
-#: Views tried at construction to check that the arm reaches the part at all.
+#: Views tried at construction to check that the arm reaches the part at all: (azimuth,
+#: elevation) [deg], aimed at the part's centre, mid-window.
 _CHECK_VIEWS = [(az, el) for el in (90.0, 60.0, 35.0) for az in range(-180, 180, 30)]
 
 
-def _reachable_views(env_scenario: EnvScenario) -> int:
-    """How many of ``_CHECK_VIEWS`` (aimed at the part's centre, mid-window) the arm reaches by
-    the closed-form inverse kinematics within its joint ranges."""
+def _check_actions() -> np.ndarray:
+    a1 = [2 * (el - ELEVATION_MIN_DEG) / (90.0 - ELEVATION_MIN_DEG) - 1 for _, el in _CHECK_VIEWS]
+    return np.array([[az / 180.0, e, 0.0, 0.0, 0.0, 0.0] for (az, _), e in zip(_CHECK_VIEWS, a1, strict=True)])
+
+
+def reachable_views(env_scenario: EnvScenario, actions: np.ndarray, length_m: float) -> np.ndarray:
+    """(N,) bool: which of the box ``actions`` (N, 6) name a segment whose beam meets the part
+    at its nominal pose and whose two ends the closed-form inverse kinematics reaches within
+    the joint ranges (the motion's collisions are not checked)."""
     sc = env_scenario.scenario
     T_world_wp = sc.workpiece.T_world_workpiece_nominal
     model = env_scenario.nominal.model
     lo, hi = model.jnt_range[:6, 0], model.jnt_range[:6, 1]
-    w = 0.5 * (sc.sensor.window_m[0] + sc.sensor.window_m[1])
-    poses = []
-    for az, el in _CHECK_VIEWS:
-        view = View(np.radians(az), np.radians(el), w, 0.0, (0.0, 0.0))
+    poses, owner = [], []
+    for i, a in enumerate(actions):
+        view = decode_action(a, env_scenario.geometry)
         c = segment_centre(view, T_world_wp, env_scenario.workpiece, env_scenario.geometry)
         if c is not None:
-            poses.append(sensor_line(view, c, 0.0)[0])
+            poses += list(sensor_line(view, c, length_m))
+            owner += [i, i]
+    ok = np.zeros(len(actions), dtype=bool)
     if not poses:
-        return 0
+        return ok
     T_base_flange = inv_pose(sc.T_world_base) @ np.array(poses) @ inv_pose(sc.sensor.T_flange_sensor)
     sol = ur_inverse(T_base_flange, UR5E_DH)
-    ok = sol.valid & np.all((sol.q >= lo) & (sol.q <= hi), axis=-1)
-    return int(ok.any(axis=1).sum())
+    reached = (sol.valid & np.all((sol.q >= lo) & (sol.q <= hi), axis=-1)).any(axis=1)
+    both = np.ones(len(actions), dtype=bool)
+    np.logical_and.at(both, np.array(owner), reached)
+    ok[np.unique(owner)] = both[np.unique(owner)]
+    return ok
 
 
 def point_sigma_m(sensor: SensorSpec, noise: NoiseSpec) -> float:
@@ -128,13 +110,87 @@ def bias_sigma_m(sensor: SensorSpec, noise: NoiseSpec) -> float:
 
 
 class ActiveScanEnv(ActiveLocalizationEnv):
-    """Active localization with a laser displacement sensor (module docstring).
+    """Choose the next laser scan segment to pin a clamped part down fastest.
+
+    ## Description
+
+    A UR5e with a laser displacement sensor on its flange stands before a part clamped near
+    its nominal pose; where exactly, only the simulator knows. Each step the agent names one
+    short scan line; the arm drives it in the true cell at 1 ms (MuJoCo, mink), the sensor
+    measures with the scenario's error model, and the part is re-localized on every point so
+    far, starting from the fixture's placement prior. The episode is won when every rotation
+    and translation of the pose is known within the tolerances, by a fit that new points
+    confirm. ``env.unwrapped.episode`` holds the running state for model-based baselines
+    (:mod:`twin.env.policies`); a learning agent needs only the observation.
+
+    ## Action Space
+
+    ``actions="box"`` (default): ``Box(-1, 1, (6,), float32)``, mapped linearly
+    (:func:`twin.env.views.decode_action`; values outside are clipped, ``info["clipped"]``):
+
+    | index | component | range |
+    |---|---|---|
+    | 0 | azimuth of the view (direction from the part to the sensor) | [-180, 180] deg about world z |
+    | 1 | elevation of the view | [20, 90] deg above the table |
+    | 2 | stand-off | the sensor's measuring window |
+    | 3 | line direction | [0, 180] deg from the azimuth tangent |
+    | 4, 5 | aim offsets in the plane normal to the view | [-R, R], R the part's bounding radius |
+
+    ``actions="views"``: ``Discrete(200)``, an index into ``view_table`` (20 view directions,
+    elevations 90, 60 and 35 deg; 5 aim offsets; 2 line directions; mid-window:
+    :func:`twin.env.views.view_table`). ``info["action_mask"]`` and ``action_masks()`` say which
+    views the arm reaches at the part's nominal pose (closed-form inverse kinematics at both ends
+    of the line, the beam meeting the part).
+
+    ## Observation Space
+
+    ``Dict`` of float32 boxes (:mod:`twin.env.observation` has the formulas);
+    ``gymnasium.wrappers.FlattenObservation`` makes it one vector of 66:
+
+    | key | size | bounds | meaning |
+    |---|---|---|---|
+    | pose | 6 | [-1, 1] | estimate relative to the nominal pose, in prior sigmas (tanh) |
+    | std | 6 | [-1, 1] | posterior standard deviation of each pose component: 1 prior, 0 tolerance (log scale) |
+    | correlation | 15 | [-1, 1] | posterior correlations (upper triangle), workpiece frame |
+    | worst_std | 2 | [-1, 1] | the stopping rule's worst rotation and translation deviation, scaled as std |
+    | coverage | 14 | [0, 1] | points measured per surface-normal direction (workpiece frame) |
+    | surface | 14 | [0, 1] | the part's area per surface-normal direction |
+    | joints | 6 | [-1, 1] | the arm's joints over their ranges |
+    | progress | 3 | [0, 1] | steps left, last information gain, points so far |
+
+    ## Rewards
+
+    | term | value |
+    |---|---|
+    | information gain | the increase of ``log det`` of the posterior pose information [nats] |
+    | motion | ``-time_cost_per_s`` per second of motion |
+    | a view that misses the part, is out of reach or measures nothing | ``-unreachable_penalty`` |
+    | a collision of the arm or sensor | ``-collision_penalty`` (the episode ends) |
+
+    ## Starting State
+
+    ``reset(seed=...)`` draws, from that seed alone, the scenario (one of ``scenarios``), the
+    part's true pose (the nominal pose moved by a Gaussian twist of ``placement_sigma_m`` and
+    ``placement_sigma_deg`` per axis: the prior the information starts from) and the seed of
+    every random stream of the cell (sensor, encoders, kinematic errors). The arm starts at the
+    scenario's home pose, nothing measured, the estimate at the nominal pose. The same seed and
+    actions give the same episode, bit for bit.
+
+    ## Episode End
+
+    Terminated when the worst rotation and translation standard deviations (directions the
+    part's shape cannot fix excepted) are within ``tolerance_deg`` and ``tolerance_m``, for a
+    trusted fit that the next segment's points confirm (``info["is_success"]``), or on a
+    collision. Truncated after the step budget: ``max_steps``, else the registration's
+    ``max_episode_steps`` (30; ``gymnasium.make`` adds the ``TimeLimit`` wrapper).
+
+    ## Arguments
 
     Args:
         scenarios: a scenario file, a :class:`Scenario`, or a list of them (names resolve in
             the project's ``scenarios/`` folder); each episode draws one.
         tolerance_m, tolerance_deg: the standard deviations that end an episode.
-        max_steps: the step budget (truncation).
+        max_steps: the step budget (None: the registration's ``max_episode_steps``, else 30).
         segment_length_m: length of each scan line [m].
         retract_m: how far the sensor backs off along its beam between lines [m].
         time_cost_per_s: reward lost per second of motion.
@@ -145,21 +201,25 @@ class ActiveScanEnv(ActiveLocalizationEnv):
             evenly spaced, before localization (the white noise then still counts for less
             than the linearity error: thinning 600 samples to 100 changes a line's
             information little and the fit's cost a lot).
-        render_mode: None or ``"rgb_array"``; width, height: the rendered image [pixels].
+        actions: ``"box"`` or ``"views"`` (Action Space).
+        render_mode: None or ``"rgb_array"`` (the cell from behind the part, the points drawn;
+            without a display MuJoCo's EGL, else OSMesa, is chosen: :mod:`twin.env`); width,
+            height: the rendered image [pixels].
     """
 
     action_size = ACTION_SIZE
 
     def __init__(self, scenarios=DEFAULT_SCENARIOS, tolerance_m: float = 10e-6, tolerance_deg: float = 0.01,
-                 max_steps: int = 30, segment_length_m: float = 0.03, retract_m: float = 0.03,
+                 max_steps: int | None = None, segment_length_m: float = 0.03, retract_m: float = 0.03,
                  time_cost_per_s: float = 0.5, unreachable_penalty: float = 1.0, collision_penalty: float = 10.0,
                  placement_sigma_m: float = 1e-3, placement_sigma_deg: float = 0.5, points_per_segment: int = 100,
-                 render_mode: str | None = None, width: int = 640, height: int = 480):
+                 actions: str = "box", render_mode: str | None = None, width: int = 640, height: int = 480):
+        self.segment_length_m = segment_length_m   # the views' reach check needs it (checked below)
         super().__init__(scenarios, tolerance_m=tolerance_m, tolerance_deg=tolerance_deg, max_steps=max_steps,
                          time_cost_per_s=time_cost_per_s, unreachable_penalty=unreachable_penalty,
                          collision_penalty=collision_penalty, placement_sigma_m=placement_sigma_m,
                          placement_sigma_deg=placement_sigma_deg, render_mode=render_mode, width=width,
-                         height=height, points_per_step=points_per_segment,
+                         height=height, actions=actions, points_per_step=points_per_segment,
                          positive={"segment_length_m": segment_length_m},
                          nonnegative={"retract_m": retract_m}, counts={"points_per_segment": points_per_segment})
         self.points_per_segment = points_per_segment
@@ -170,10 +230,16 @@ class ActiveScanEnv(ActiveLocalizationEnv):
         if es.scenario.sensor.kind != "point":
             raise ValueError(f"scenario {es.scenario.name!r}: ActiveScan-v0 takes a laser point sensor "
                              f"(sensor.kind = 'point'), got {es.scenario.sensor.kind!r}")
-        if _reachable_views(es) == 0:
+        if not reachable_views(es, _check_actions(), 0.0).any():
             raise ValueError(f"scenario {es.scenario.name!r}: the arm reaches none of {len(_CHECK_VIEWS)} "
                              f"views of the part (elevations 90, 60 and 35 deg, every 30 deg of azimuth); "
                              f"move the part or the robot base")
+
+    def _view_table(self) -> np.ndarray:
+        return view_table()
+
+    def _view_mask(self, es: EnvScenario, table: np.ndarray) -> np.ndarray:
+        return reachable_views(es, table, float(self.segment_length_m))
 
     # ------------------------------------------------------------------ episodes
     def _prepare(self, scenario: Scenario) -> ScanScenario:

@@ -13,21 +13,31 @@ time spent. :class:`ActiveLocalizationEnv` holds all of that; a subclass supplie
 - ``_innovations``: the normalised innovations of new points at the current estimate;
 - ``_point_sigma_m``, ``_joints``, ``_render_scene``.
 
-Observation (float64, 20 values, ``OBSERVATION_LAYOUT``): the estimate relative to the nominal
-pose (the twist ``log(T_nom^-1 T_est)`` ``[omega (rad), v (m)]`` in the workpiece frame, 6),
-the ascending log-eigenvalues of the posterior pose information (rotations scaled by the part's
-size, 6), the number of points (1), the last step's information gain [nats] (1) and the arm's
-joint positions [rad] (6).
+Observation: a ``Dict`` of float32 arrays, each bounded, described in
+:mod:`twin.env.observation` (the estimate, its covariance as standard deviations and
+correlations in the workpiece frame, the stopping rule's worst deviations, which surface
+directions have been measured and which the part has, the arm's joints, steps left, the last
+gain, the points so far).
+
+Actions: ``actions="box"`` (the default) takes the subclass's ``action_size`` numbers in
+[-1, 1] (float32); ``actions="views"`` takes an index into the subclass's fixed table of
+views (``view_table``, a ``Discrete`` space), with ``info["action_mask"]`` (and
+``action_masks()``) saying which of them the arm reaches at the part's nominal pose.
 
 Termination: the worst rotation and translation standard deviations (directions the shape
 cannot fix excepted) under the tolerances, for a fit that is trusted (``_fit_verdict``) and
-confirmed by new points it had not seen (``_confirm``); or a collision. Truncation after
-``max_steps`` steps. Episodes are drawn from the ``reset`` seed alone (scenario, placement
-twist, seeds of the cell's random streams): the same seed and actions give the same episode.
+confirmed by new points it had not seen (``_confirm``); or a collision. Truncation after the
+step budget: ``max_steps`` when given, else the registration's ``max_episode_steps`` (the
+``TimeLimit`` wrapper ``gymnasium.make`` adds), else ``DEFAULT_MAX_STEPS``. Episodes are
+drawn from the ``reset`` seed alone (scenario, placement twist, seeds of the cell's random
+streams): the same seed and actions give the same episode.
 """
 
 from __future__ import annotations
 
+import importlib
+import os
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -42,12 +52,19 @@ from algorithms.geometry.se3 import exp_se3, inv_pose, log_se3
 from algorithms.registration.bayes import MapResult
 from algorithms.registration.fit_check import poor_fit_reason
 from twin.cell import Cell, build_cell
-from twin.env.information import (
-    log_det,
-    log_eigenvalues,
-    model_free_directions,
-    prior_information,
-    worst_std,
+from twin.env.information import log_det, model_free_directions, prior_information, worst_std
+from twin.env.observation import (
+    GAIN_SCALE_NATS,
+    NORMAL_BINS,
+    POSE_SIGMAS,
+    as_float32,
+    covariance_features,
+    coverage,
+    normal_bins,
+    observation_space,
+    scaled_joints,
+    scaled_std,
+    surface_shares,
 )
 from twin.env.views import Geometry
 from twin.errors import TwinError
@@ -58,19 +75,15 @@ from twin.robot import GROUP_ARM
 from twin.scenario import Scenario, load_scenario
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
-OBSERVATION_LAYOUT = {"pose": slice(0, 6), "log_eigenvalues": slice(6, 12), "points": slice(12, 13),
-                      "last_gain": slice(13, 14), "joints": slice(14, 20)}
-OBSERVATION_SIZE = 20
+#: The step budget when neither ``max_steps`` nor the registration sets one.
+DEFAULT_MAX_STEPS = 30
+#: What an action may be: numbers in [-1, 1], or the index of one of the subclass's views.
+ACTION_KINDS = ("box", "views")
 #: The rendering camera looks at the part from this many part sizes plus this distance [m].
 RENDER_DISTANCE_PARTS, RENDER_DISTANCE_M = 3.0, 0.25
 #: ... from this elevation [deg] (negative: looking down), the arm drawn with this opacity.
 RENDER_ELEVATION_DEG = -65.0
 RENDER_ARM_ALPHA = 0.3
-#: The observed translation from the nominal pose is clipped to this [m] (the placement prior
-#: keeps estimates within millimetres).
-MAX_OFFSET_M = 0.1
-#: The largest |log| of a positive float64 (the bound of the observed log-eigenvalues).
-LOG_MAX = float(np.log(np.finfo(np.float64).max))
 #: An estimate farther than this from the nominal pose, in prior standard deviations
 #: (sqrt of the Mahalanobis form; chi-square 6 DOF: 99.9 % below 4.74), is not trusted.
 PRIOR_MAHALANOBIS_MAX = 4.74
@@ -98,6 +111,7 @@ class EnvScenario:
     length_m: float
     hfield: HeightField
     edges: SharpEdges
+    surface: np.ndarray   # (14,) the share of the part's area per normal bin (twin.env.observation)
 
 
 def as_scenarios(scenarios) -> list[Scenario]:
@@ -137,7 +151,8 @@ def prepare(scenario: Scenario) -> EnvScenario:
     geometry = Geometry.of(workpiece, s.window_m, s.max_incidence_deg)
     extent = mesh.bounds[1] - mesh.bounds[0]
     return EnvScenario(scenario, workpiece, nominal, geometry, model_free_directions(workpiece),
-                       float(np.linalg.norm(extent) / 2), height_field(mesh), SharpEdges(mesh.vertices, mesh.faces))
+                       float(np.linalg.norm(extent) / 2), height_field(mesh), SharpEdges(mesh.vertices, mesh.faces),
+                       surface_shares(mesh.face_normals, mesh.area_faces))
 
 
 def _check_options(positive: dict, nonnegative: dict, counts: dict) -> None:
@@ -150,6 +165,35 @@ def _check_options(positive: dict, nonnegative: dict, counts: dict) -> None:
     for name, v in counts.items():
         if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
             raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+
+
+def headless_gl_context():
+    """The OpenGL context class to render with when no display is reachable and ``MUJOCO_GL``
+    is not set: MuJoCo's EGL, else OSMesa (None: leave MuJoCo's own choice)."""
+    if os.environ.get("MUJOCO_GL") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or \
+            sys.platform != "linux":
+        return None
+    for backend in ("egl", "osmesa"):
+        try:
+            return importlib.import_module(f"mujoco.{backend}").GLContext
+        except (ImportError, AttributeError, OSError):
+            continue
+    return None
+
+
+def _renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
+    """A MuJoCo renderer, on :func:`headless_gl_context` when there is no display."""
+    from mujoco.rendering.classic import gl_context
+
+    context = headless_gl_context()
+    if context is None:
+        return mujoco.Renderer(model, height, width)
+    chosen = gl_context.GLContext
+    gl_context.GLContext = context   # mujoco.Renderer reads it when it is created
+    try:
+        return mujoco.Renderer(model, height, width)
+    finally:
+        gl_context.GLContext = chosen
 
 
 class ActiveLocalizationEnv(gym.Env):
@@ -179,19 +223,21 @@ class ActiveLocalizationEnv(gym.Env):
     action_space: spaces.Box
     observation_space: spaces.Box
 
-    def __init__(self, scenarios, *, tolerance_m: float, tolerance_deg: float, max_steps: int,
+    def __init__(self, scenarios, *, tolerance_m: float, tolerance_deg: float, max_steps: int | None,
                  time_cost_per_s: float, unreachable_penalty: float, collision_penalty: float,
                  placement_sigma_m: float, placement_sigma_deg: float, render_mode: str | None, width: int,
-                 height: int, points_per_step: int = 1, positive: dict | None = None,
+                 height: int, actions: str = "box", points_per_step: int = 1, positive: dict | None = None,
                  nonnegative: dict | None = None, counts: dict | None = None):
         _check_options(
             {"tolerance_m": tolerance_m, "tolerance_deg": tolerance_deg, **(positive or {}),
              "placement_sigma_m": placement_sigma_m, "placement_sigma_deg": placement_sigma_deg},
             {**(nonnegative or {}), "time_cost_per_s": time_cost_per_s, "unreachable_penalty": unreachable_penalty,
              "collision_penalty": collision_penalty},
-            {"max_steps": max_steps, **(counts or {})})
+            {**({} if max_steps is None else {"max_steps": max_steps}), **(counts or {})})
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if actions not in ACTION_KINDS:
+            raise ValueError(f"actions must be one of {', '.join(map(repr, ACTION_KINDS))}, got {actions!r}")
         self.tolerance_m = float(tolerance_m)
         self.tolerance_rad = float(np.radians(tolerance_deg))
         self.max_steps = max_steps
@@ -202,33 +248,36 @@ class ActiveLocalizationEnv(gym.Env):
         self.placement_sigma_rad = float(np.radians(placement_sigma_deg))
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
+        self.points_per_step = points_per_step
         try:
             self.scenarios = [self._prepare(s) for s in as_scenarios(scenarios)]
         except TwinError as exc:
             raise ValueError(str(exc)) from None
         for es in self.scenarios:
             self._check_scenario(es)
-        self.action_space = spaces.Box(-1.0, 1.0, (self.action_size,), dtype=np.float64)
-        self.observation_space = self._observation_space(points_per_step)
+        self.actions = actions
+        self.view_table = self._view_table() if actions == "views" else None
+        self._view_masks = [self._view_mask(es, self.view_table) for es in self.scenarios] \
+            if self.view_table is not None else None
+        self.action_space = spaces.Discrete(len(self.view_table)) if self.view_table is not None else \
+            spaces.Box(-1.0, 1.0, (self.action_size,), dtype=np.float32)
+        self.observation_space = observation_space()
+        ranges = np.array([es.nominal.model.jnt_range[:6] for es in self.scenarios])
+        self.joint_low, self.joint_high = ranges[:, :, 0].min(axis=0), ranges[:, :, 1].max(axis=0)
         self.prior = prior_information(self.placement_sigma_m, self.placement_sigma_rad)
         self._renderer: mujoco.Renderer | None = None
         self._episode: dict | None = None
 
-    def _observation_space(self, points_per_step: int) -> spaces.Box:
-        """Finite bounds that every observation meets by construction: a rotation of at most
-        pi, a translation within ``MAX_OFFSET_M`` (clipped), log-eigenvalues of float64 numbers,
-        at most ``max_steps * points_per_step`` points, a gain between two such log-determinants
-        and the joints within their ranges (over all the scenarios)."""
-        low, high = np.empty(OBSERVATION_SIZE), np.empty(OBSERVATION_SIZE)
-        low[0:3], high[0:3] = -np.pi, np.pi
-        low[3:6], high[3:6] = -MAX_OFFSET_M, MAX_OFFSET_M
-        low[OBSERVATION_LAYOUT["log_eigenvalues"]], high[OBSERVATION_LAYOUT["log_eigenvalues"]] = -LOG_MAX, LOG_MAX
-        low[OBSERVATION_LAYOUT["points"]], high[OBSERVATION_LAYOUT["points"]] = 0.0, self.max_steps * points_per_step
-        low[OBSERVATION_LAYOUT["last_gain"]], high[OBSERVATION_LAYOUT["last_gain"]] = -12 * LOG_MAX, 12 * LOG_MAX
-        ranges = np.array([es.nominal.model.jnt_range[:6] for es in self.scenarios])
-        low[OBSERVATION_LAYOUT["joints"]] = ranges[:, :, 0].min(axis=0)
-        high[OBSERVATION_LAYOUT["joints"]] = ranges[:, :, 1].max(axis=0)
-        return spaces.Box(low, high, (OBSERVATION_SIZE,), dtype=np.float64)
+    @property
+    def budget(self) -> int:
+        """The step budget: ``max_steps``, else the registration's ``max_episode_steps``, else
+        ``DEFAULT_MAX_STEPS``."""
+        if self.max_steps is not None:
+            return self.max_steps
+        spec = getattr(self, "spec", None)
+        if spec is not None and spec.max_episode_steps:
+            return int(spec.max_episode_steps)
+        return DEFAULT_MAX_STEPS
 
     # ------------------------------------------------------------------ hooks
     def _prepare(self, scenario: Scenario) -> EnvScenario:
@@ -237,6 +286,15 @@ class ActiveLocalizationEnv(gym.Env):
 
     def _check_scenario(self, es: EnvScenario) -> None:
         """Raise ValueError, with the reason, for a scenario this environment cannot run."""
+
+    def _view_table(self) -> np.ndarray:
+        """(N, action_size) the box actions ``actions="views"`` indexes."""
+        raise NotImplementedError
+
+    def _view_mask(self, es: EnvScenario, table: np.ndarray) -> np.ndarray:
+        """(N,) bool: which of ``table``'s views the arm reaches on ``es``'s part at its nominal
+        pose (all, unless a subclass knows better)."""
+        return np.ones(len(table), dtype=bool)
 
     def _start_episode(self, es: EnvScenario, realized: Realized) -> dict:
         """The episode's measuring device and per-point stores (merged into ``episode``)."""
@@ -301,6 +359,7 @@ class ActiveLocalizationEnv(gym.Env):
             "F": np.zeros((6, 6)), "last_gain": 0.0,
             "was_within": False, "confirmed": False,
             "steps": 0, "motion_s": 0.0, "unreachable": 0, "collisions": 0,
+            "normal_counts": np.zeros(len(NORMAL_BINS)),
         }
         self._episode.update(self._start_episode(es, realized))
         return self._observation(), self._info({})
@@ -313,15 +372,33 @@ class ActiveLocalizationEnv(gym.Env):
         return self._episode
 
     # ------------------------------------------------------------------ steps
-    def step(self, action):
-        ep = self.episode
+    def action_masks(self) -> np.ndarray:
+        """(N,) bool: the views of ``view_table`` the arm reaches on this episode's part (at its
+        nominal pose); all True for box actions."""
+        if self._view_masks is None:
+            return np.ones(self.action_size, dtype=bool)
+        return self._view_masks[self.scenarios.index(self.episode["es"])].copy()
+
+    def _decode(self, action) -> tuple[np.ndarray, bool]:
+        """The box action an action names, clipped to [-1, 1], and whether it was clipped;
+        ValueError for an action of the wrong shape, type or range."""
+        if self.view_table is not None:
+            k = np.asarray(action)
+            if k.shape not in ((), (1,)) or not np.issubdtype(k.dtype, np.integer) or \
+                    not 0 <= int(k.reshape(-1)[0]) < len(self.view_table):
+                raise ValueError(f"action must be one integer index of a view, 0 to {len(self.view_table) - 1}, "
+                                 f"got {k.tolist()!r}")
+            return self.view_table[int(k.reshape(-1)[0])].copy(), False
         n = self.action_size
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (n,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be {n} finite numbers (values outside [-1, 1] are clipped), "
                              f"got {np.asarray(action).tolist()!r}")
-        clipped = bool(np.any(np.abs(a) > 1.0))
-        a = np.clip(a, -1.0, 1.0)
+        return np.clip(a, -1.0, 1.0), bool(np.any(np.abs(a) > 1.0))
+
+    def step(self, action):
+        ep = self.episode
+        a, clipped = self._decode(action)
         ep["steps"] += 1
         events: dict = {"clipped": clipped}
         reward = 0.0
@@ -341,6 +418,7 @@ class ActiveLocalizationEnv(gym.Env):
                 ep["points"] = np.vstack([ep["points"], result.points_base])
                 self._append(result)
                 gain = self._update_estimate(events)
+                self._count_normals(result.points_base)
                 reward += gain
         if "unreachable" in events:
             ep["unreachable"] += 1
@@ -350,7 +428,7 @@ class ActiveLocalizationEnv(gym.Env):
         success = within and ep["confirmed"]
         ep["was_within"] = within
         terminated = terminated or success
-        truncated = (not terminated) and ep["steps"] >= self.max_steps
+        truncated = (not terminated) and ep["steps"] >= self.budget
         events["is_success"] = bool(success and "collision" not in events)
         return self._observation(), float(reward), bool(terminated), bool(truncated), self._info(events)
 
@@ -396,6 +474,16 @@ class ActiveLocalizationEnv(gym.Env):
         ep["last_gain"] = gain
         return gain
 
+    def _count_normals(self, points_base: np.ndarray) -> None:
+        """Count new points by the normal bin of their nearest model face at the estimate."""
+        ep = self.episode
+        if len(points_base) == 0:
+            return
+        T_wp_base = inv_pose(ep["T_base_est"])
+        cp = ep["es"].workpiece.index.query(points_base @ T_wp_base[:3, :3].T + T_wp_base[:3, 3])
+        bins = normal_bins(ep["es"].workpiece.mesh.face_normals[cp.face])
+        ep["normal_counts"] += np.bincount(bins, minlength=len(NORMAL_BINS))
+
     def edge_band_m(self) -> float:
         """How near a sharp edge a point may lie and still enter the fit [m] (EDGE_BAND_SIGMAS)."""
         std_rot, std_trans = self._worst_std()
@@ -430,15 +518,21 @@ class ActiveLocalizationEnv(gym.Env):
         return worst_std(self.prior + ep["F"], ep["es"].free_directions, ep["es"].length_m)
 
     # ------------------------------------------------------------------ observation
-    def _observation(self) -> np.ndarray:
+    def _observation(self) -> dict:
+        """The observation (:mod:`twin.env.observation`)."""
         ep = self.episode
-        obs = np.empty(OBSERVATION_SIZE)
-        obs[OBSERVATION_LAYOUT["pose"]] = log_se3(inv_pose(ep["realized"].T_base_workpiece_nominal) @ ep["T_base_est"])
-        obs[OBSERVATION_LAYOUT["log_eigenvalues"]] = log_eigenvalues(self.prior + ep["F"], ep["es"].length_m)
-        obs[OBSERVATION_LAYOUT["points"]] = len(ep["points"])
-        obs[OBSERVATION_LAYOUT["last_gain"]] = ep["last_gain"]
-        obs[OBSERVATION_LAYOUT["joints"]] = self._joints()
-        return np.clip(obs, self.observation_space.low, self.observation_space.high)
+        prior_std = np.array([self.placement_sigma_rad] * 3 + [self.placement_sigma_m] * 3)
+        tolerance = np.array([self.tolerance_rad] * 3 + [self.tolerance_m] * 3)
+        xi = log_se3(inv_pose(ep["realized"].T_base_workpiece_nominal) @ ep["T_base_est"])
+        std, corr = covariance_features(np.linalg.inv(self.prior + ep["F"]), prior_std, tolerance)
+        worst = scaled_std(np.array(self._worst_std()), prior_std[[0, 3]], tolerance[[0, 3]])
+        most_points = self.budget * self.points_per_step
+        progress = [1.0 - ep["steps"] / self.budget, max(np.tanh(ep["last_gain"] / GAIN_SCALE_NATS), 0.0),
+                    np.log1p(len(ep["points"])) / np.log1p(most_points)]
+        return as_float32({
+            "pose": np.tanh(xi / (POSE_SIGMAS * prior_std)), "std": std, "correlation": corr, "worst_std": worst,
+            "coverage": coverage(ep["normal_counts"]), "surface": ep["es"].surface,
+            "joints": scaled_joints(self._joints(), self.joint_low, self.joint_high), "progress": progress})
 
     def _info(self, events: dict) -> dict:
         """What happened this step, the episode's totals and its errors against the truth
@@ -454,6 +548,8 @@ class ActiveLocalizationEnv(gym.Env):
             "rotation_error_deg": float(np.degrees(err.rotation_rad)), "translation_error_m": err.translation_m,
         }
         info.update(self._info_totals())
+        if self._view_masks is not None:
+            info["action_mask"] = self.action_masks()
         info.update(events)
         return info
 
@@ -466,7 +562,7 @@ class ActiveLocalizationEnv(gym.Env):
         if self._renderer is None or self._renderer_model is not cell.model:
             if self._renderer is not None:
                 self._renderer.close()
-            self._renderer = mujoco.Renderer(cell.model, self.height, self.width)
+            self._renderer = _renderer(cell.model, self.height, self.width)
             self._renderer_model = cell.model
         mujoco.mj_setState(cell.model, cell.data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         mujoco.mj_forward(cell.model, cell.data)

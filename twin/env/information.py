@@ -105,11 +105,3 @@ def worst_std(F_posterior: np.ndarray, free: np.ndarray, length_m: float) -> tup
     rot = float(np.sqrt(max(np.linalg.eigvalsh(0.5 * (C[:3, :3] + C[:3, :3].T))[-1], 0.0)))
     trans = float(np.sqrt(max(np.linalg.eigvalsh(0.5 * (C[3:, 3:] + C[3:, 3:].T))[-1], 0.0)))
     return rot, trans
-
-
-def log_eigenvalues(F_posterior: np.ndarray, length_m: float) -> np.ndarray:
-    """(6,) ascending log-eigenvalues of the posterior information in consistent units
-    (rotations scaled by the part's size, ``log(1/m^2)``)."""
-    s = scaling(length_m)
-    w = np.linalg.eigvalsh(F_posterior / np.outer(s, s))
-    return np.log(np.maximum(w, 1e-300))

@@ -91,6 +91,30 @@ def decode_action(action: np.ndarray, geometry: Geometry) -> View:
     )
 
 
+#: The views of ``actions="views"``: elevations [deg] with the azimuth step at each [deg] (four
+#: azimuths looking straight down turn the aim offsets and the line), aim offsets (e1, e2) as
+#: fractions of the part's radius, and line directions (actions: 0 and 90 deg from ``e1``).
+VIEW_ELEVATIONS_DEG = {90.0: 90.0, 60.0: 45.0, 35.0: 45.0}
+VIEW_AIM_OFFSETS = ((0.0, 0.0), (-0.5, 0.0), (0.5, 0.0), (0.0, -0.5), (0.0, 0.5))
+VIEW_LINE_ACTIONS = (-1.0, 0.0)
+
+
+def view_directions() -> list[tuple[float, float]]:
+    """(azimuth action, elevation action) of every view direction of the table (20)."""
+    out = []
+    for el, step in VIEW_ELEVATIONS_DEG.items():
+        a1 = 2 * (el - ELEVATION_MIN_DEG) / (90.0 - ELEVATION_MIN_DEG) - 1
+        out += [(az / 180.0, a1) for az in np.arange(-180.0, 180.0, step)]
+    return out
+
+
+def view_table() -> np.ndarray:
+    """(200, 6) the laser views of ``actions="views"``: every direction, aim offset and line
+    direction, at mid-window."""
+    return np.array([[az, el, 0.0, line, o1, o2] for az, el in view_directions()
+                     for o1, o2 in VIEW_AIM_OFFSETS for line in VIEW_LINE_ACTIONS])
+
+
 def encode_view(u: np.ndarray, aim_world: np.ndarray, line_world: np.ndarray, standoff_m: float,
                 T_world_workpiece: np.ndarray, geometry: Geometry) -> np.ndarray:
     """The action (clipped to [-1, 1]) of the view looking along ``-u`` through ``aim_world``
