@@ -4,8 +4,8 @@ environments' speed.
 Sections:
 
 * ``policies``: per scenario and policy (laser segments, ``--env scan``: random, raster,
-  greedy information gain, and PPO when ``--ppo MODEL.zip`` names a model trained by
-  ``benchmarks/train_ppo.py``; probe points, ``--env probe``: random, greedy), ``--seeds`` x
+  greedy information gain; probe points, ``--env probe``: random, greedy; the learned policy
+  is compared in ``benchmarks/bench_env_learned.py``), ``--seeds`` x
   ``--episodes`` episodes: environment seed s resets the first of its episodes with ``s``,
   the others continue its stream. Per seed the mean over its episodes; the table gives the
   mean and standard deviation of those means over the seeds: success rate (tolerance reached
@@ -57,13 +57,9 @@ def _make_env(env_kind: str, scenario: str, max_steps: int):
     return ActiveScanEnv(scenarios=scenario, max_steps=max_steps)
 
 
-def _policy(env_kind: str, name: str, env, seed: int, ppo: str | None):
+def _policy(env_kind: str, name: str, env, seed: int):
     from twin.env.policies import POLICIES, PROBE_POLICIES
 
-    if name == "ppo":
-        from benchmarks.train_ppo import PPOPolicy
-
-        return PPOPolicy(ppo)
     baselines = PROBE_POLICIES if env_kind == "probe" else POLICIES
     if name not in baselines:
         raise SystemExit(f"--policies: {name!r} is not a policy of --env {env_kind}; choose from {sorted(baselines)}")
@@ -72,9 +68,9 @@ def _policy(env_kind: str, name: str, env, seed: int, ppo: str | None):
 
 def run_seed(args: tuple) -> list[dict]:
     """Every episode of one (scenario, policy, seed): one dict of numbers each."""
-    env_kind, scenario, policy_name, seed, episodes, max_steps, ppo = args
+    env_kind, scenario, policy_name, seed, episodes, max_steps = args
     env = _make_env(env_kind, scenario, max_steps)
-    policy = _policy(env_kind, policy_name, env, seed, ppo)
+    policy = _policy(env_kind, policy_name, env, seed)
     out = []
     for e in range(episodes):
         obs, info = env.reset(seed=seed if e == 0 else None)
@@ -105,8 +101,8 @@ def _mean_std(per_seed: list[float]) -> str:
     return f"{a.mean():.3g} ± {a.std():.2g}"
 
 
-def policies_section(env_kind, scenarios, policies, seeds, episodes, max_steps, workers, ppo) -> str:
-    jobs = [(env_kind, sc, p, s, episodes, max_steps, ppo) for sc in scenarios for p in policies
+def policies_section(env_kind, scenarios, policies, seeds, episodes, max_steps, workers) -> str:
+    jobs = [(env_kind, sc, p, s, episodes, max_steps) for sc in scenarios for p in policies
             for s in range(seeds)]
     jobs.sort(key=lambda job: job[2] != "greedy")   # the longest first: the workers finish together
     t0 = time.perf_counter()
@@ -196,18 +192,15 @@ def main() -> None:
     ap.add_argument("--max-steps", type=int, default=30)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--speed-steps", type=int, default=200)
-    ap.add_argument("--ppo", default=None, help="a PPO model (.zip) from benchmarks/train_ppo.py to add to the table")
     ap.add_argument("--out", default=None, help="the results file (default: per environment, see ENVS)")
     a = ap.parse_args()
     env_id, default_scenarios, default_policies, default_out = ENVS[a.env]
     scenarios = a.scenarios or list(default_scenarios)
     policies = list(a.policies or default_policies)
-    policies += ["ppo"] if a.ppo and "ppo" not in policies else []
     parts = [f"# {env_id} baselines\n\n`python -m benchmarks.bench_env {' '.join(sys.argv[1:])}` on "
              f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}.\n"]
     if a.section in ("all", "policies"):
-        parts.append(policies_section(a.env, scenarios, policies, a.seeds, a.episodes, a.max_steps, a.workers,
-                                      a.ppo))
+        parts.append(policies_section(a.env, scenarios, policies, a.seeds, a.episodes, a.max_steps, a.workers))
     if a.section in ("all", "speed"):
         parts.append(speed_section(a.env, scenarios[0], a.speed_steps))
     text = "\n".join(parts)

@@ -24,6 +24,7 @@ import argparse
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +32,7 @@ import numpy as np
 TRAIN_SCENARIOS = ("bracket.toml", "cast_blank.toml", "cube.toml")
 HELD_OUT_SCENARIO = "bore_and_face.toml"
 #: PPO's settings (the rest are stable-baselines3's defaults).
-PPO_SETTINGS = {"n_steps": 128, "batch_size": 64, "n_epochs": 10, "learning_rate": 3e-4, "gamma": 0.99,
+PPO_SETTINGS: dict[str, Any] = {"n_steps": 128, "batch_size": 64, "n_epochs": 10, "learning_rate": 3e-4, "gamma": 0.99,
                 "gae_lambda": 0.95, "ent_coef": 0.01, "clip_range": 0.2,
                 "policy_kwargs": {"net_arch": {"pi": [128, 128], "vf": [128, 128]}}}
 
@@ -71,11 +72,9 @@ class LearnedPolicy:
         pass
 
     def __call__(self, observation: dict, info: dict) -> int:
-        from gymnasium.spaces import flatten
+        from twin.env.observation import flat
 
-        from twin.env.observation import observation_space
-
-        obs = flatten(observation_space(), observation)
+        obs = flat(observation)
         action, _ = self.model.predict(obs, deterministic=True, action_masks=info.get("action_mask"))
         return int(action)
 
@@ -126,8 +125,8 @@ def main() -> None:
         old.unlink()
     venv = SubprocVecEnv([make_env(TRAIN_SCENARIOS, a.seed, monitor_dir, k) for k in range(a.envs)],
                          start_method="forkserver")
-    venv = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=PPO_SETTINGS["gamma"])
-    model = MaskablePPO("MlpPolicy", venv, seed=a.seed, device="cpu", verbose=0, **PPO_SETTINGS)
+    scaled = VecNormalize(venv, norm_obs=False, norm_reward=True, gamma=PPO_SETTINGS["gamma"])
+    model = MaskablePPO("MlpPolicy", scaled, seed=a.seed, device="cpu", verbose=0, **PPO_SETTINGS)
     deadline = time.monotonic() + 60.0 * a.minutes
 
     class Budget(BaseCallback):
@@ -137,7 +136,7 @@ def main() -> None:
     start = time.monotonic()
     model.learn(total_timesteps=a.max_steps, callback=Budget())
     wall_s = time.monotonic() - start
-    venv.close()
+    scaled.close()
     model.save(out / "model.zip")
     record = {"algorithm": "MaskablePPO (sb3-contrib)", "environment": "twin/ActiveScan-v0, actions='views'",
               "train_scenarios": list(TRAIN_SCENARIOS), "held_out_scenario": HELD_OUT_SCENARIO,

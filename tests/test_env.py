@@ -2,6 +2,9 @@
 input refused, and an episode that pins the part down to the tolerance with an honest
 uncertainty."""
 
+import os
+import subprocess
+import sys
 import warnings
 
 import gymnasium as gym
@@ -12,8 +15,9 @@ from gymnasium.utils.env_checker import check_env
 import twin.env  # noqa: F401  (registers the environments)
 from tests.helpers import scenario
 from tests.tolerances import ENV_CALIBRATION_SIGMAS
-from twin.env.active_scan import OBSERVATION_LAYOUT, ActiveScanEnv
+from twin.env.active_scan import ActiveScanEnv
 from twin.env.arm import PART_CLEARANCE_M
+from twin.env.observation import OBSERVATION_KEYS, flat
 from twin.env.policies import GreedyInformationPolicy, RasterPolicy
 from twin.robot import HOME_Q
 from twin.trajectory import TABLE_CLEARANCE_M, TableCheck
@@ -30,21 +34,38 @@ def env():
 
 def _episode(env, seed, actions):
     obs, info = env.reset(seed=seed)
-    out = [obs]
+    out = [flat(obs)]
     for a in actions:
         obs, r, term, trunc, info = env.step(a)
-        out += [obs, np.array([r, term, trunc, info["motion_time_s"], info["points"]])]
+        out += [flat(obs), np.array([r, term, trunc, info["motion_time_s"], info["points"]])]
     return out
 
 
-def test_check_env_passes_without_a_warning():
-    e = gym.make(ID, max_steps=3)
+@pytest.mark.parametrize("actions", ["box", "views"])
+def test_check_env_passes_without_a_warning(actions):
+    e = gym.make(ID, max_steps=3, actions=actions)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         check_env(e.unwrapped, skip_render_check=True)
     e.close()
     gym_warnings = [str(w.message) for w in caught if "WARN" in str(w.message)]
     assert not gym_warnings, gym_warnings
+    assert all(b.dtype == np.float32 for b in e.observation_space.spaces.values())
+    assert e.action_space.dtype == (np.float32 if actions == "box" else np.int64)
+
+
+def test_registration_sets_the_time_limit():
+    e = gym.make(ID)
+    assert e.spec.max_episode_steps == 30 and e.unwrapped.budget == 30
+    e.close()
+    e = gym.make(ID, max_steps=2, max_episode_steps=2)
+    assert e.unwrapped.budget == 2
+    obs, _ = e.reset(seed=0)
+    miss = np.array([0.0, -1.0, 0.0, 0.0, 1.0, 1.0], dtype=np.float32)   # looks past the part: cheap
+    assert not any(e.step(miss)[2:4])
+    obs, _, term, trunc, _ = e.step(miss)
+    assert trunc and not term and obs["progress"][0] == 0.0   # no step left
+    e.close()
 
 
 def test_same_seed_same_episode_bit_for_bit(env):
@@ -62,18 +83,29 @@ def test_same_seed_same_episode_bit_for_bit(env):
 def test_vector_envs_run(mode):
     envs = gym.make_vec(ID, num_envs=2, vectorization_mode=mode, max_steps=2)
     obs, _ = envs.reset(seed=[3, 4])
-    assert obs.shape == (2, 20)
-    obs, reward, term, trunc, info = envs.step(np.zeros((2, 6)))
-    assert obs.shape == (2, 20) and reward.shape == (2,) and np.all(np.isfinite(reward))
+    assert obs["correlation"].shape == (2, 15)
+    obs, reward, term, trunc, info = envs.step(np.zeros((2, 6), dtype=np.float32))
+    assert obs["pose"].shape == (2, 6) and reward.shape == (2,) and np.all(np.isfinite(reward))
     envs.close()
 
 
-def test_renders_a_frame_headless():
-    e = gym.make(ID, render_mode="rgb_array", width=160, height=120)
-    e.reset(seed=0)
-    e.step(np.array([0.25, -0.5, 0.0, 0.0, 0.0, 0.0]))   # a view from 37.5 deg: 100 points
-    frame = e.render()
-    e.close()
+RENDER_SCRIPT = """
+import gymnasium as gym, numpy as np, twin
+e = gym.make("twin/ActiveScan-v0", render_mode="rgb_array", width=160, height=120)
+e.reset(seed=0)
+e.step(np.array([0.25, -0.5, 0.0, 0.0, 0.0, 0.0], dtype=np.float32))   # a view from 37.5 deg: 100 points
+np.save("frame.npy", e.render())
+"""
+
+
+def test_renders_a_frame_headless_without_mujoco_gl(tmp_path):
+    """No display and no MUJOCO_GL (MuJoCo would pick GLFW and fail): the environment picks EGL."""
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY",
+                                                              "PYOPENGL_PLATFORM")}
+    run = subprocess.run([sys.executable, "-c", RENDER_SCRIPT], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    frame = np.load(tmp_path / "frame.npy")
     assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
     assert frame.std() > 5, "a blank frame"
     rgb = frame.astype(float)
@@ -81,11 +113,46 @@ def test_renders_a_frame_headless():
     assert part > 0.02, f"the part fills {part:.1%} of the frame: hidden or out of view"
 
 
-def test_observation_layout(env):
+def test_import_twin_registers_without_importing_gymnasium():
+    code = ("import sys, twin; assert 'gymnasium' not in sys.modules; import gymnasium; "
+            "assert 'twin/ActiveProbe-v0' in gymnasium.registry")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+
+
+def test_the_observation_is_bounded_and_says_which_directions_are_known(env):
     obs, info = env.reset(seed=0)
-    assert obs[OBSERVATION_LAYOUT["points"]][0] == 0 and np.all(obs[OBSERVATION_LAYOUT["pose"]] == 0)
-    assert np.all(np.diff(obs[OBSERVATION_LAYOUT["log_eigenvalues"]]) >= 0)
+    assert env.observation_space.contains(obs) and set(obs) == set(OBSERVATION_KEYS)
+    assert np.all(obs["pose"] == 0) and np.all(obs["std"] == 1) and np.all(obs["worst_std"] == 1)
+    assert np.all(obs["coverage"] == 0) and obs["surface"].sum() == pytest.approx(1.0, abs=1e-6)
+    assert obs["progress"].tolist() == [1.0, 0.0, 0.0]
     assert info["std_translation_m"] == pytest.approx(1e-3)   # the placement prior
+    # straight down onto the bracket's top: z, and the tilts about x and y, become known; the
+    # turn about z and the sideways shifts stay near the prior
+    obs, *_ = env.step(np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0], dtype=np.float32))
+    assert env.observation_space.contains(obs)
+    std = dict(zip(["wx", "wy", "wz", "vx", "vy", "vz"], obs["std"], strict=True))
+    assert std["vz"] < 0.5 and max(std["wz"], std["vx"], std["vy"]) > 0.8, std
+    up = np.flatnonzero(obs["coverage"] > 0.5)
+    assert up.tolist() == [2], obs["coverage"]   # the +z bin of the workpiece frame
+    assert flat(obs).shape == (66,)
+
+
+def test_views_actions_and_their_mask():
+    e = gym.make(ID, actions="views", max_steps=3)
+    obs, info = e.reset(seed=0)
+    table, mask = e.unwrapped.view_table, info["action_mask"]
+    assert e.action_space.n == len(table) == len(mask) == 200 and table.shape == (200, 6)
+    assert mask.dtype == bool and 150 < mask.sum() < 200, mask.sum()   # most views reach the bracket
+    assert np.array_equal(mask, e.unwrapped.action_masks())
+    with pytest.raises(ValueError, match="one integer index of a view, 0 to 199"):
+        e.step(200)
+    with pytest.raises(ValueError, match="one integer index"):
+        e.step(np.array([0.5, 0.0]))
+    k = int(np.flatnonzero(mask)[0])
+    *_, info = e.step(k)
+    assert info["points"] > 0 and not info["clipped"]
+    e.close()
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
@@ -94,6 +161,7 @@ def test_observation_layout(env):
     (dict(max_steps=0), ValueError, "max_steps"),
     (dict(no_such_option=1), TypeError, "no_such_option"),
     (dict(render_mode="human"), ValueError, "render_mode"),
+    (dict(actions="discrete"), ValueError, "actions must be one of 'box', 'views'"),
 ])
 def test_bad_kwargs_are_refused(kwargs, error, match):
     with pytest.raises(error, match=match):
@@ -188,3 +256,17 @@ def test_greedy_does_not_choose_again_what_measured_nothing(env):
     obs, _, _, _, info = env.step(first)
     assert info["unreachable"] == "refused by the test"
     assert not np.array_equal(policy(obs), first)
+
+
+def test_placement_ranges_draw_each_episodes_prior():
+    e = ActiveScanEnv(placement_sigma_m=(1e-4, 1e-2), placement_sigma_deg=(0.1, 1.0), max_steps=2)
+    sigmas = []
+    for seed in range(6):
+        obs, info = e.reset(seed=seed)
+        sigmas.append(info["std_translation_m"])   # the prior's, nothing measured yet
+        assert 1e-4 <= info["std_translation_m"] <= 1e-2 and 0.1 <= info["std_rotation_deg"] <= 1.0
+        assert np.all(obs["std"] == 1)   # the observation is scaled by the episode's own prior
+    assert len(set(sigmas)) == 6
+    assert e.reset(seed=3)[1]["std_translation_m"] == sigmas[3]
+    with pytest.raises(ValueError, match=r"placement_sigma_m must be .* low <= high, got \(0.01, 0.001\)"):
+        ActiveScanEnv(placement_sigma_m=(1e-2, 1e-3))

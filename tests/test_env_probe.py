@@ -18,7 +18,7 @@ from algorithms.registration.bayes import normalized_innovations
 from tests.helpers import scenario
 from tests.tolerances import ENV_CALIBRATION_SIGMAS, INNOVATION_RMS_OK
 from twin.env.active_probe import ACTION_SIZE, ActiveProbeEnv
-from twin.env.base import OBSERVATION_LAYOUT
+from twin.env.observation import flat
 from twin.env.policies import GreedyProbePolicy
 
 ID = "twin/ActiveProbe-v0"
@@ -38,10 +38,10 @@ def env():
 
 def _episode(env, seed, actions):
     obs, info = env.reset(seed=seed)
-    out = [obs]
+    out = [flat(obs)]
     for a in actions:
         obs, r, term, trunc, info = env.step(a)
-        out += [obs, np.array([r, term, trunc, info["motion_time_s"], info["points"]])]
+        out += [flat(obs), np.array([r, term, trunc, info["motion_time_s"], info["points"]])]
     return out
 
 
@@ -67,16 +67,16 @@ def test_same_seed_same_episode_bit_for_bit(env):
 @pytest.mark.slow
 def test_the_estimate_moves_toward_the_truth(env):
     obs, info = env.reset(seed=0)
-    assert obs[OBSERVATION_LAYOUT["points"]][0] == 0
-    assert np.abs(obs[OBSERVATION_LAYOUT["pose"]]).max() < 1e-12   # at the nominal pose (log/exp rounding)
+    assert info["points"] == 0 and obs["progress"][2] == 0
+    assert np.abs(obs["pose"]).max() < 1e-9   # at the nominal pose (log/exp rounding)
     nominal_error_m = info["translation_error_m"]
     for a in AIMED:
         obs, reward, term, trunc, info = env.step(a)
         assert not info["collisions_total"], info
     assert info["hits_total"] >= 6 and info["points"] == info["hits_total"]
     assert info["translation_error_m"] < 0.1 * nominal_error_m
-    # the point count in the observation, the fit on every point
-    assert obs[OBSERVATION_LAYOUT["points"]][0] == info["hits_total"]
+    # the points in the observation (log scale over the budget), the fit on every point
+    assert obs["progress"][2] == pytest.approx(np.log1p(info["hits_total"]) / np.log1p(12), rel=1e-6)
     assert env.unwrapped.episode["fit"].inliers.sum() >= 6
 
 
@@ -144,3 +144,21 @@ def test_innovations_of_ball_centres_count_the_offset():
     assert np.sqrt(np.mean(normalized_innovations(centres, down, index, np.eye(4), C, sigma) ** 2)) > 100
     with pytest.raises(AlgorithmError, match="offset_m"):
         normalized_innovations(centres, down, index, np.eye(4), C, sigma, offset_m=-radius)
+
+
+@pytest.mark.slow  # a second construction: the probe's qualification and 100 reach checks
+def test_views_actions_pass_the_checker_and_mask_what_the_probe_cannot_reach():
+    e = gym.make(ID, actions="views", max_steps=3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(e.unwrapped)
+    assert not [str(w.message) for w in caught if "WARN" in str(w.message)]
+    _, info = e.reset(seed=0)
+    mask = info["action_mask"]
+    assert e.action_space.n == len(mask) == 100 and 0 < mask.sum() < 100, mask.sum()
+    k = int(np.flatnonzero(mask)[0])
+    *_, info = e.step(k)
+    assert info["hits_total"] == 1, info
+    *_, info = e.step(int(np.flatnonzero(~mask)[0]))
+    assert "unreachable" in info
+    e.close()

@@ -17,7 +17,7 @@ from gymnasium.envs.registration import register, registry
 
 ACTIVE_SCAN_ID = "twin/ActiveScan-v0"
 ACTIVE_PROBE_ID = "twin/ActiveProbe-v0"
-#: The step budget of both registrations (the environments' own default).
+#: The step budget of both registrations (the environments' own ``max_steps`` by default).
 MAX_EPISODE_STEPS = 30
 
 

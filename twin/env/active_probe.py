@@ -65,6 +65,7 @@ from algorithms.probing.point_planning import REASONS, feasible_candidates
 from algorithms.registration.bayes import MapResult, localize_map, normalized_innovations
 from twin.cell import Cell
 from twin.env.base import (
+    DEFAULT_MAX_STEPS,
     ActiveLocalizationEnv,
     EnvScenario,
     prepare,
@@ -253,8 +254,8 @@ class ActiveProbeEnv(ActiveLocalizationEnv):
 
     Terminated when the worst rotation and translation standard deviations (directions the
     part's shape cannot fix excepted) are within the tolerances, for a trusted fit that the
-    next point confirms (``info["is_success"]``), or on a collision. Truncated after the step
-    budget: ``max_steps``, else the registration's ``max_episode_steps`` (30).
+    next point confirms (``info["is_success"]``), or on a collision. Truncated after
+    ``max_steps`` steps (30, as the registration's ``max_episode_steps``).
 
     ## Arguments
 
@@ -262,11 +263,14 @@ class ActiveProbeEnv(ActiveLocalizationEnv):
         scenarios: a scenario file with a ``[probe]`` table, a :class:`Scenario`, or a list of
             them (names resolve in the project's ``scenarios/`` folder); each episode draws one.
         tolerance_m, tolerance_deg: the standard deviations that end an episode.
-        max_steps: the step budget (None: the registration's ``max_episode_steps``, else 30).
+        max_steps: the step budget (truncation; ``gymnasium.make`` also wraps the environment
+            in ``TimeLimit`` at the registration's 30: pass ``max_episode_steps`` with another).
         time_cost_per_s: reward lost per second of motion.
         unreachable_penalty: reward lost by a target that is refused or missed.
         collision_penalty: reward lost by a collision (the episode ends).
-        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis.
+        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis (the
+            prior's standard deviations), or a (low, high) range each episode draws its scatter
+            from, log-uniformly (a variety of clamps for training).
         actions: ``"box"`` or ``"views"`` (Action Space).
         render_mode: None or ``"rgb_array"`` (EGL, else OSMesa, without a display); width,
             height: the rendered image [pixels].
@@ -275,8 +279,9 @@ class ActiveProbeEnv(ActiveLocalizationEnv):
     action_size = ACTION_SIZE
 
     def __init__(self, scenarios=DEFAULT_SCENARIOS, tolerance_m: float = 10e-6, tolerance_deg: float = 0.01,
-                 max_steps: int | None = None, time_cost_per_s: float = 0.5, unreachable_penalty: float = 1.0,
-                 collision_penalty: float = 10.0, placement_sigma_m: float = 1e-3, placement_sigma_deg: float = 0.5,
+                 max_steps: int = DEFAULT_MAX_STEPS, time_cost_per_s: float = 0.5, unreachable_penalty: float = 1.0,
+                 collision_penalty: float = 10.0, placement_sigma_m: float | tuple[float, float] = 1e-3,
+                 placement_sigma_deg: float | tuple[float, float] = 0.5,
                  actions: str = "box", render_mode: str | None = None, width: int = 640, height: int = 480):
         super().__init__(scenarios, tolerance_m=tolerance_m, tolerance_deg=tolerance_deg, max_steps=max_steps,
                          time_cost_per_s=time_cost_per_s, unreachable_penalty=unreachable_penalty,

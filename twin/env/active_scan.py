@@ -22,6 +22,7 @@ from algorithms.registration.bayes import MapResult, localize_map, normalized_in
 from twin.cell import Cell
 from twin.env.arm import ScanArm, SegmentResult, build_scan_cell
 from twin.env.base import (
+    DEFAULT_MAX_STEPS,
     EDGE_BAND_MIN_M,
     EDGE_BAND_SIGMAS,
     INNOVATION_GATE,
@@ -181,8 +182,8 @@ class ActiveScanEnv(ActiveLocalizationEnv):
     Terminated when the worst rotation and translation standard deviations (directions the
     part's shape cannot fix excepted) are within ``tolerance_deg`` and ``tolerance_m``, for a
     trusted fit that the next segment's points confirm (``info["is_success"]``), or on a
-    collision. Truncated after the step budget: ``max_steps``, else the registration's
-    ``max_episode_steps`` (30; ``gymnasium.make`` adds the ``TimeLimit`` wrapper).
+    collision. Truncated after ``max_steps`` steps (30; the registration's ``max_episode_steps``
+    is the same, so ``gymnasium.make`` adds a ``TimeLimit`` that agrees).
 
     ## Arguments
 
@@ -190,13 +191,16 @@ class ActiveScanEnv(ActiveLocalizationEnv):
         scenarios: a scenario file, a :class:`Scenario`, or a list of them (names resolve in
             the project's ``scenarios/`` folder); each episode draws one.
         tolerance_m, tolerance_deg: the standard deviations that end an episode.
-        max_steps: the step budget (None: the registration's ``max_episode_steps``, else 30).
+        max_steps: the step budget (truncation; ``gymnasium.make`` also wraps the environment
+            in ``TimeLimit`` at the registration's 30: pass ``max_episode_steps`` with another).
         segment_length_m: length of each scan line [m].
         retract_m: how far the sensor backs off along its beam between lines [m].
         time_cost_per_s: reward lost per second of motion.
         unreachable_penalty: reward lost by a view that misses the part or is out of reach.
         collision_penalty: reward lost by a collision (the episode ends).
-        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis.
+        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis (the
+            prior's standard deviations), or a (low, high) range each episode draws its scatter
+            from, log-uniformly (a variety of clamps for training).
         points_per_segment: a line's valid 1 ms samples are thinned to at most this many,
             evenly spaced, before localization (the white noise then still counts for less
             than the linearity error: thinning 600 samples to 100 changes a line's
@@ -210,9 +214,10 @@ class ActiveScanEnv(ActiveLocalizationEnv):
     action_size = ACTION_SIZE
 
     def __init__(self, scenarios=DEFAULT_SCENARIOS, tolerance_m: float = 10e-6, tolerance_deg: float = 0.01,
-                 max_steps: int | None = None, segment_length_m: float = 0.03, retract_m: float = 0.03,
+                 max_steps: int = DEFAULT_MAX_STEPS, segment_length_m: float = 0.03, retract_m: float = 0.03,
                  time_cost_per_s: float = 0.5, unreachable_penalty: float = 1.0, collision_penalty: float = 10.0,
-                 placement_sigma_m: float = 1e-3, placement_sigma_deg: float = 0.5, points_per_segment: int = 100,
+                 placement_sigma_m: float | tuple[float, float] = 1e-3,
+                 placement_sigma_deg: float | tuple[float, float] = 0.5, points_per_segment: int = 100,
                  actions: str = "box", render_mode: str | None = None, width: int = 640, height: int = 480):
         self.segment_length_m = segment_length_m   # the views' reach check needs it (checked below)
         super().__init__(scenarios, tolerance_m=tolerance_m, tolerance_deg=tolerance_deg, max_steps=max_steps,

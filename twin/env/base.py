@@ -26,9 +26,10 @@ views (``view_table``, a ``Discrete`` space), with ``info["action_mask"]`` (and
 
 Termination: the worst rotation and translation standard deviations (directions the shape
 cannot fix excepted) under the tolerances, for a fit that is trusted (``_fit_verdict``) and
-confirmed by new points it had not seen (``_confirm``); or a collision. Truncation after the
-step budget: ``max_steps`` when given, else the registration's ``max_episode_steps`` (the
-``TimeLimit`` wrapper ``gymnasium.make`` adds), else ``DEFAULT_MAX_STEPS``. Episodes are
+confirmed by new points it had not seen (``_confirm``); or a collision. Truncation after
+``max_steps`` steps (``DEFAULT_MAX_STEPS``, also the registration's ``max_episode_steps``: for
+another budget pass both to ``gymnasium.make``, the environment's observation counts down to
+``max_steps``). Episodes are
 drawn from the ``reset`` seed alone (scenario, placement twist, seeds of the cell's random
 streams): the same seed and actions give the same episode.
 """
@@ -75,7 +76,7 @@ from twin.robot import GROUP_ARM
 from twin.scenario import Scenario, load_scenario
 
 SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
-#: The step budget when neither ``max_steps`` nor the registration sets one.
+#: The step budget by default (and the registrations' ``max_episode_steps``).
 DEFAULT_MAX_STEPS = 30
 #: What an action may be: numbers in [-1, 1], or the index of one of the subclass's views.
 ACTION_KINDS = ("box", "views")
@@ -167,6 +168,24 @@ def _check_options(positive: dict, nonnegative: dict, counts: dict) -> None:
             raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
 
 
+def _sigma_range(name: str, value) -> tuple[float, float]:
+    """(low, high) of a placement scatter given as a number or a (low, high) pair, both finite
+    and > 0 (ValueError otherwise)."""
+    pair = tuple(value) if isinstance(value, (tuple, list)) else (value, value)
+    if len(pair) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v > 0
+                                 for v in pair) or pair[0] > pair[1]:
+        raise ValueError(f"{name} must be a finite number > 0 or a pair (low, high) of them with low <= high, "
+                         f"got {value!r}")
+    return float(pair[0]), float(pair[1])
+
+
+def _draw_sigma(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
+    """A placement scatter for one episode: log-uniform between the bounds (no draw for one
+    value, so that a fixed scatter's episodes do not depend on the ranges' draws)."""
+    low, high = bounds
+    return low if low == high else float(np.exp(rng.uniform(np.log(low), np.log(high))))
+
+
 def headless_gl_context():
     """The OpenGL context class to render with when no display is reachable and ``MUJOCO_GL``
     is not set: MuJoCo's EGL, else OSMesa (None: leave MuJoCo's own choice)."""
@@ -208,7 +227,9 @@ class ActiveLocalizationEnv(gym.Env):
         time_cost_per_s: reward lost per second of motion.
         unreachable_penalty: reward lost by a measurement that finds nothing or is out of reach.
         collision_penalty: reward lost by a collision (the episode ends).
-        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis.
+        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis (the
+            prior's standard deviations), or a (low, high) range each episode draws its scatter
+            from, log-uniformly (a variety of clamps for training).
         render_mode: None or ``"rgb_array"``; width, height: the rendered image [pixels].
         points_per_step: the most points one step adds (bounds the observation's point count).
         positive, nonnegative, counts: the subclass's own options to check, by name: numbers
@@ -219,21 +240,23 @@ class ActiveLocalizationEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
     #: The number of values of an action (each in [-1, 1]).
     action_size: int = 0
-    #: Both spaces are boxes, set in ``__init__`` (the observation is clipped to its bounds).
-    action_space: spaces.Box
-    observation_space: spaces.Box
+    #: Set in ``__init__``: a box or the views' ``Discrete``; the observation's ``Dict``.
+    action_space: spaces.Box | spaces.Discrete
+    observation_space: spaces.Dict
 
-    def __init__(self, scenarios, *, tolerance_m: float, tolerance_deg: float, max_steps: int | None,
+    def __init__(self, scenarios, *, tolerance_m: float, tolerance_deg: float, max_steps: int,
                  time_cost_per_s: float, unreachable_penalty: float, collision_penalty: float,
-                 placement_sigma_m: float, placement_sigma_deg: float, render_mode: str | None, width: int,
+                 placement_sigma_m: float | tuple[float, float], placement_sigma_deg: float | tuple[float, float],
+                 render_mode: str | None, width: int,
                  height: int, actions: str = "box", points_per_step: int = 1, positive: dict | None = None,
                  nonnegative: dict | None = None, counts: dict | None = None):
+        self.placement_range_m = _sigma_range("placement_sigma_m", placement_sigma_m)
+        self.placement_range_deg = _sigma_range("placement_sigma_deg", placement_sigma_deg)
         _check_options(
-            {"tolerance_m": tolerance_m, "tolerance_deg": tolerance_deg, **(positive or {}),
-             "placement_sigma_m": placement_sigma_m, "placement_sigma_deg": placement_sigma_deg},
+            {"tolerance_m": tolerance_m, "tolerance_deg": tolerance_deg, **(positive or {})},
             {**(nonnegative or {}), "time_cost_per_s": time_cost_per_s, "unreachable_penalty": unreachable_penalty,
              "collision_penalty": collision_penalty},
-            {**({} if max_steps is None else {"max_steps": max_steps}), **(counts or {})})
+            {"max_steps": max_steps, **(counts or {})})
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if actions not in ACTION_KINDS:
@@ -244,8 +267,9 @@ class ActiveLocalizationEnv(gym.Env):
         self.time_cost_per_s = float(time_cost_per_s)
         self.unreachable_penalty = float(unreachable_penalty)
         self.collision_penalty = float(collision_penalty)
-        self.placement_sigma_m = float(placement_sigma_m)
-        self.placement_sigma_rad = float(np.radians(placement_sigma_deg))
+        # the placement scatter of the running episode (the ranges' upper ends before the first)
+        self.placement_sigma_m = self.placement_range_m[1]
+        self.placement_sigma_rad = float(np.radians(self.placement_range_deg[1]))
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
         self.points_per_step = points_per_step
@@ -270,14 +294,8 @@ class ActiveLocalizationEnv(gym.Env):
 
     @property
     def budget(self) -> int:
-        """The step budget: ``max_steps``, else the registration's ``max_episode_steps``, else
-        ``DEFAULT_MAX_STEPS``."""
-        if self.max_steps is not None:
-            return self.max_steps
-        spec = getattr(self, "spec", None)
-        if spec is not None and spec.max_episode_steps:
-            return int(spec.max_episode_steps)
-        return DEFAULT_MAX_STEPS
+        """The step budget (``max_steps``): the steps-left feature counts down to it."""
+        return self.max_steps
 
     # ------------------------------------------------------------------ hooks
     def _prepare(self, scenario: Scenario) -> EnvScenario:
@@ -341,6 +359,9 @@ class ActiveLocalizationEnv(gym.Env):
     def _draw_episode(self) -> tuple[EnvScenario, Realized]:
         rng = self.np_random
         es = self.scenarios[int(rng.integers(len(self.scenarios)))]
+        self.placement_sigma_m = _draw_sigma(rng, self.placement_range_m)
+        self.placement_sigma_rad = float(np.radians(_draw_sigma(rng, self.placement_range_deg)))
+        self.prior = prior_information(self.placement_sigma_m, self.placement_sigma_rad)
         xi = np.concatenate([rng.normal(0.0, self.placement_sigma_rad, 3), rng.normal(0.0, self.placement_sigma_m, 3)])
         seed = int(rng.integers(2**31 - 1))
         sc = es.scenario

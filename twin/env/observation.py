@@ -30,8 +30,8 @@ part, tolerance and placement scatter:
                                   ``log(1 + points) / log(1 + most points)``
 =============  =====  ==========  ===========================================================
 
-``gymnasium.wrappers.FlattenObservation`` turns it into one vector of 66 values (in the order
-of ``OBSERVATION_KEYS``).
+``gymnasium.wrappers.FlattenObservation`` (or :func:`flat`) turns it into one vector of 66
+values, the keys in alphabetical order (gymnasium's ``Dict`` sorts them).
 """
 
 from __future__ import annotations
@@ -94,6 +94,12 @@ def covariance_features(C: np.ndarray, prior_std: np.ndarray, tolerance: np.ndar
 def scaled_joints(q: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """Joint positions mapped linearly from [low, high] to [-1, 1] (clipped)."""
     return np.clip(2.0 * (np.asarray(q) - low) / (high - low) - 1.0, -1.0, 1.0)
+
+
+def flat(observation: dict) -> np.ndarray:
+    """(66,) the observation as one vector, as ``gymnasium.wrappers.FlattenObservation`` gives
+    it (gymnasium's ``Dict`` orders its keys alphabetically)."""
+    return np.concatenate([np.asarray(observation[k], dtype=np.float32).ravel() for k in sorted(OBSERVATION_KEYS)])
 
 
 def as_float32(values: dict) -> dict:

@@ -41,7 +41,7 @@ class RandomPolicy:
     def reset(self) -> None:
         pass
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
+    def __call__(self, observation: dict) -> np.ndarray:
         return self.rng.uniform(-1.0, 1.0, ACTION_SIZE)
 
 
@@ -68,7 +68,7 @@ class RasterPolicy:
                                     es.geometry) for Tc, w in self._plans[name]]
         self.k = 0
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
+    def __call__(self, observation: dict) -> np.ndarray:
         a = self.actions[self.k % len(self.actions)]
         self.k += 1
         return a
@@ -115,7 +115,7 @@ class GreedyInformationPolicy:
         self.failed: set[int] = set()
         self.last: tuple[int, int, float] | None = None   # (candidate, points before it, predicted gain)
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
+    def __call__(self, observation: dict) -> np.ndarray:
         ep = self.env.episode
         points = len(ep["points"])
         if self.last is not None and (points == self.last[1] or ep["last_gain"] < GAIN_SHORTFALL * self.last[2]):
@@ -262,7 +262,7 @@ class RandomProbePolicy:
     def reset(self) -> None:
         pass
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
+    def __call__(self, observation: dict) -> np.ndarray:
         return self.rng.uniform(-1.0, 1.0, self.size)
 
 
@@ -284,7 +284,7 @@ class GreedyProbePolicy:
     def reset(self) -> None:
         pass
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
+    def __call__(self, observation: dict) -> np.ndarray:
         from twin.env.active_probe import probe_target
 
         ep = self.env.episode
