@@ -58,8 +58,10 @@ def make_env(scenarios, seed: int, monitor_dir: Path | None = None, rank: int = 
 
 
 class LearnedPolicy:
-    """A trained model as a policy: reads the observation (flattened) and the action mask the
-    environment returns in ``info``; deterministic."""
+    """A trained model as a policy: reads the observation (flattened) and what the environment
+    returns in ``info``: the action mask, and whether its last view measured nothing (that view
+    is then masked for the rest of the episode, as the greedy baseline passes over what
+    measured nothing: a deterministic policy would otherwise choose it again). Deterministic."""
 
     name = "learned"
 
@@ -67,16 +69,24 @@ class LearnedPolicy:
         from sb3_contrib import MaskablePPO
 
         self.model = MaskablePPO.load(model_path, device="cpu")
+        self.reset()
 
     def reset(self) -> None:
-        pass
+        self.failed: set[int] = set()
+        self.last: int | None = None
 
     def __call__(self, observation: dict, info: dict) -> int:
         from twin.env.observation import flat
 
-        obs = flat(observation)
-        action, _ = self.model.predict(obs, deterministic=True, action_masks=info.get("action_mask"))
-        return int(action)
+        if self.last is not None and "unreachable" in info:
+            self.failed.add(self.last)
+        mask = np.asarray(info["action_mask"], dtype=bool).copy()
+        mask[list(self.failed)] = False
+        if not mask.any():
+            mask = np.asarray(info["action_mask"], dtype=bool)
+        action, _ = self.model.predict(flat(observation), deterministic=True, action_masks=mask)
+        self.last = int(action)
+        return self.last
 
 
 def learning_curve(monitor_dir: Path, png: Path, title: str) -> None:
