@@ -68,6 +68,7 @@ from twin.env.base import (
     DEFAULT_MAX_STEPS,
     ActiveLocalizationEnv,
     EnvScenario,
+    ScenarioChoice,
     prepare,
     seed_realized,
 )
@@ -262,15 +263,17 @@ class ActiveProbeEnv(ActiveLocalizationEnv):
     Args:
         scenarios: a scenario file with a ``[probe]`` table, a :class:`Scenario`, or a list of
             them (names resolve in the project's ``scenarios/`` folder); each episode draws one.
-        tolerance_m, tolerance_deg: the standard deviations that end an episode.
+        tolerance_m: the translation standard deviation that ends an episode [m].
+        tolerance_deg: the rotation standard deviation that ends an episode [deg].
         max_steps: the step budget (truncation; ``gymnasium.make`` also wraps the environment
             in ``TimeLimit`` at the registration's 30: pass ``max_episode_steps`` with another).
         time_cost_per_s: reward lost per second of motion.
         unreachable_penalty: reward lost by a target that is refused or missed.
         collision_penalty: reward lost by a collision (the episode ends).
-        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis (the
-            prior's standard deviations), or a (low, high) range each episode draws its scatter
-            from, log-uniformly (a variety of clamps for training).
+        placement_sigma_m: the fixture's placement scatter per axis [m] (the prior's standard
+            deviation), or a (low, high) range each episode draws its scatter from,
+            log-uniformly (a variety of clamps for training).
+        placement_sigma_deg: the same for the rotations [deg].
         actions: ``"box"`` or ``"views"`` (Action Space).
         render_mode: None or ``"rgb_array"`` (EGL, else OSMesa, without a display); width,
             height: the rendered image [pixels].
@@ -278,7 +281,8 @@ class ActiveProbeEnv(ActiveLocalizationEnv):
 
     action_size = ACTION_SIZE
 
-    def __init__(self, scenarios=DEFAULT_SCENARIOS, tolerance_m: float = 10e-6, tolerance_deg: float = 0.01,
+    def __init__(self, scenarios: ScenarioChoice = DEFAULT_SCENARIOS, tolerance_m: float = 10e-6,
+                 tolerance_deg: float = 0.01,
                  max_steps: int = DEFAULT_MAX_STEPS, time_cost_per_s: float = 0.5, unreachable_penalty: float = 1.0,
                  collision_penalty: float = 10.0, placement_sigma_m: float | tuple[float, float] = 1e-3,
                  placement_sigma_deg: float | tuple[float, float] = 0.5,

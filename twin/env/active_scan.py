@@ -31,6 +31,7 @@ from twin.env.base import (
     SCENARIOS_DIR,
     ActiveLocalizationEnv,
     EnvScenario,
+    ScenarioChoice,
     prepare,
     seed_realized,
 )
@@ -190,7 +191,8 @@ class ActiveScanEnv(ActiveLocalizationEnv):
     Args:
         scenarios: a scenario file, a :class:`Scenario`, or a list of them (names resolve in
             the project's ``scenarios/`` folder); each episode draws one.
-        tolerance_m, tolerance_deg: the standard deviations that end an episode.
+        tolerance_m: the translation standard deviation that ends an episode [m].
+        tolerance_deg: the rotation standard deviation that ends an episode [deg].
         max_steps: the step budget (truncation; ``gymnasium.make`` also wraps the environment
             in ``TimeLimit`` at the registration's 30: pass ``max_episode_steps`` with another).
         segment_length_m: length of each scan line [m].
@@ -198,9 +200,10 @@ class ActiveScanEnv(ActiveLocalizationEnv):
         time_cost_per_s: reward lost per second of motion.
         unreachable_penalty: reward lost by a view that misses the part or is out of reach.
         collision_penalty: reward lost by a collision (the episode ends).
-        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis (the
-            prior's standard deviations), or a (low, high) range each episode draws its scatter
-            from, log-uniformly (a variety of clamps for training).
+        placement_sigma_m: the fixture's placement scatter per axis [m] (the prior's standard
+            deviation), or a (low, high) range each episode draws its scatter from,
+            log-uniformly (a variety of clamps for training).
+        placement_sigma_deg: the same for the rotations [deg].
         points_per_segment: a line's valid 1 ms samples are thinned to at most this many,
             evenly spaced, before localization (the white noise then still counts for less
             than the linearity error: thinning 600 samples to 100 changes a line's
@@ -213,7 +216,8 @@ class ActiveScanEnv(ActiveLocalizationEnv):
 
     action_size = ACTION_SIZE
 
-    def __init__(self, scenarios=DEFAULT_SCENARIOS, tolerance_m: float = 10e-6, tolerance_deg: float = 0.01,
+    def __init__(self, scenarios: ScenarioChoice = DEFAULT_SCENARIOS, tolerance_m: float = 10e-6,
+                 tolerance_deg: float = 0.01,
                  max_steps: int = DEFAULT_MAX_STEPS, segment_length_m: float = 0.03, retract_m: float = 0.03,
                  time_cost_per_s: float = 0.5, unreachable_penalty: float = 1.0, collision_penalty: float = 10.0,
                  placement_sigma_m: float | tuple[float, float] = 1e-3,

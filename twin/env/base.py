@@ -39,6 +39,7 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -115,7 +116,11 @@ class EnvScenario:
     surface: np.ndarray   # (14,) the share of the part's area per normal bin (twin.env.observation)
 
 
-def as_scenarios(scenarios) -> list[Scenario]:
+#: What names an environment's scenarios: a file, a loaded scenario, or a sequence of them.
+ScenarioChoice = str | Path | Scenario | Sequence[str | Path | Scenario]
+
+
+def as_scenarios(scenarios: ScenarioChoice) -> list[Scenario]:
     """The scenarios named by a file, a :class:`Scenario` or a list of them (names resolve in
     the project's ``scenarios/`` folder)."""
     if isinstance(scenarios, (str, Path, Scenario)):
@@ -222,14 +227,16 @@ class ActiveLocalizationEnv(gym.Env):
     Args:
         scenarios: a scenario file, a :class:`Scenario`, or a list of them (names resolve in
             the project's ``scenarios/`` folder); each episode draws one.
-        tolerance_m, tolerance_deg: the standard deviations that end an episode.
+        tolerance_m: the translation standard deviation that ends an episode [m].
+        tolerance_deg: the rotation standard deviation that ends an episode [deg].
         max_steps: the step budget (truncation).
         time_cost_per_s: reward lost per second of motion.
         unreachable_penalty: reward lost by a measurement that finds nothing or is out of reach.
         collision_penalty: reward lost by a collision (the episode ends).
-        placement_sigma_m, placement_sigma_deg: the fixture's placement scatter per axis (the
-            prior's standard deviations), or a (low, high) range each episode draws its scatter
-            from, log-uniformly (a variety of clamps for training).
+        placement_sigma_m: the fixture's placement scatter per axis [m] (the prior's standard
+            deviation), or a (low, high) range each episode draws its scatter from,
+            log-uniformly (a variety of clamps for training).
+        placement_sigma_deg: the same for the rotations [deg].
         render_mode: None or ``"rgb_array"``; width, height: the rendered image [pixels].
         points_per_step: the most points one step adds (bounds the observation's point count).
         positive, nonnegative, counts: the subclass's own options to check, by name: numbers
