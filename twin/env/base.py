@@ -29,9 +29,8 @@ cannot fix excepted) under the tolerances, for a fit that is trusted (``_fit_ver
 confirmed by new points it had not seen (``_confirm``); or a collision. Truncation after
 ``max_steps`` steps (``DEFAULT_MAX_STEPS``, also the registration's ``max_episode_steps``: for
 another budget pass both to ``gymnasium.make``, the environment's observation counts down to
-``max_steps``). Episodes are
-drawn from the ``reset`` seed alone (scenario, placement twist, seeds of the cell's random
-streams): the same seed and actions give the same episode.
+``max_steps``). Episodes are drawn from the ``reset`` seed alone (scenario, placement twist,
+seeds of the cell's random streams): the same seed and actions give the same episode.
 """
 
 from __future__ import annotations
@@ -254,9 +253,8 @@ class ActiveLocalizationEnv(gym.Env):
     def __init__(self, scenarios, *, tolerance_m: float, tolerance_deg: float, max_steps: int,
                  time_cost_per_s: float, unreachable_penalty: float, collision_penalty: float,
                  placement_sigma_m: float | tuple[float, float], placement_sigma_deg: float | tuple[float, float],
-                 render_mode: str | None, width: int,
-                 height: int, actions: str = "box", points_per_step: int = 1, positive: dict | None = None,
-                 nonnegative: dict | None = None, counts: dict | None = None):
+                 render_mode: str | None, width: int, height: int, actions: str = "box", points_per_step: int = 1,
+                 positive: dict | None = None, nonnegative: dict | None = None, counts: dict | None = None):
         self.placement_range_m = _sigma_range("placement_sigma_m", placement_sigma_m)
         self.placement_range_deg = _sigma_range("placement_sigma_deg", placement_sigma_deg)
         _check_options(
@@ -363,9 +361,11 @@ class ActiveLocalizationEnv(gym.Env):
         return {}
 
     # ------------------------------------------------------------------ episodes
-    def _draw_episode(self) -> tuple[EnvScenario, Realized]:
+    def _draw_episode(self) -> tuple[int, Realized]:
+        """The index of the episode's scenario and its realization, from ``np_random``."""
         rng = self.np_random
-        es = self.scenarios[int(rng.integers(len(self.scenarios)))]
+        k = int(rng.integers(len(self.scenarios)))
+        es = self.scenarios[k]
         self.placement_sigma_m = _draw_sigma(rng, self.placement_range_m)
         self.placement_sigma_rad = float(np.radians(_draw_sigma(rng, self.placement_range_deg)))
         self.prior = prior_information(self.placement_sigma_m, self.placement_sigma_rad)
@@ -375,13 +375,14 @@ class ActiveLocalizationEnv(gym.Env):
         T_true = sc.workpiece.T_world_workpiece_nominal @ exp_se3(xi)
         sc = replace(sc, seed=seed, workpiece=replace(sc.workpiece, T_world_workpiece_true=T_true))
         streams = Streams(seed)
-        return es, Realized(sc, es.workpiece, draw_truth(sc, streams), streams)
+        return k, Realized(sc, es.workpiece, draw_truth(sc, streams), streams)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        es, realized = self._draw_episode()
+        k, realized = self._draw_episode()
+        es = self.scenarios[k]
         self._episode = {
-            "es": es, "realized": realized,
+            "es": es, "scenario_index": k, "realized": realized,
             "T_base_est": realized.T_base_workpiece_nominal.copy(),
             "points": np.zeros((0, 3)),
             "F": np.zeros((6, 6)), "last_gain": 0.0,
@@ -405,7 +406,7 @@ class ActiveLocalizationEnv(gym.Env):
         nominal pose); all True for box actions."""
         if self._view_masks is None:
             return np.ones(self.action_size, dtype=bool)
-        return self._view_masks[self.scenarios.index(self.episode["es"])].copy()
+        return self._view_masks[self.episode["scenario_index"]].copy()
 
     def _decode(self, action) -> tuple[np.ndarray, bool]:
         """The box action an action names, clipped to [-1, 1], and whether it was clipped;
