@@ -270,3 +270,15 @@ def test_placement_ranges_draw_each_episodes_prior():
     assert e.reset(seed=3)[1]["std_translation_m"] == sigmas[3]
     with pytest.raises(ValueError, match=r"placement_sigma_m must be .* low <= high, got \(0.01, 0.001\)"):
         ActiveScanEnv(placement_sigma_m=(1e-2, 1e-3))
+
+
+def test_each_episode_masks_the_views_of_its_own_part():
+    e = ActiveScanEnv(scenarios=["bracket.toml", "cube.toml"], actions="views", max_steps=2)
+    masks = {es.scenario.name: m for es, m in zip(e.scenarios, e._view_masks, strict=True)}
+    assert not np.array_equal(*masks.values())   # the two parts' reachable views differ
+    seen = set()
+    for seed in range(8):
+        _, info = e.reset(seed=seed)
+        seen.add(info["scenario"])
+        assert np.array_equal(info["action_mask"], masks[info["scenario"]])
+    assert seen == set(masks)
