@@ -1,7 +1,9 @@
 """Recordings read back (``rerun.chunk.RrdReader``): the stored layout, the estimated pose in
-full precision and its iterations, one points entity per colouring (not one per chunk), a
-colour per path, a beam that disappears when the scan ends, and the same recording streamed
-live to a viewer while the run goes."""
+full precision and its iterations, one points entity per colouring (not one per chunk), the
+points against the CAD at the estimate with their deviation and the scale's colours, the
+legend, the verdict and pose table in the text panel, a colour per path, paths that appear when
+they are planned, a beam that disappears when the scan ends, no singular transform and no
+wall-clock timeline, and the same recording streamed live to a viewer while the run goes."""
 
 from __future__ import annotations
 
@@ -18,10 +20,13 @@ from rerun.chunk import RrdReader
 
 from algorithms.geometry.mesh_index import MeshIndex
 from tests.helpers import scenario
+from twin.deviation import cad_deviation_m, deviation_colours, deviation_scale
+from twin.io.report import run_report
 from twin.realize import realize
 from twin.sensors.base import VALID
+from twin.sensors.laser import sensor_sigma_m
 from twin.viz import LiveRecording, save_run_recording
-from twin.viz.scan import STATUS_COLOURS
+from twin.viz.scan import BEAM_HIDDEN_M, STATUS_COLOURS
 from twin.workflows import loop
 
 
@@ -88,10 +93,11 @@ def run_recording(tmp_path_factory):
 
         sc = scenario("s_surface", scan={"max_lines": 4}, path={"line_spacing_m": 0.03})
         result = loop.run(realize(sc), watch=watch)
-        live.finish(result)
+        report = run_report(result, sensor_sigma_m(sc))
+        live.finish(result, report)
         time.sleep(1.0)
         path = folder / "run.rrd"
-        save_run_recording(path, result)
+        save_run_recording(path, result, report=report)
     finally:
         MeshIndex.__init__ = build_index
         server.terminate()
@@ -165,8 +171,68 @@ def test_every_path_has_its_own_colour(run_recording):
 
 def test_the_beam_is_shown_only_while_scanning(run_recording):
     result, _, chunks, *_ = run_recording
-    mats = [np.asarray(m).ravel() for m in _column(chunks["world/scan/beam"], "Transform3D:mat3x3") if m is not None]
-    assert np.abs(mats[-1]).max() == 0.0 and np.abs(mats[0]).max() > 0.0
+    mats = [np.asarray(m, dtype=np.float64).reshape(3, 3).T for m in _column(chunks["world/scan/beam"],
+                                                                            "Transform3D:mat3x3") if m is not None]
+    # the beam's length is its frame's z column: the distance while scanning, 1 um after
+    assert np.linalg.norm(mats[-1][:, 2]) == pytest.approx(BEAM_HIDDEN_M, rel=1e-3)
+    assert np.linalg.norm(mats[0][:, 2]) > 0.01
+
+
+def test_no_transform_is_singular_and_no_wall_clock_timeline(run_recording):
+    _, _, chunks, *_ = run_recording
+    dets = []
+    for entity, batches in chunks.items():
+        for m in _column(batches, "Transform3D:mat3x3"):
+            if m is not None:
+                dets.append((entity, abs(np.linalg.det(np.asarray(m, dtype=np.float64).reshape(3, 3)))))
+        for q in _column(batches, "Transform3D:quaternion"):
+            if q is not None:
+                assert abs(np.linalg.norm(np.asarray(q, dtype=np.float64)) - 1.0) < 1e-5, entity
+        assert not any(b.schema.get_field_index("log_time") >= 0 or b.schema.get_field_index("log_tick") >= 0
+                       for b in batches), entity
+    assert dets and min(d for _, d in dets) > 0.0, min(dets, key=lambda e: e[1])
+
+
+def test_the_part_view_shows_the_deviation_from_the_cad_at_the_estimate(run_recording):
+    result, _, chunks, *_ = run_recording
+    batches = chunks["world/deviation/points"]
+    positions = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3)
+                                for p in _column(batches, "Points3D:positions")])
+    deviation_um = np.concatenate([np.asarray(v, dtype=np.float64) for v in _column(batches, "deviation_um")])
+    colours = np.concatenate([np.asarray(c).ravel() for c in _column(batches, "Points3D:colors")])
+    pts = result.scan.valid_points_base
+    assert len(positions) == len(deviation_um) == len(colours) == len(pts)
+    # the deviation is against the CAD model at the ESTIMATED pose, not the truth
+    expected = cad_deviation_m(pts, result.localization.T_world_workpiece, result.realized.workpiece.index)
+    assert np.nanmax(np.abs(deviation_um - expected * 1e6)) < 1e-3
+    truth = result.replay_cell.index.signed_distance(
+        (pts - result.realized.T_base_workpiece_true[:3, 3]) @ result.realized.T_base_workpiece_true[:3, :3])
+    assert np.nanmax(np.abs(expected - truth)) > 1e-7
+    # coloured on the scale of the scenario's tolerance and the sensor's uncertainty
+    sc = result.realized.scenario
+    scale = deviation_scale(sc.tolerances.max_surface_deviation_m, sensor_sigma_m(sc))
+    rgb = deviation_colours(expected, scale).astype(np.uint32)
+    packed = (rgb[:, 0] << 24) | (rgb[:, 1] << 16) | (rgb[:, 2] << 8) | 255
+    assert np.array_equal(colours.astype(np.uint32), packed)
+
+
+def test_the_legend_and_the_verdict_are_in_the_recording(run_recording):
+    result, _, chunks, *_ = run_recording
+    blob = _column(chunks["legend"], "EncodedImage:blob")[0]
+    assert bytes(np.asarray(blob, dtype=np.uint8).ravel()[:8]) == b"\x89PNG\r\n\x1a\n"
+    text = _column(chunks["report"], "TextDocument:text")[0]
+    text = text[0] if isinstance(text, list) else text
+    assert "## Verdict: PASS" in text and "| rz |" in text and "## Pose" in text
+
+
+def test_paths_appear_when_they_are_planned(run_recording):
+    result, _, chunks, *_ = run_recording
+    t_scan_end = float(result.scan.t[-1])
+    for name in ("scan_path", "cad_path"):
+        batches = chunks[f"world/path/{name}/planned"]
+        times = [t for b in batches if "sim_time" in b.schema.names for t in b.column("sim_time").to_pylist()]
+        assert times and min(t.total_seconds() if hasattr(t, "total_seconds") else t * 1e-9
+                             for t in times) > t_scan_end
 
 
 def test_the_run_streams_each_stage_to_a_live_viewer(run_recording):

@@ -554,6 +554,9 @@ class ToleranceSpec:
         max_position_uncertainty_m: ``twin locate``: the largest expanded uncertainty (k = 2)
             of the final pose along a translation axis [m].
         max_rotation_uncertainty_rad: ``twin locate``: the same about a rotation axis [rad].
+        max_surface_deviation_m: the surface profile tolerance: the largest signed deviation of a
+            measured point from the CAD model at the estimated pose that is in tolerance [m]; the
+            green band of the deviation map (:mod:`twin.deviation`), reported, not decided on.
     """
 
     min_process_coverage: float = 0.95
@@ -561,6 +564,7 @@ class ToleranceSpec:
     max_tip_penetration_m: float = 0.3e-3
     max_position_uncertainty_m: float = 10e-6
     max_rotation_uncertainty_rad: float = 2e-4
+    max_surface_deviation_m: float = 0.05e-3
 
 
 MACHINES = ("arm", "cmm")
@@ -1002,6 +1006,8 @@ def _parse_tolerances(s: _Section) -> ToleranceSpec:
                                             lo_open=True),
         max_rotation_uncertainty_rad=s.number("max_rotation_uncertainty_rad", d.max_rotation_uncertainty_rad, 0.0,
                                               0.5, lo_open=True),
+        max_surface_deviation_m=s.number("max_surface_deviation_m", d.max_surface_deviation_m, 0.0, 0.1,
+                                         lo_open=True),
     )
     s.done()
     return spec

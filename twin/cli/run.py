@@ -108,9 +108,10 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
 
         viewer = LiveRecording(live, say=say)
         result = loop.run(realized, say=say, strict=strict, watch=viewer)
-        viewer.finish(result)
-        say("streamed the run to the viewer")
     report = run_report(result, sensor_sigma_m(realized.scenario))
+    if live is not None:
+        viewer.finish(result, report)
+        say("streamed the run to the viewer")
     if urscript:
         report["robot_programs"] = export_programs(result, stage.folder)
         say(f"wrote {sum(p['written'] for p in report['robot_programs'])} robot program(s)")
@@ -129,7 +130,7 @@ def run_and_report(scenario: Scenario, stage: Staged, rrd: Path | None, command:
         from twin.viz import save_run_recording
 
         t0 = time.perf_counter()
-        save_run_recording(stage.file(rrd), result)
+        save_run_recording(stage.file(rrd), result, report=report)
         say("wrote the recording")
         report["timings_s"]["recording_s"] = round(time.perf_counter() - t0, 3)
         report["recording"] = str(rrd)

@@ -13,6 +13,8 @@ import numpy as np
 
 from algorithms.paths.toolpath import transform_path
 from twin import evaluate
+from twin.deviation import cad_deviation_m, deviation_scale, deviation_summary
+from twin.pose_table import pose_table
 from twin.sensors.base import STATUS_NAMES
 from twin.verdicts import add_verdict, locate_checks, run_checks
 
@@ -78,6 +80,9 @@ def localization_report(result) -> dict:
         "determined_error": d["error"],
         "determined_error_sigmas": d["sigmas"],
         "max_error_sigmas": d["max_sigmas"],
+        "pose_table": pose_table(realized.T_base_workpiece_nominal, loc.T_world_workpiece,
+                                 evaluate.Evaluation(realized).T_base_workpiece, loc.determined_directions,
+                                 loc.free_directions, result.pose_covariance),
         "rotation_error_deg": float(np.degrees(e.rotation_rad)) if not len(loc.free_directions) else "free",
         "translation_error_mm": float(e.translation_m * MM) if not len(loc.free_directions) else "free",
         "nominal_rotation_error_deg": float(np.degrees(e.nominal_rotation_rad)),
@@ -178,6 +183,16 @@ def cad_path_report(result) -> dict:
     }
 
 
+def deviation_vs_cad(result, sensor_sigma_m: float) -> dict:
+    """The scan points against the CAD model at the estimated pose (:mod:`twin.deviation`): how
+    many lie within the scenario's surface tolerance, their spread and the map's scale."""
+    tol = result.realized.scenario.tolerances.max_surface_deviation_m
+    scale = deviation_scale(tol, sensor_sigma_m)
+    dev = cad_deviation_m(result.scan.valid_points_base, result.localization.T_world_workpiece,
+                          result.realized.workpiece.index)
+    return deviation_summary(dev, scale)
+
+
 def run_report(result, sensor_sigma_m: float) -> dict:
     """The ``report.json`` of a run (see ``twin run --help``); a run that stopped at a stage
     gets what the finished stages made, ``complete: false`` and the failing stage."""
@@ -192,6 +207,7 @@ def run_report(result, sensor_sigma_m: float) -> dict:
         report["scan"]["plan_notes"] = list(plan.notes)
     if result.localization is not None:
         report["localization"] = localization_report(result)
+        report["deviation_vs_cad"] = deviation_vs_cad(result, sensor_sigma_m)
     if result.scan_path is not None:
         report["scan_path"] = scan_path_report(result, sensor_sigma_m)
     elif result.scan_path_skipped is not None:
@@ -355,6 +371,8 @@ def locate_report(result) -> dict:
                                       " (off in this scenario)"),
         }
         report["fine"].update(_pose_error_block(result.T_final, T_true, result.covariance))
+        report["fine"]["pose_table"] = pose_table(realized.T_base_workpiece_nominal, result.T_final, T_true,
+                                                  np.eye(6), np.zeros((0, 6)), result.covariance)
         hits = [h for h in result.hits if h.hit]
         if result.qualification is not None:
             r_eff = result.qualification.effective_radius_m

@@ -11,6 +11,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from twin.cell import Cell
+from twin.viz.columns import send_poses
 
 
 def _geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
@@ -58,9 +59,9 @@ def log_cell(cell: Cell) -> None:
         bname = model.body(body).name
         if bname == "workpiece":
             continue
-        parent = "world/robot" if body != 0 else "world/cell"
-        path = f"{parent}/{bname}/{name}" if body != 0 else f"{parent}/{name}"
+        path = f"{body_entity(model, body)}/{name}" if body != 0 else f"world/cell/{name}"
         _log_mesh(path, mesh, model.geom_rgba[g])
+    log_fixed_bodies(cell)
     _log_pose_static("world/workpiece/true", cell.T_world_workpiece)
     _log_mesh("world/workpiece/true/mesh", cell.mesh, (0.75, 0.6, 0.35))
     _log_pose_static("world/workpiece/nominal", cell.scenario.workpiece.T_world_workpiece_nominal)
@@ -77,10 +78,53 @@ def _log_pose_static(path: str, T: np.ndarray) -> None:
     rr.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
 
 
-def body_poses(cell: Cell, q: np.ndarray) -> dict[str, np.ndarray]:
-    """World poses (K, 4, 4) of every arm body for joint samples q (K, 6)."""
+def _rides_on_parent(model: mujoco.MjModel, b: int) -> bool:
+    """A body without joints on a moving parent: it moves with the parent, rigidly."""
+    return bool(model.body_jntnum[b] == 0 and model.body_parentid[b] != 0 and model.body_weldid[b] != 0)
+
+
+def body_entity(model: mujoco.MjModel, b: int) -> str:
+    """The entity of an arm body: ``world/robot/<body>`` for a body that moves on its own joint or
+    is welded to the world; under its parent's entity for one that rides rigidly on its parent
+    (a sensor, a tool: a static transform, so its pose is not logged again at every step)."""
+    if _rides_on_parent(model, b):
+        return f"{body_entity(model, int(model.body_parentid[b]))}/{model.body(b).name}"
+    return f"world/robot/{model.body(b).name}"
+
+
+def moving_bodies(model: mujoco.MjModel) -> list[str]:
+    """The arm's bodies whose world poses are logged as they move: those on their own joint."""
+    return [model.body(b).name for b in range(1, model.nbody)
+            if model.body(b).name != "workpiece" and model.body_weldid[b] != 0 and not _rides_on_parent(model, b)]
+
+
+def log_fixed_bodies(cell: Cell) -> None:
+    """Static poses: the bodies welded to the world (the arm's base) in the world, the bodies
+    riding on a parent relative to it."""
     model, data = cell.model, cell.data
-    names = [model.body(b).name for b in range(1, model.nbody) if model.body(b).name != "workpiece"]
+    mujoco.mj_kinematics(model, data)
+    for b in range(1, model.nbody):
+        if model.body(b).name == "workpiece":
+            continue
+        if model.body_weldid[b] == 0:
+            rr.log(body_entity(model, b), rr.Transform3D(translation=data.xpos[b], mat3x3=data.xmat[b].reshape(3, 3)),
+                   static=True)
+        elif _rides_on_parent(model, b):
+            rr.log(body_entity(model, b), rr.Transform3D(translation=model.body_pos[b],
+                                                         quaternion=np.roll(model.body_quat[b], -1)), static=True)
+
+
+def send_arm(cell: Cell, t_s: np.ndarray, q: np.ndarray) -> None:
+    """The moving bodies' poses for joint samples q (K, 6) at times ``t_s`` [s] on ``sim_time``."""
+    for name, T in body_poses(cell, q, moving_bodies(cell.model)).items():
+        send_poses(f"world/robot/{name}", t_s, T)
+
+
+def body_poses(cell: Cell, q: np.ndarray, names: list[str] | None = None) -> dict[str, np.ndarray]:
+    """World poses (K, 4, 4) of the arm's bodies (default: all) for joint samples q (K, 6)."""
+    model, data = cell.model, cell.data
+    if names is None:
+        names = [model.body(b).name for b in range(1, model.nbody) if model.body(b).name != "workpiece"]
     out = {n: np.empty((len(q), 4, 4)) for n in names}
     for k, qk in enumerate(q):
         data.qpos[cell.qpos_adr] = qk
