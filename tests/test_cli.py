@@ -105,7 +105,8 @@ def test_user_mesh_scan_and_recording(tmp_path):
     from rerun.chunk import RrdReader
 
     paths = {c.entity_path for c in RrdReader(str(rrd)).stream().to_chunks()}
-    for expected in ("/world/robot/laser_sensor", "/world/scan/beam", "/plots/scan/d_mm", "/world/workpiece/true/mesh"):
+    for expected in ("/world/robot/wrist_3_link/laser_sensor", "/world/scan/beam", "/plots/scan/d_mm",
+                     "/world/workpiece/true/mesh"):
         assert expected in paths
     assert "/world/scan/points" in paths and not any(p.startswith("/world/scan/points/") for p in paths)
 

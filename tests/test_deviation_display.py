@@ -11,8 +11,16 @@ import trimesh
 
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import exp_se3
-from twin.deviation import (ABOVE_SATURATION, BELOW_SATURATION, IN_TOLERANCE, OFF_PART, cad_deviation_m,
-                            deviation_colours, deviation_scale, deviation_summary)
+from twin.deviation import (
+    ABOVE_SATURATION,
+    BELOW_SATURATION,
+    IN_TOLERANCE,
+    OFF_PART,
+    cad_deviation_m,
+    deviation_colours,
+    deviation_scale,
+    deviation_summary,
+)
 from twin.io.figures import report_page
 from twin.pose_table import markdown, name_direction, pose_table
 

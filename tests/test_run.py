@@ -76,7 +76,7 @@ def test_recording_has_the_paths_frames_and_normals(loop):
     for name in ("scan_path", "cad_path"):
         for leaf in ("planned", "tool_frames", "normals", "tcp"):
             assert f"/world/path/{name}/{leaf}" in entities
-    assert "/world/robot/tool" in entities and "/world/scan/beam" in entities
+    assert "/world/robot/wrist_3_link/tool" in entities and "/world/scan/beam" in entities
 
 
 def test_a_tool_driven_into_the_part_is_an_unintended_contact(loop):

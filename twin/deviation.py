@@ -103,7 +103,7 @@ def deviation_colormap(scale: DeviationScale):
     from matplotlib.colors import LinearSegmentedColormap, Normalize
 
     pos, rgb = scale.anchors()
-    cmap = LinearSegmentedColormap.from_list("deviation", list(zip((pos + 1.0) / 2.0, rgb, strict=True)), N=1024)
-    cmap = cmap.with_extremes(over=_rgb(ABOVE_SATURATION), under=_rgb(BELOW_SATURATION), bad=_rgb(OFF_PART))
+    base = LinearSegmentedColormap.from_list("deviation", list(zip((pos + 1.0) / 2.0, rgb, strict=True)), N=1024)
+    cmap = base.with_extremes(over=_rgb(ABOVE_SATURATION), under=_rgb(BELOW_SATURATION), bad=_rgb(OFF_PART))
     s_um = scale.saturation_m * 1e6
     return cmap, Normalize(-s_um, s_um)

@@ -242,12 +242,13 @@ def run_compare(args: argparse.Namespace) -> int:
             say(f"{m}: {len(run.contacts)} contacts, {run.cycle_time_s:.1f} s")
             rows.append({"method": m, "plan": plan_report(p), "run": run_report(run)})
         table = comparison_table(rows)
-        (stage.folder / TABLE_FILE).write_text(f"# {teach.name} on {setup.scenario.name}\n\n{table}")
+        title = f"{teach.name} on {setup.scenario.name}"
+        (stage.folder / TABLE_FILE).write_text(f"# {title}\n\n{table}")
         report: dict[str, Any] = {"teach": str(args.teach), "scenario": str(args.scenario), "programs": rows}
         if rrd is not None:
             from twin.viz.cmm import save_cmm_recording
 
-            save_cmm_recording(stage.file(rrd), setup, runs)
+            save_cmm_recording(stage.file(rrd), setup, runs, table=table, title=title)
             report["recording"] = str(rrd)
         report["wall_s"] = round(time.perf_counter() - t0, 2)
         write_json(stage.folder / REPORT_FILE, report)

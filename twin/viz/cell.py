@@ -14,7 +14,7 @@ from twin.cell import Cell
 from twin.viz.columns import send_poses
 
 
-def _geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
+def geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
     t = model.geom_type[g]
     size = model.geom_size[g]
     if t == mujoco.mjtGeom.mjGEOM_BOX:
@@ -53,7 +53,7 @@ def log_cell(cell: Cell) -> None:
     for g in range(model.ngeom):
         body = model.geom_bodyid[g]
         name = model.geom(g).name or f"geom{g}"
-        mesh = _geom_mesh(model, g)
+        mesh = geom_mesh(model, g)
         if mesh is None:
             continue
         bname = model.body(body).name
