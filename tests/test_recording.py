@@ -19,7 +19,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from algorithms.geometry.mesh_index import MeshIndex
-from tests.helpers import scenario
+from tests.helpers import run_cli, scenario
 from twin.deviation import cad_deviation_m, deviation_colours, deviation_scale
 from twin.io.report import run_report
 from twin.realize import realize
@@ -245,3 +245,25 @@ def test_the_run_streams_each_stage_to_a_live_viewer(run_recording):
     assert np.abs(stored.reshape(4, 4) - T).max() <= 1e-12
     n = sum(len(p) for p in _column(live["world/scan/points"], "Points3D:positions"))
     assert n == int(result.scan.valid.sum())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("args, limit_bytes", [
+    (["demo"], 10e6),
+    (["run", "scenarios/bottle_punch.toml"], 25e6),
+], ids=["demo", "bottle_punch"])
+def test_recordings_stay_light_and_carry_the_verdict(tmp_path, args, limit_bytes):
+    """The whole runs' recordings within their size limits (the 1 ms data stays in the Parquet
+    files), with the verdict the exit code gives."""
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "out"
+    rrd = tmp_path / "run.rrd"
+    argv = [args[0], *([str(root / a) for a in args[1:]] if args[0] == "run" else [])]
+    r = run_cli(*argv, "--out", out, "--rrd", rrd)
+    assert r.returncode in (0, 3), r.stderr
+    assert rrd.stat().st_size <= limit_bytes, rrd.stat().st_size
+    chunks = _chunks(rrd)
+    text = _column(chunks["report"], "TextDocument:text")[0]
+    text = text[0] if isinstance(text, list) else text
+    assert ("## Verdict: PASS" in text) == (r.returncode == 0)
+    assert "world/deviation/points" in chunks and "legend" in chunks
