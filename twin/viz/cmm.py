@@ -468,4 +468,4 @@ def _send_blueprint(names: list[str], followed: str, focus_world: np.ndarray, pa
     layout = rrb.Horizontal(rrb.Tabs(shared, *own, whole, active_tab=0),
                             rrb.TextDocumentView(origin=REPORT_ENTITY, name="report"), column_shares=[3, 2])
     rr.send_blueprint(rrb.Blueprint(layout, rrb.TimePanel(timeline=TIMELINE, play_state="paused"),
-                                    collapse_panels=False))
+                                    rrb.SelectionPanel(state="collapsed"), collapse_panels=False))
