@@ -211,3 +211,40 @@ def test_with_the_linearity_drawn_per_trial_the_monte_carlo_agrees_with_the_law_
         assert abs(o.values[0]) <= 3 * o.mc_se[0], (c, o.values[0], o.mc_se[0])
     report = (tmp_path / "out" / "report.md").read_text()
     assert "drawn per trial (a sensor unit" in report and "GUM validated (8)" in report
+
+
+@pytest.mark.slow
+def test_an_adaptive_study_killed_with_sigkill_and_resumed_equals_an_uninterrupted_one(tmp_path):
+    """A real SIGKILL of ``twin study --workers 2`` while its adaptive rounds run (the rule not
+    met before the maximum, so it runs long enough to be killed), then ``--resume``: the same
+    table and the same adaptive verdict as one uninterrupted run."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from tests.helpers import ROOT
+    from twin.studies.runner import batch_files
+
+    study = _adaptive(tmp_path, name="k.toml", digits=3)
+    whole = run_study(study, tmp_path / "whole")
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "twin.cli", "study", str(tmp_path / "k.toml"), "--out", str(out), "--quiet",
+           "--workers", "2"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while len(batch_files(out)) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.005)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    assert batch_files(out) and not (out / RESULTS).exists(), "the kill must land mid-run"
+    done_before = sum(pq.read_table(p).num_rows for p in batch_files(out))
+    assert 0 < done_before < pq.read_table(tmp_path / "whole" / RESULTS).num_rows
+    resumed = run_study(study, out, resume=True)
+    assert resumed["trials_resumed"] >= done_before
+    assert resumed["adaptive"] == whole["adaptive"]
+    assert_same_table(pq.read_table(out / RESULTS), pq.read_table(tmp_path / "whole" / RESULTS))
