@@ -19,7 +19,7 @@ LEGEND_ENTITY = "legend"
 
 def bar_label(scale: DeviationScale, against: str) -> str:
     """The colour bar's caption: what is measured against what, the band, the marks."""
-    return (f"signed deviation from {against} [um]: green within +-{scale.tolerance_m * 1e6:.3g} um; "
+    return (f"signed deviation from {against} [um]\ngreen within +-{scale.tolerance_m * 1e6:.3g} um; "
             "magenta / violet beyond the scale; grey off the part")
 
 
@@ -48,7 +48,7 @@ def legend_image(scale: DeviationScale | None, swatches: Sequence[tuple[str, Seq
     """A PNG: the deviation colour bar (when there is a scale; ``bar_label`` under it) above the
     swatches (label, RGB 0-255), two columns."""
     rows = (len(swatches) + 1) // 2
-    height = (1.15 if scale is not None else 0.2) + 0.24 * rows
+    height = (1.35 if scale is not None else 0.2) + 0.24 * rows
     fig = Figure(figsize=(6.4, height), dpi=110)
     canvas = FigureCanvasAgg(fig)
     top = 1.0
@@ -57,7 +57,7 @@ def legend_image(scale: DeviationScale | None, swatches: Sequence[tuple[str, Seq
         ax = fig.add_axes((0.05, 1.0 - 0.42 / height, 0.9, bar_h))
         draw_colour_bar(fig, ax, scale, bar_label)
         ax.tick_params(labelsize=8)
-        top = 1.0 - 1.0 / height
+        top = 1.0 - 1.2 / height
     axs = fig.add_axes((0.02, 0.0, 0.96, max(top, 0.05)))
     axs.set_axis_off()
     axs.set_xlim(0, 2)
