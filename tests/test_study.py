@@ -109,19 +109,25 @@ def test_dask_local_cluster_equals_local_run(reference, tmp_path):
     assert_same_table(table, pq.read_table(tmp_path / "dask" / RESULTS))
 
 
-def test_resume_after_sigkill(reference, tmp_path, capsys):
-    study, table = reference
-    out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "twin.cli", "study", str(study), "--out", str(out), "--quiet"]
+def kill_after_batches(study_file, out, batches: int = 1, *extra: str) -> int:
+    """``twin study STUDY --out OUT`` in a subprocess, killed with SIGKILL once ``batches`` batch
+    files are written; its return code."""
+    cmd = [sys.executable, "-m", "twin.cli", "study", str(study_file), "--out", str(out), "--quiet", *extra]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 120
-        while not batch_files(out) and time.monotonic() < deadline and proc.poll() is None:
-            time.sleep(0.01)
+        while len(batch_files(out)) < batches and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.005)
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait()
-    assert proc.returncode == -signal.SIGKILL
+    return proc.returncode
+
+
+def test_resume_after_sigkill(reference, tmp_path, capsys):
+    study, table = reference
+    out = tmp_path / "killed"
+    assert kill_after_batches(study, out) == -signal.SIGKILL
     assert batch_files(out) and not (out / RESULTS).exists(), "the kill must land between the first batch and the end"
     done_before = sum(pq.read_table(p).num_rows for p in batch_files(out))
     assert 0 < done_before < table.num_rows

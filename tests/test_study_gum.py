@@ -218,29 +218,15 @@ def test_an_adaptive_study_killed_with_sigkill_and_resumed_equals_an_uninterrupt
     """A real SIGKILL of ``twin study --workers 2`` while its adaptive rounds run (the rule not
     met before the maximum, so it runs long enough to be killed), then ``--resume``: the same
     table and the same adaptive verdict as one uninterrupted run."""
-    import os
     import signal
-    import subprocess
-    import sys
-    import time
 
-    from tests.helpers import ROOT
+    from tests.test_study import kill_after_batches
     from twin.studies.runner import batch_files
 
     study = _adaptive(tmp_path, name="k.toml", digits=3)
     whole = run_study(study, tmp_path / "whole")
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "twin.cli", "study", str(tmp_path / "k.toml"), "--out", str(out), "--quiet",
-           "--workers", "2"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 120
-        while len(batch_files(out)) < 2 and time.monotonic() < deadline and proc.poll() is None:
-            time.sleep(0.005)
-        os.kill(proc.pid, signal.SIGKILL)
-    finally:
-        proc.wait()
-    assert proc.returncode == -signal.SIGKILL
+    assert kill_after_batches(tmp_path / "k.toml", out, 2, "--workers", "2") == -signal.SIGKILL
     assert batch_files(out) and not (out / RESULTS).exists(), "the kill must land mid-run"
     done_before = sum(pq.read_table(p).num_rows for p in batch_files(out))
     assert 0 < done_before < pq.read_table(tmp_path / "whole" / RESULTS).num_rows
