@@ -155,7 +155,7 @@ def speed_section(env_kind: str, scenario: str, steps: int) -> str:
         builds.append(time.perf_counter() - t0)
     rows = []
     for name in ("random", "greedy"):
-        policy = _policy(env_kind, name, env, 0, None)
+        policy = _policy(env_kind, name, env, 0)
         obs, _ = env.reset(seed=100)
         policy.reset()
         env.step(policy(obs))  # first-call compilation out of the timing
