@@ -6,7 +6,11 @@ true error's squared Mahalanobis distance against the stated covariance along th
 directions. A 95 % region that is right holds the error in 95 % of the fits.
 
     python -m benchmarks.bench_coverage [--fits 500] [--fits-for sphere=100 ...] [--scenarios cube sphere]
-                                        [--workers 2] [--out benchmarks/results_coverage.md]
+                                        [--resolutions-m 0.001 0.0005] [--workers 2]
+                                        [--out benchmarks/results_coverage.md]
+
+``--resolutions-m`` runs each scenario once per tessellation of its generated part (the part's
+``resolution_m``: its largest edge on curved surfaces), to show what the facets do.
 """
 
 from __future__ import annotations
@@ -34,8 +38,15 @@ P = 0.95
 CHUNK = 25
 
 
-def scenario_of(name: str):
-    return load_scenario(SCENARIOS / f"{name}.toml", {"sensor": {"linearity_phase_deg": "random"}}, machine="arm")
+def scenario_of(name: str, resolution_m: float | None = None):
+    over: dict = {"sensor": {"linearity_phase_deg": "random"}}
+    if resolution_m is not None:
+        over["workpiece"] = {"params": {"resolution_m": resolution_m}}
+    return load_scenario(SCENARIOS / f"{name}.toml", over, machine="arm")
+
+
+def label(name: str, resolution_m: float | None) -> str:
+    return name if resolution_m is None else f"{name} ({resolution_m * 1e3:g} mm facets)"
 
 
 def determined_error(res, T_true: np.ndarray) -> np.ndarray:
@@ -48,10 +59,10 @@ def determined_error(res, T_true: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(np.vstack([D, F]).T, xi, rcond=None)[0][: len(D)]
 
 
-def fits(task: tuple[int, str, int, int]) -> list[dict]:
-    """Fits ``first .. first + count - 1`` of one part."""
-    part, name, first, count = task
-    scenario = scenario_of(name)
+def fits(task: tuple[int, str, float | None, int, int]) -> list[dict]:
+    """Fits ``first .. first + count - 1`` of one part (at a tessellation, or the scenario's)."""
+    part, name, resolution_m, first, count = task
+    scenario = scenario_of(name, resolution_m)
     geo = noise_free_scan(scenario)
     index = geo.realized.workpiece.index
     T_true = evaluate.Evaluation(geo.realized).T_base_workpiece
@@ -148,24 +159,28 @@ def main() -> None:
     ap.add_argument("--fits", type=int, default=500, help="fits per scenario (default 500)")
     ap.add_argument("--fits-for", nargs="*", default=[], metavar="NAME=N", help="another number of fits for a scenario")
     ap.add_argument("--scenarios", nargs="*", default=None, help="scenario names (default: every laser scenario)")
+    ap.add_argument("--resolutions-m", type=float, nargs="*", default=None,
+                    help="run each scenario at each of these tessellations of its generated part [m]")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results_coverage.md")
     args = ap.parse_args()
     names = args.scenarios or laser_scenarios()
     counts = {name: args.fits for name in names}
     counts.update({k: int(v) for k, v in (item.split("=", 1) for item in args.fits_for)})
-    tasks = [(i, name, k, min(CHUNK, counts[name] - k)) for i, name in enumerate(names)
+    runs = [(name, res) for name in names for res in (args.resolutions_m or [None])]
+    tasks = [(i, name, res, k, min(CHUNK, counts[name] - k)) for i, (name, res) in enumerate(runs)
              for k in range(0, counts[name], CHUNK)]
     t0 = time.perf_counter()
     with Pool(args.workers) as pool:
         done = pool.map(fits, tasks, chunksize=1)
-    by_part: dict[str, list[dict]] = {name: [] for name in names}
+    by_part: dict[str, list[dict]] = {label(*run): [] for run in runs}
     for task, rows in zip(tasks, done, strict=True):
-        by_part[task[1]].extend(rows)
-    results = [summary(name, by_part[name]) for name in names]
+        by_part[label(task[1], task[2])].extend(rows)
+    results = [summary(name, rows) for name, rows in by_part.items()]
     command = "python -m benchmarks.bench_coverage" + (f" --fits {args.fits}" if args.fits != 500 else "") \
         + (f" --fits-for {' '.join(args.fits_for)}" if args.fits_for else "") \
-        + (f" --scenarios {' '.join(names)}" if args.scenarios else "")
+        + (f" --scenarios {' '.join(names)}" if args.scenarios else "") \
+        + (f" --resolutions-m {' '.join(f'{r:g}' for r in args.resolutions_m)}" if args.resolutions_m else "")
     text = markdown(results, command, time.perf_counter() - t0)
     args.out.write_text(text)
     print(text)
