@@ -446,3 +446,24 @@ def test_a_signal_after_the_output_is_in_place_says_so(tmp_path, monkeypatch):
 def test_version():
     rc, stdout, _ = run_main("--version")
     assert rc == 0 and stdout.startswith("twin ") and stdout.split()[1][0].isdigit()
+
+
+def test_the_start_up_guard_acts_only_for_the_command(monkeypatch):
+    """The package's first line guards the command's start-up against a signal (one line, exit
+    130/143) only when the process is the command: a library import changes no handler."""
+    from twin import _starting
+
+    for argv, command in ((["python", "-m", "twin", "scan", "x"], True), (["python", "-m", "twin.cli", "run"], True),
+                          (["python", "-m", "mypackage", "twin"], False), (["python", "script.py", "-m"], False)):
+        monkeypatch.setattr(sys, "orig_argv", argv)
+        monkeypatch.setattr(sys, "argv", argv[1:])
+        assert _starting.started_as_command() is command, argv
+    monkeypatch.setattr(sys, "orig_argv", ["/usr/bin/python3", "/venv/bin/twin", "scan"])
+    monkeypatch.setattr(sys, "argv", ["/venv/bin/twin", "scan"])
+    assert _starting.started_as_command()
+    code = "import signal, twin; print(signal.getsignal(signal.SIGINT).__name__)"
+    as_library = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert as_library.stdout.strip() == "default_int_handler", as_library.stderr
+    as_script = subprocess.run([sys.executable, "-c", "import sys; sys.argv[0] = '/venv/bin/twin'; " + code],
+                               capture_output=True, text=True, cwd=ROOT)
+    assert as_script.stdout.strip() == "while_starting", as_script.stderr

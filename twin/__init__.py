@@ -7,6 +7,10 @@ workflows load on the first call.
 
 import sys
 
+from twin import _starting
+
+_starting.guard()  # the command line (twin, python -m twin): a signal while it starts ends it cleanly
+
 # trimesh imports the OpenCASCADE wheel (cascadio) whenever it is installed, to offer STEP
 # loading; that adds its libraries to every command's start-up, and a SIGTERM that arrives while
 # they initialise ends the process with a segmentation fault. The twin reads STEP itself

@@ -3,28 +3,22 @@ the first instant.
 
 :func:`twin.cli.main` turns SIGINT and SIGTERM into a clean stop once it runs; before that the
 command line's modules are still being imported, and Python's own handler would print a
-traceback. Here a signal in that moment ends the command at once, with the one line and the
-exit status of an interruption: nothing has been written yet.
+traceback. From the package's first line (:mod:`twin._starting`, installed when the process is
+the command) a signal in that moment ends the command at once, with the one line and the exit
+status of an interruption: nothing has been written yet.
 """
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
-from types import FrameType
 
-
-def _while_starting(signum: int, frame: FrameType | None) -> None:
-    word = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted (SIGINT)"
-    sys.stderr.write(f"twin: {word}; nothing written\n")
-    sys.stderr.flush()
-    os._exit(143 if signum == signal.SIGTERM else 130)
+from twin._starting import while_starting
 
 
 def main() -> int:
     for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, _while_starting)
+        signal.signal(s, while_starting)
     from twin.cli import main as cli_main
 
     code = cli_main()
