@@ -461,9 +461,16 @@ def test_the_start_up_guard_acts_only_for_the_command(monkeypatch):
     monkeypatch.setattr(sys, "orig_argv", ["/usr/bin/python3", "/venv/bin/twin", "scan"])
     monkeypatch.setattr(sys, "argv", ["/venv/bin/twin", "scan"])
     assert _starting.started_as_command()
-    code = "import signal, twin; print(signal.getsignal(signal.SIGINT).__name__)"
-    as_library = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    # Python's default handlers first (a test worker's children inherit an ignored SIGINT)
+    defaults = "import signal; signal.signal(signal.SIGINT, signal.default_int_handler); " \
+               "signal.signal(signal.SIGTERM, signal.SIG_DFL); "
+    report = "import twin; print(getattr(signal.getsignal(signal.SIGINT), '__name__', 'other'))"
+    as_library = subprocess.run([sys.executable, "-c", defaults + report], capture_output=True, text=True, cwd=ROOT)
     assert as_library.stdout.strip() == "default_int_handler", as_library.stderr
-    as_script = subprocess.run([sys.executable, "-c", "import sys; sys.argv[0] = '/venv/bin/twin'; " + code],
-                               capture_output=True, text=True, cwd=ROOT)
+    as_command = defaults + "import sys; sys.argv[0] = '/venv/bin/twin'; " + report
+    as_script = subprocess.run([sys.executable, "-c", as_command], capture_output=True, text=True, cwd=ROOT)
     assert as_script.stdout.strip() == "while_starting", as_script.stderr
+    ignored = "import signal, sys; signal.signal(signal.SIGINT, signal.SIG_IGN); sys.argv[0] = '/venv/bin/twin'; " \
+              "import twin; print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN)"
+    assert subprocess.run([sys.executable, "-c", ignored], capture_output=True, text=True, cwd=ROOT).stdout.strip() \
+        == "True"

@@ -34,7 +34,10 @@ def started_as_command() -> bool:
 
 
 def guard() -> None:
-    """Install :func:`while_starting` for SIGINT and SIGTERM when this process is the command."""
+    """Install :func:`while_starting` for SIGINT and SIGTERM when this process is the command,
+    in place of Python's default handlers only (a signal the parent made this process ignore
+    stays ignored)."""
     if started_as_command():
-        for s in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(s, while_starting)
+        for s, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL)):
+            if signal.getsignal(s) is default:
+                signal.signal(s, while_starting)
