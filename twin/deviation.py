@@ -97,6 +97,20 @@ def _rgb(c: Sequence[int]) -> tuple[float, float, float]:
     return (c[0] / 255.0, c[1] / 255.0, c[2] / 255.0)
 
 
+def draw_colour_bar(fig, cax, scale: DeviationScale, label: str, fontsize: float = 9) -> None:
+    """A horizontal colour bar of ``scale`` in the axes ``cax`` of the matplotlib figure ``fig``,
+    with ticks at the band and the saturation [um] (the recording's legend and the report's map)."""
+    from matplotlib.cm import ScalarMappable
+
+    cmap, norm = deviation_colormap(scale)
+    bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), cax=cax, orientation="horizontal", extend="both")
+    t, s = scale.tolerance_m * 1e6, scale.saturation_m * 1e6
+    ticks = sorted({-s, -t, 0.0, t, s}) if t < s else [-s, 0.0, s]
+    bar.set_ticks(ticks)
+    bar.set_ticklabels([f"{v:+.3g}" if v else "0" for v in ticks])
+    bar.set_label(label, fontsize=fontsize)
+
+
 def deviation_colormap(scale: DeviationScale):
     """The matplotlib colour map and normalisation [um] of :func:`deviation_colours` (the same
     anchors; beyond the saturation its marks), for figures and legends."""

@@ -43,23 +43,30 @@ def name_direction(w: np.ndarray) -> str:
     return "combination [" + ", ".join(f"{v:+.2f}" for v in w) + "] (rx ry rz x y z)"
 
 
-def twist_std(determined: np.ndarray, covariance: np.ndarray | None) -> np.ndarray | None:
-    """(6,) standard deviations of the twist's components [rad, m] from the covariance over the
-    determined directions (rows of ``determined``), or None without a covariance."""
+def twist_covariance(determined: np.ndarray, covariance: np.ndarray | None) -> np.ndarray | None:
+    """(6, 6) covariance of the twist [omega, v] from the covariance over the determined
+    directions (rows of ``determined``; singular along the free ones), or None without one."""
     D = np.asarray(determined, dtype=np.float64).reshape(-1, 6)
     if covariance is None or not len(D):
         return None
-    C = D.T @ np.asarray(covariance, dtype=np.float64).reshape(len(D), len(D)) @ D
-    return np.sqrt(np.clip(np.diag(C), 0.0, None))
+    return D.T @ np.asarray(covariance, dtype=np.float64).reshape(len(D), len(D)) @ D
+
+
+def free_components(free: np.ndarray) -> np.ndarray:
+    """(6,) bool: the twist components a free direction (rows of ``free``) moves by more than
+    :data:`FREE_SHARE` (the points say nothing about them)."""
+    F = np.asarray(free, dtype=np.float64).reshape(-1, 6)
+    return np.array([bool(np.any(np.abs(F[:, k]) > FREE_SHARE)) for k in range(6)], dtype=bool)
 
 
 def pose_table(T_nominal: np.ndarray, T_estimate: np.ndarray, T_true: np.ndarray, determined: np.ndarray,
                free: np.ndarray, covariance: np.ndarray | None) -> dict:
     """The table as JSON: ``rows`` (one per component) and ``free_directions`` (named)."""
     F = np.asarray(free, dtype=np.float64).reshape(-1, 6)
-    free_comp = [bool(np.any(np.abs(F[:, k]) > FREE_SHARE)) for k in range(6)]
+    free_comp = [bool(v) for v in free_components(F)]
     xi = pose_error_twist(T_estimate, T_true)
-    std = twist_std(determined, covariance)
+    C = twist_covariance(determined, covariance)
+    std = None if C is None else np.sqrt(np.clip(np.diag(C), 0.0, None))
     nom, est, tru = _absolute(T_nominal), _absolute(T_estimate), _absolute(T_true)
     scale = [1e6] * 3 + [1e6] * 3   # rad -> urad, m -> um
     rows = []

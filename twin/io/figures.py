@@ -11,7 +11,6 @@ import html
 from pathlib import Path
 
 import numpy as np
-from matplotlib.cm import ScalarMappable
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
@@ -21,11 +20,11 @@ from twin.deviation import (
     OFF_PART_M,
     DeviationScale,
     cad_deviation_m,
-    deviation_colormap,
     deviation_colours,
     deviation_scale,
+    draw_colour_bar,
 )
-from twin.pose_table import table_rows
+from twin.pose_table import free_components, table_rows, twist_covariance
 
 DPI = 110
 
@@ -92,12 +91,8 @@ def deviation_map(points_wp: np.ndarray, deviation_m: np.ndarray, outline_wp: li
     order = np.argsort(np.nan_to_num(np.abs(d_um), nan=-1.0))  # the largest deviations drawn last
     ax.scatter(points_wp[order, 0] * 1e3, points_wp[order, 1] * 1e3, c=deviation_colours(deviation_m[order], scale)
                / 255.0, s=1.5)
-    cmap, norm = deviation_colormap(scale)
-    sm = ScalarMappable(norm=norm, cmap=cmap)
-    bar = fig.colorbar(sm, cax=cax, orientation="horizontal", extend="both")
-    t, sat = scale.tolerance_m * 1e6, scale.saturation_m * 1e6
-    bar.set_ticks(sorted({-sat, -t, 0.0, t, sat}))
-    bar.set_label(f"signed deviation [um]: green within +-{t:.3g} um; magenta / violet beyond the scale", fontsize=8)
+    draw_colour_bar(fig, cax, scale, f"signed deviation [um]: green within +-{scale.tolerance_m * 1e6:.3g} um; "
+                    "magenta / violet beyond the scale", fontsize=8)
     ax.set_aspect("equal")
     ax.set_xlabel("workpiece x [mm]")
     ax.set_ylabel("workpiece y [mm]")
@@ -164,15 +159,6 @@ def _outline(mesh) -> list:
     return [mesh.vertices[e] for e in edges]
 
 
-def _twist_covariance(localization, covariance) -> np.ndarray | None:
-    """The (6, 6) covariance of the twist [omega, v] over the determined directions (singular
-    along the free ones)."""
-    D = np.asarray(localization.determined_directions, dtype=np.float64).reshape(-1, 6)
-    if not len(D) or covariance is None:
-        return None
-    return D.T @ np.asarray(covariance, dtype=np.float64).reshape(len(D), len(D)) @ D
-
-
 def white_and_linearity_m(scenario) -> tuple[float, float]:
     """The sensor's white reading noise (repeatability and quantisation) and its linearity
     amplitude [m], for the switched-on sources."""
@@ -221,10 +207,9 @@ def run_figures(result, sigma_m: float, folder: Path) -> list[Path]:
         out.append(series(trk, "servo tracking error [um]", folder / "tracking_error.png",
                           "TCP: true against commanded joints"))
     if loc is not None:
-        C = _twist_covariance(loc, result.pose_covariance)
+        C = twist_covariance(loc.determined_directions, result.pose_covariance)
         xi = evaluate.Evaluation(result.realized).full_pose_errors(loc.T_world_workpiece)["twist"]
-        F = np.asarray(loc.free_directions, dtype=np.float64).reshape(-1, 6)
-        free = (np.abs(F) > 0.1).any(axis=0) if len(F) else np.zeros(6, dtype=bool)
+        free = free_components(loc.free_directions)
         out.append(pose_figure({"estimate": (xi * 1e6, None if C is None else C * 1e12, free)},
                                folder / "pose_error.png", "localization error against the truth"))
     return out

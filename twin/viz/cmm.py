@@ -53,6 +53,7 @@ from twin.cmm_machine import CMM_SCENE_XML, CmmContact, CmmRun, CmmSetup
 from twin.sensors.touch_probe import TouchProbe
 from twin.viz.blueprint import REPORT_ENTITY, TIMELINE, eye_on
 from twin.viz.cell import geom_mesh
+from twin.viz.columns import quiet_timelines
 
 #: (colour, its name in the legend) of the three planners' programs.
 PROGRAM_COLOURS: dict[str, tuple[list[int], str]] = {
@@ -125,8 +126,7 @@ def save_cmm_recording(path: str | Path, setup: CmmSetup, runs: dict[str, CmmRun
     if not runs:
         raise ValueError("save_cmm_recording needs at least one program run")
     rec = rr.RecordingStream(app_id)
-    rec.set_log_time_enabled(False)
-    rec.set_log_tick_enabled(False)
+    quiet_timelines(rec)
     T_true = evaluate.true_part_pose_world(setup)
     part_size_m = float(np.ptp(setup.mesh.vertices, axis=0).max())
     styles = program_styles(list(runs), part_size_m)

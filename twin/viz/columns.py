@@ -54,3 +54,10 @@ def send_series(entity: str, t_s: np.ndarray, y: np.ndarray, period_s: float = S
     """A scalar series on ``sim_time``, thinned by :func:`peaks`."""
     t, v = peaks(t_s, y, period_s)
     rr.send_columns(entity, indexes=[rr.TimeColumn(TIMELINE, duration=t)], columns=rr.Scalars.columns(scalars=v))
+
+
+def quiet_timelines(rec: rr.RecordingStream) -> None:
+    """No wall-clock ``log_time`` or ``log_tick`` timelines: every entity is on ``sim_time``
+    (or static), so the time panel offers only the timelines that mean something."""
+    rec.set_log_time_enabled(False)
+    rec.set_log_tick_enabled(False)

@@ -12,7 +12,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from twin.deviation import DeviationScale, deviation_colormap
+from twin.deviation import DeviationScale, draw_colour_bar
 
 LEGEND_ENTITY = "legend"
 
@@ -21,26 +21,6 @@ def bar_label(scale: DeviationScale, against: str) -> str:
     """The colour bar's caption: what is measured against what, the band, the marks."""
     return (f"signed deviation from {against} [um]\ngreen within +-{scale.tolerance_m * 1e6:.3g} um; "
             "magenta / violet beyond the scale; grey off the part")
-
-
-def draw_colour_bar(fig: Figure, ax, scale: DeviationScale, label: str) -> None:
-    """A horizontal colour bar of ``scale`` in ``ax`` with ticks at the band and the saturation [um]."""
-    cmap, norm = deviation_colormap(scale)
-    sm = _mappable(cmap, norm)
-    bar = fig.colorbar(sm, cax=ax, orientation="horizontal", extend="both")
-    t, s = scale.tolerance_m * 1e6, scale.saturation_m * 1e6
-    ticks = sorted({-s, -t, 0.0, t, s}) if t < s else [-s, 0.0, s]
-    bar.set_ticks(ticks)
-    bar.set_ticklabels([f"{v:+.3g}" if v else "0" for v in ticks])
-    bar.set_label(label, fontsize=9)
-
-
-def _mappable(cmap, norm):
-    from matplotlib.cm import ScalarMappable
-
-    sm = ScalarMappable(norm=norm, cmap=cmap)
-    sm.set_array(np.array([]))
-    return sm
 
 
 def legend_image(scale: DeviationScale | None, swatches: Sequence[tuple[str, Sequence[int]]],

@@ -25,9 +25,9 @@ from twin.viz.blueprint import (
     stage_span,
 )
 from twin.viz.cell import body_poses, log_cell, log_pose_with_outline, send_arm
-from twin.viz.columns import POSE_PERIOD_S, every
+from twin.viz.columns import POSE_PERIOD_S, every, quiet_timelines
 from twin.viz.legend import LEGEND_ENTITY, bar_label, legend_image
-from twin.viz.recording import frame_points, log_cad_deviation, quiet_timelines, verdict_markdown
+from twin.viz.recording import frame_points, log_cad_deviation, verdict_markdown
 from twin.viz.scan import log_scan
 
 PLANNED_COLOUR = (60, 120, 255)

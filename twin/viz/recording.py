@@ -32,6 +32,7 @@ from twin.viz.blueprint import (
     stage_span,
 )
 from twin.viz.cell import body_poses, log_cell, log_pose_with_outline, mesh_outline
+from twin.viz.columns import quiet_timelines
 from twin.viz.legend import LEGEND_ENTITY, bar_label, legend_image
 from twin.viz.paths import TRANSIT_COLOUR, log_normals, log_path_lines, log_replay, log_tool_frames
 from twin.viz.scan import STATUS_LEGEND, log_scan, truth_scale
@@ -76,13 +77,6 @@ def _save(path: str | Path, cell: Cell, scan, result, truth: evaluate.Evaluation
         log_summary(scan, result, runs, report)
         rec.flush()
     return path
-
-
-def quiet_timelines(rec: rr.RecordingStream) -> None:
-    """No wall-clock ``log_time`` or ``log_tick`` timelines: every entity is on ``sim_time``
-    (or static), so the time panel offers only the timelines that mean something."""
-    rec.set_log_time_enabled(False)
-    rec.set_log_tick_enabled(False)
 
 
 def _t_planned(scan) -> float:
