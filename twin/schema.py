@@ -102,13 +102,18 @@ _TABLES = ("workpiece", "robot", "sensor", "noise", "scan", "path", "probe", "lo
 
 def study_keys() -> list[KeyDoc]:
     """Every key of a study file, from the tables the study validator checks against."""
-    from twin.studies import spec
+    from twin.studies import inputs, spec
 
     rows = [KeyDoc("", key, "", _show(default), allowed) for key, (default, allowed) in spec.HEADER_KEYS.items()]
     tables = {"localize": spec.LOCALIZE_KEYS, "points": spec.POINTS_KEYS, "normals": spec.NORMALS_KEYS,
               "adaptive": spec.ADAPTIVE_KEYS, "success": spec.SUCCESS_KEYS}
     for table, keys in tables.items():
         rows += [KeyDoc(table, key, "", _show(default), allowed) for key, (default, _, allowed) in keys.items()]
+    rows += [KeyDoc("inputs", name, "", "per_trial where the scenario has it on" if src.systematic and name != "part_pose"
+                    else "fixed" if name == "part_pose" else "per_reading where the scenario has it on",
+                    ", ".join(src.treatments) + (f"; per_trial: distribution, {', '.join(src.widths)}" if src.widths
+                                                 else "; per_trial: amplitude" if name == "linearity" else ""))
+             for name, src in inputs.SOURCES.items()]
     return rows
 
 

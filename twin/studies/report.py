@@ -36,6 +36,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import ScalarFormatter
 
+from twin.studies.inputs import describe
 from twin.studies.jcgm101 import BATCHES, INDICATIVE_BELOW, MIN_BATCH, decimals, fmt, fmt_se, summarize
 from twin.studies.report_plots import cell_plots as _cell_plots
 from twin.studies.report_plots import figure as _figure
@@ -167,29 +168,28 @@ def _head(study: Study) -> list[str]:
 
 
 def _inputs(study: Study) -> list[str]:
-    """How each error source of the base scenario enters the trials: random per reading, drawn
-    per trial from its distribution, or held fixed (a known value, or one draw for the whole
-    study) -- so that a reader knows what the coverage intervals cover."""
+    """How each error source of the base scenario enters the trials (``[inputs]``,
+    :mod:`twin.studies.inputs`): random per reading, drawn per trial from its distribution, or
+    held fixed -- so that a reader knows what the coverage intervals cover."""
     if study.kind not in ("fast", "full"):
         return []
     sc = study.cell_scenario(0)
-    n, sensor = sc.noise, sc.sensor
-    fast = study.kind == "fast"
-    rows = [("repeatability, quantisation, incidence", "random per reading" if n.gaussian else "off"),
-            ("linearity curve", "off" if not n.linearity or sensor.linearity_m == 0 else
-             "drawn per trial (a sensor unit: the phase uniform)" if sensor.linearity_phase_deg is None else
-             f"fixed: phase {sensor.linearity_phase_deg:g} deg, one known curve in every trial (its effect is a bias "
-             'of the estimate, not in the intervals; `linearity_phase_deg = "random"` draws it per trial)'),
-            ("encoder noise", "random per reading" if n.encoder_sigma_rad > 0 else "off"),
-            ("time skew", f"fixed: {n.time_skew_s:g} s in every trial" if n.time_skew_s else "off")]
-    robot = n.kinematic_sigma_m > 0 or n.kinematic_sigma_rad > 0 or not np.allclose(n.T_hand_eye_error, np.eye(4))
-    if robot:
-        rows.append(("kinematic and hand-eye errors", "drawn per trial (the scenario's seed per trial)" if not fast else
-                     "fixed: one draw for the whole study (fast trials reuse one scan); `kind = \"full\"` draws them "
-                     "per trial"))
-    lines = ["Uncertain inputs of cell 0's scenario and how the trials treat them:", "",
+    resolved = study.cell_inputs(0, sc)
+    rows = [(r.label, describe(r, sc)) for r in resolved.values() if r.treatment != "off"]
+    off = [r.label for r in resolved.values() if r.treatment == "off"]
+    lines = ["Uncertain inputs of cell 0's scenario and how the trials treat them (`[inputs]`):", "",
              "| input | in the trials |", "|---|---|"]
-    return lines + [f"| {name} | {how} |" for name, how in rows] + [""]
+    lines += [f"| {name} | {how} |" for name, how in rows] + [""]
+    if off:
+        lines += ["Off: " + ", ".join(off) + ".", ""]
+    fixed = [r.label for r in resolved.values() if r.treatment == "fixed" and r.name != "part_pose"]
+    if fixed:
+        lines += ["Held fixed: " + ", ".join(fixed) + ". Their effect is in each quantity's estimate (the mean "
+                  "error), a bias, not in the intervals: the correction is minus the estimate.", ""]
+    else:
+        lines += ["No systematic effect is held fixed: each quantity's estimate (the mean error) should be zero "
+                  "within 3 of its Monte Carlo standard errors; the outputs table says where it is not.", ""]
+    return lines
 
 
 def provenance() -> str:
@@ -263,7 +263,7 @@ def _cell_section(study: Study, table: pa.Table, s: dict, i: int, out: Path,
         lines += ["The points of some trials leave a direction free or weak: no component is reported.", ""]
     lines += _outputs_table(s, columns)
     if s["determined"]:
-        lines += _propagation_table(s)
+        lines += _bias_line(s) + _propagation_table(s)
     lines += [f"Over every trial that returned a pose ({s['n_posed']}): translation error mean "
               f"{_fmt(s['all_translation_error_um'])} um, rotation error mean {_fmt(s['all_rotation_error_deg'])} "
               "deg" + (" (the same trials as above)." if s["n_posed"] == s["n_ok"] else
@@ -275,6 +275,19 @@ def _cell_section(study: Study, table: pa.Table, s: dict, i: int, out: Path,
         lines += [f"Histograms and convergence plots are drawn for the first {MAX_CELL_PLOTS} cells; the tables "
                   "above and below hold every cell.", ""]
     return lines, pngs
+
+
+def _bias_line(s: dict) -> list[str]:
+    """The twist components whose mean error is more than 3 Monte Carlo standard errors from zero."""
+    far = []
+    for c in TWIST_COLUMNS:
+        o = s["outputs"][c]
+        if np.isfinite(o.mc_se[0]) and abs(o.values[0]) > 3.0 * o.mc_se[0]:
+            far.append(f"`{c}` ({fmt(o.values[0], decimals(o.values[1]))}, standard error {fmt_se(o.mc_se[0])})")
+    if not far:
+        return ["Every component's mean error is within 3 Monte Carlo standard errors of zero.", ""]
+    return ["Mean error beyond 3 Monte Carlo standard errors of zero (a bias: a fixed input, or an effect the "
+            "trials do not average out): " + ", ".join(far) + ".", ""]
 
 
 def _propagation_table(s: dict) -> list[str]:

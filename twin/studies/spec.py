@@ -27,10 +27,13 @@ from algorithms.registration.local import METHODS
 from twin.errors import TwinError
 from twin.formats.toml_files import read_toml
 from twin.scenario import Scenario, load_scenario, merge_tables
+from twin.studies.inputs import Resolved, check_not_both, off_overrides, parse_inputs, resolve
 
 KINDS = ("fast", "full", "points", "normals")
-TOP_KEYS = ("name", "seed", "scenario", "trials", "kind", "overrides", "localize", "points", "normals", "adaptive",
-            "success", "grid")
+TOP_KEYS = ("name", "seed", "scenario", "trials", "kind", "overrides", "inputs", "localize", "points", "normals",
+            "adaptive", "success", "grid")
+#: The kinds whose trials have the scenario's error sources (``[inputs]``, :mod:`twin.studies.inputs`).
+INPUT_KINDS = ("fast", "full")
 #: The table of each kind's own settings (a grid key ``"points.count"`` needs that kind).
 KIND_TABLES = {"points": "points", "normals": "normals"}
 #: Stages of the global methods run alone: document 001's genetic coarse stage (one GA run, no
@@ -92,6 +95,8 @@ HEADER_KEYS: dict[str, tuple[Any, str]] = {
     "trials": (10, f"an integer in [1, {MAX_TRIALS}]: trials per grid cell (the most, with [adaptive])"),
     "kind": ("fast", f"one of {', '.join(KINDS)}"),
     "overrides": ({}, "a table of scenario tables merged over the base scenario"),
+    "inputs": ({}, "a table of error sources, each a treatment (per_reading, per_trial, fixed, off) or a table "
+                   "with treatment, distribution and widths (fast and full trials)"),
     "grid": ({}, 'dotted key paths to value lists: "sensor.sigma_m", "localize.method", "points.count", '
                  '"scenario", "overrides"'),
 }
@@ -187,6 +192,8 @@ class Study:
         input_files: (path, SHA-256 of its bytes) of every file the cells' scenarios read (the
             workpiece meshes), for the content hash: a file replaced under the same name is a
             different study.
+        inputs: the declared treatment of each error source (``[inputs]``, checked; the sources
+            it leaves out take their defaults, :mod:`twin.studies.inputs`).
     """
 
     name: str
@@ -206,6 +213,7 @@ class Study:
     base_dir: Path = Path(".")
     success: dict = field(default_factory=lambda: {k: v[0] for k, v in SUCCESS_KEYS.items()})
     input_files: tuple[tuple[str, str], ...] = ()
+    inputs: dict = field(default_factory=dict)
 
     @property
     def cells(self) -> list[dict]:
@@ -224,7 +232,13 @@ class Study:
         return self.n_cells * self.trials
 
     def cell_settings(self, cell: int) -> CellSettings:
-        """What grid cell ``cell`` runs: the study's settings with the cell's factor values."""
+        """What grid cell ``cell`` runs: the study's settings with the cell's factor values and
+        the error sources ``[inputs]`` declares ``off`` switched off."""
+        s = self._factor_settings(cell)
+        off = off_overrides(self.inputs)
+        return dataclasses.replace(s, overrides=merge_tables(s.overrides, off)) if off else s
+
+    def _factor_settings(self, cell: int) -> CellSettings:
         values = self.cells[cell]
         over = copy.deepcopy(self.overrides)
         loc, pts, nrm = dict(self.localize), copy.deepcopy(self.points), dict(self.normals)
@@ -250,6 +264,16 @@ class Study:
         s = self.cell_settings(cell)
         return load_scenario(s.scenario_path, s.overrides, machine="arm")
 
+    def cell_inputs(self, cell: int, scenario: Scenario | None = None) -> dict[str, Resolved]:
+        """How cell ``cell``'s trials treat each error source of its scenario (``scenario``: the
+        cell's, when the caller has loaded it)."""
+        return resolve(self.inputs, scenario if scenario is not None else self.cell_scenario(cell), self.kind)
+
+    def set_keys(self, cell: int) -> set[str]:
+        """The dotted scenario keys the study sets in cell ``cell`` (its overrides and factors),
+        a value ``"random"`` (drawn per realization) left out."""
+        return set(_leaves(self._factor_settings(cell).overrides))
+
     @property
     def content_hash(self) -> str:
         """SHA-256 of the study's canonical content, its scenarios' text and the bytes of every file
@@ -266,9 +290,23 @@ class Study:
         """The study as a JSON-ready dict (the manifest)."""
         return {"name": self.name, "seed": self.seed, "scenario": str(self.scenario_path), "trials": self.trials,
                 "kind": self.kind, "overrides": self.overrides, "localize": self.localize,
-                "points": self.points, "normals": self.normals, "adaptive": self.adaptive, "success": self.success,
+                "inputs": self.inputs, "points": self.points, "normals": self.normals, "adaptive": self.adaptive,
+                "success": self.success,
                 "grid": {k: list(v) for k, v in zip(self.factors, self.levels, strict=True)},
                 "cells": self.n_cells, "input_files": {path: digest for path, digest in self.input_files}}
+
+
+def _leaves(table: dict, prefix: str = "") -> list[str]:
+    """Dotted paths of a nested table's leaves and of each table on the way (``noise.hand_eye_error``
+    and ``noise.hand_eye_error.xyz``), values ``"random"`` left out."""
+    out = []
+    for k, v in table.items():
+        path = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out += [path] + _leaves(v, path + ".")
+        elif v != "random":
+            out.append(path)
+    return out
 
 
 def load_study(path: str | Path) -> Study:
@@ -385,6 +423,9 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
     head = _header(raw, base_dir)
     kind, overrides = head.kind, head.overrides
     tables = _tables(raw, kind)
+    inputs = parse_inputs(raw.get("inputs"))
+    if "inputs" in raw and kind not in INPUT_KINDS:
+        raise TwinError(f"study [inputs] needs kind = 'fast' or 'full' (a {kind} trial has no scenario error sources)")
     grid, factors, levels = _grid(raw)
     scenario_paths = [head.scenario_path]
     if "scenario" in grid:
@@ -394,11 +435,13 @@ def parse_study(raw: dict, base_dir: Path) -> Study:
         _check_factor(key, values, kind, scenario_paths, overrides)
     study = Study(head.name, head.seed, head.scenario_path, head.trials, kind, copy.deepcopy(overrides),
                   tables.localize, tuple(factors), tuple(levels), copy.deepcopy(raw), "\n".join(texts),
-                  tables.points, tables.normals, tables.adaptive, base_dir.resolve(), tables.success)
+                  tables.points, tables.normals, tables.adaptive, base_dir.resolve(), tables.success, inputs=inputs)
     designs: set[str] = set()
     for cell in range(study.n_cells):
         settings = study.cell_settings(cell)
         _check_cell(settings, kind)
+        if kind in INPUT_KINDS:
+            check_not_both(inputs, study.cell_inputs(cell), study.set_keys(cell))
         if kind == "points":
             _check_design(settings, designs)
     return dataclasses.replace(study, input_files=_input_files(study))

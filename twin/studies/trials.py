@@ -9,7 +9,8 @@ in a random direction, workpiece frame; with ``init_position = "mean"`` the tran
 puts the model's centroid at the points' mean, document 000's ``p0 = mean(y)``); the second the
 sensor and encoder errors (fast), the scenario's seed (full) or the noise (points); the third
 the point subset (fast) or the point set (points); the fourth the method's own randomness
-(GA, PSO, multistart perturbations).
+(GA, PSO, multistart perturbations); the fifth the systematic effects drawn per trial
+(:mod:`twin.studies.inputs`: the linearity curve, the time skew, the robot-side errors).
 
 Kinds:
 
@@ -19,11 +20,15 @@ Kinds:
   ``measure``), the encoder noise and time skew, rebuilds the points with the nominal
   kinematics and hand-eye, and localizes from the trial's initial pose
   (:func:`algorithms.registration.localize`, sigma :func:`twin.scan_uncertainty.reading_sigma_m`:
-  the sensor's and the encoders' noise). Where the scenario leaves the sensor's linearity
-  phase unknown (``linearity_phase_deg = "random"``), each trial draws its own sensor unit.
-  Robot-side errors drawn once per scenario (kinematics, hand-eye) stay those of the cached scan.
+  the sensor's and the encoders' noise). The sensor-side systematic effects the study draws per
+  trial (``[inputs]``, by default every one the scenario has on) are redrawn: the linearity
+  curve (a sensor unit per trial) and the time skew. Robot-side errors (kinematics, hand-eye)
+  are those of the cached scan: a study declares them ``fixed``.
 * ``full``: :func:`twin.workflows.loop.run` on the scenario with its seed replaced by one drawn from
-  the trial's stream; the localization is the loop's own (from the nominal pose).
+  the trial's stream (the per-reading noise) and the trial's systematic draws put into the
+  scenario (linearity curve, time skew) and the truth (kinematic and hand-eye errors, the part's
+  placement), a ``fixed`` one kept at the scenario's value (kinematic errors: the draw of the
+  scenario's own seed); the localization is the loop's own (from the nominal pose).
 * ``points``: document 000's simulation (:mod:`twin.studies.point_sets`): model points on the
   scenario's part, the known transform (the scenario's true placement), the noise; localized
   by ``localize.method`` (:mod:`twin.studies.methods`), after the subsampling rule.
@@ -60,7 +65,7 @@ from twin import evaluate
 from twin.cell import build_cell
 from twin.errors import TwinError
 from twin.plan import ScanPlan, plan_scan
-from twin.realize import Realized, realize
+from twin.realize import LinkError, Realized, Streams, draw_truth, realize
 from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
 from twin.scan_uncertainty import (
@@ -75,6 +80,7 @@ from twin.sensors.base import Measurement, RawRays, RaySensor
 from twin.sim import simulate
 from twin.studies.methods import Outcome, run_method
 from twin.studies.point_sets import Design, make_design, measured_points, model_points
+from twin.studies.inputs import AMPLITUDE_SECOND_MOMENT, Draw, Resolved, draw
 from twin.studies.spec import Study
 from twin.workflows.loop import run as run_loop
 
@@ -144,6 +150,11 @@ def trial_streams(seed: int, cell: int, trial: int) -> tuple[np.random.Generator
     """(initial pose, errors, points, method) streams of one trial: the children 0-3 of its
     ``SeedSequence`` (a child is the same whether or not the later ones are used)."""
     return tuple(np.random.default_rng(c) for c in np.random.SeedSequence(seed, spawn_key=(cell, trial)).spawn(4))
+
+
+def systematic_stream(seed: int, cell: int, trial: int) -> np.random.Generator:
+    """The fifth child of the trial's ``SeedSequence``: its systematic effects drawn per trial."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(cell, trial)).spawn(5)[4])
 
 
 def initial_pose(T_true: np.ndarray, angle_rad: float, distance_m: float, rng: np.random.Generator) -> np.ndarray:
@@ -230,20 +241,25 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
     return _metrics(out, T_true, len(pts), C)
 
 
-def scan_measurement(scenario: Scenario, geo: NoiseFreeScan,
-                     rng: np.random.Generator) -> tuple[Measurement, np.ndarray]:
+def scan_measurement(scenario: Scenario, geo: NoiseFreeScan, rng: np.random.Generator,
+                     sys: Draw | None = None) -> tuple[Measurement, np.ndarray]:
     """The scan redrawn: the sensor's errors on the ideal rays (this trial's sensor unit where
-    the scenario's linearity phase is "random"), encoder noise and time skew on the joint log;
-    (the measurement, (N, 6) the joint log [rad])."""
+    ``sys`` draws the linearity curve, else where the scenario's phase is "random"), encoder
+    noise and time skew (``sys``'s, else the scenario's) on the joint log; (the measurement,
+    (N, 6) the joint log [rad])."""
     sensor = geo.sensor
-    if scenario.sensor.linearity_phase_deg is None:
+    if sys is not None and sys.linearity_phase_deg is not None:
+        sensor = copy.copy(sensor)
+        sensor.spec = replace(sensor.spec, linearity_phase_deg=sys.linearity_phase_deg, linearity_m=sys.linearity_m)
+    elif scenario.sensor.linearity_phase_deg is None:
         sensor = copy.copy(sensor)
         sensor.spec = replace(sensor.spec, linearity_phase_deg=float(rng.uniform(0.0, 360.0)))
     meas = sensor.measure(geo.rays, rng, geo.model)
     t, q_log = geo.plan.t, geo.q_enc
     noise = scenario.noise
-    if noise.time_skew_s != 0.0:
-        ts = np.clip(t - noise.time_skew_s, t[0], t[-1])
+    skew = sys.time_skew_s if sys is not None and sys.time_skew_s is not None else noise.time_skew_s
+    if skew != 0.0:
+        ts = np.clip(t - skew, t[0], t[-1])
         q_log = np.column_stack([np.interp(ts, t, q_log[:, j]) for j in range(6)])
     if noise.encoder_sigma_rad > 0:
         q_log = q_log + rng.normal(0.0, noise.encoder_sigma_rad, q_log.shape)
@@ -264,9 +280,11 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
     scenario = load_scenario(settings.scenario_path, settings.overrides, machine="arm")
     geo = noise_free_scan(scenario)
     rng_init, rng_err, rng_subset, rng_method = trial_streams(study.seed, cell, trial)
+    inputs = study.cell_inputs(cell, scenario)
+    sys = draw(inputs, scenario.sensor.linearity_m, systematic_stream(study.seed, cell, trial))
     T_true = evaluate.Evaluation(geo.realized).T_base_workpiece
     T_fs = scenario.sensor.T_flange_sensor
-    meas, q_log = scan_measurement(scenario, geo, rng_err)
+    meas, q_log = scan_measurement(scenario, geo, rng_err, sys)
     mask = meas.valid & (geo.plan.line >= 0)[:, None]
     pts = geo.sensor.reconstruct(q_log, meas.d, UR5E_DH, T_fs)[mask]
     q_pts = np.broadcast_to(q_log[:, None, :], (*mask.shape, 6))[mask]
@@ -283,18 +301,21 @@ def fast_trial(study: Study, cell: int, trial: int) -> dict:
     C = bound(pts, T_true, workpiece.index, white or None)
     row = _localize(loc, pts, workpiece, T_true, T_init, sigma or None, rng_method, C)
     if C is not None:
-        row.update(_lpu_columns(C, C + _linearity_part(scenario, d_pts, beams, pts, T_true, workpiece.index)))
+        lin = _linearity_part(scenario, inputs["linearity"], d_pts, beams, pts, T_true, workpiece.index)
+        row.update(_lpu_columns(C, C + lin))
     return row
 
 
-def _linearity_part(scenario: Scenario, d: np.ndarray, beams: np.ndarray, pts: np.ndarray, T_true: np.ndarray,
-                    index) -> np.ndarray:
+def _linearity_part(scenario: Scenario, linearity: Resolved, d: np.ndarray, beams: np.ndarray, pts: np.ndarray,
+                    T_true: np.ndarray, index) -> np.ndarray:
     """The pose covariance (6, 6) the sensor's linearity curve causes, propagated by the GUM's law
-    of propagation at the truth (:func:`twin.scan_uncertainty.linearity_covariance`); zero when
-    the scenario switches the curve off."""
-    if not scenario.noise.linearity or scenario.sensor.linearity_m == 0.0:
+    of propagation at the truth (:func:`twin.scan_uncertainty.linearity_covariance`, scaled by the
+    amplitude law's ``E[A^2] / band^2``); zero unless the study draws the curve per trial (a
+    fixed curve is a bias, not an uncertainty)."""
+    if linearity.treatment != "per_trial" or scenario.sensor.linearity_m == 0.0:
         return np.zeros((6, 6))
-    return linearity_covariance(scenario.sensor, d, beams, pts, T_true, np.eye(6), index)
+    return AMPLITUDE_SECOND_MOMENT[linearity.amplitude] * linearity_covariance(
+        scenario.sensor, d, beams, pts, T_true, np.eye(6), index)
 
 
 _PARTS: dict[str, tuple[Realized, dict]] = {}
@@ -333,8 +354,12 @@ def full_trial(study: Study, cell: int, trial: int) -> dict:
     settings = study.cell_settings(cell)
     _, rng_err, _, _ = trial_streams(study.seed, cell, trial)
     seed = int(rng_err.integers(0, 2**63 - 1))
-    scenario = load_scenario(settings.scenario_path, merge_tables(settings.overrides, {"seed": seed}), machine="arm")
-    realized = realize(scenario)
+    base = load_scenario(settings.scenario_path, settings.overrides, machine="arm")
+    inputs = study.cell_inputs(cell, base)
+    sys = draw(inputs, base.sensor.linearity_m, systematic_stream(study.seed, cell, trial))
+    over = merge_tables(settings.overrides, {"seed": seed, **_drawn_tables(sys)})
+    scenario = load_scenario(settings.scenario_path, over, machine="arm")
+    realized = _with_drawn_truth(realize(scenario), base, inputs, sys)
     try:
         result = run_loop(realized)
     except TwinError:
@@ -351,6 +376,31 @@ def full_trial(study: Study, cell: int, trial: int) -> dict:
     m = _metrics(out, T_true, len(pts), bound(pts, T_true, realized.workpiece.index, white))
     m["path_error_max_um"] = path_error_max_um(result.cad_path_workpiece, loc.T_world_workpiece, T_true)
     return m
+
+
+def _drawn_tables(sys: Draw) -> dict:
+    """The scenario tables that put a trial's sensor-side draws into its scenario."""
+    out: dict[str, dict] = {}
+    if sys.linearity_phase_deg is not None:
+        out["sensor"] = {"linearity_phase_deg": sys.linearity_phase_deg, "linearity_m": sys.linearity_m}
+    if sys.time_skew_s is not None:
+        out["noise"] = {"time_skew_s": sys.time_skew_s}
+    return out
+
+
+def _with_drawn_truth(realized: Realized, base: Scenario, inputs: dict[str, Resolved], sys: Draw) -> Realized:
+    """The realized trial with its robot-side systematic effects: drawn (``sys``), or fixed at the
+    scenario's (the kinematic errors its own seed draws, not the trial's)."""
+    truth = realized.truth
+    if sys.link_errors is not None:
+        truth = replace(truth, link_errors=tuple(LinkError(b, p, R) for b, p, R in sys.link_errors))
+    elif inputs["kinematics"].treatment == "fixed":
+        truth = replace(truth, link_errors=draw_truth(base, Streams(base.seed)).link_errors)
+    if sys.T_hand_eye_error is not None:
+        truth = replace(truth, T_flange_sensor=base.sensor.T_flange_sensor @ sys.T_hand_eye_error)
+    if sys.T_part_error is not None:
+        truth = replace(truth, T_world_workpiece=base.workpiece.T_world_workpiece_true @ sys.T_part_error)
+    return replace(realized, truth=truth)
 
 
 def path_error_max_um(path, T_est: np.ndarray, T_true: np.ndarray) -> float:
