@@ -46,9 +46,11 @@ trials = 3
 kind = "fast"
 [overrides.scan]
 max_lines = 4
+[inputs]
+linearity = "fixed"
 [grid]
 "noise.encoder_sigma_rad" = [{ENCODER_SIGMA_RAD}]
-""")
+""")  # the linearity curve fixed (phase 0): the encoders' noise is what the test is about
     run_study(load_study(study), tmp_path / "out")
     rows = pq.read_table(tmp_path / "out" / RESULTS).to_pylist()
     assert [r["status"] for r in rows] == ["ok"] * 3

@@ -210,7 +210,7 @@ def test_with_the_linearity_drawn_per_trial_the_monte_carlo_agrees_with_the_law_
         assert abs(o.values[1] / s["u_lpu_"][c] - 1.0) < 0.2, (c, o.values[1], s["u_lpu_"][c])
         assert abs(o.values[0]) <= 3 * o.mc_se[0], (c, o.values[0], o.mc_se[0])
     report = (tmp_path / "out" / "report.md").read_text()
-    assert "drawn per trial (a sensor unit" in report and "GUM validated (8)" in report
+    assert "drawn per trial: a sensor unit" in report and "GUM validated (8)" in report
 
 
 @pytest.mark.slow

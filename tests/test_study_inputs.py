@@ -164,6 +164,8 @@ def test_full_trials_put_the_robot_side_draws_into_the_truth(tmp_path):
 
     t0, t1 = truth(drawn, 0), truth(drawn, 1)
     assert not np.allclose(t0.T_flange_sensor, t1.T_flange_sensor)
+    # the sensor unit's curve is in the truth; the scenario, what the estimator reads, keeps the band
+    assert t0.linearity_m < base.sensor.linearity_m and t0.linearity_phase_deg != t1.linearity_phase_deg
     assert not np.allclose(t0.link_errors[0].dpos_m, t1.link_errors[0].dpos_m)
     f0, f1 = truth(fixed, 0), truth(fixed, 1)
     np.testing.assert_array_equal(f0.T_flange_sensor, realized.truth.T_flange_sensor)

@@ -72,12 +72,15 @@ class Truth:
         link_errors: the drawn kinematic errors, one per moving link (empty when switched off).
         linearity_phase_deg: the phase of this sensor unit's linearity curve [deg] (the
             scenario's, or drawn uniform in [0, 360) where it says "random").
+        linearity_m: this unit's curve amplitude [m]; None: the scenario's band (a study may draw
+            it within the band; the estimator keeps the band the data sheet states).
     """
 
     T_world_workpiece: np.ndarray
     T_flange_sensor: np.ndarray
     link_errors: tuple[LinkError, ...]
     linearity_phase_deg: float = 0.0
+    linearity_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -91,8 +94,9 @@ class Realized:
 
     @property
     def sensor(self) -> SensorSpec:
-        """The scenario's sensor as this realization's unit (its linearity phase drawn)."""
-        return replace(self.scenario.sensor, linearity_phase_deg=self.truth.linearity_phase_deg)
+        """The scenario's sensor as this realization's unit (its linearity curve's phase and amplitude)."""
+        amplitude = self.scenario.sensor.linearity_m if self.truth.linearity_m is None else self.truth.linearity_m
+        return replace(self.scenario.sensor, linearity_phase_deg=self.truth.linearity_phase_deg, linearity_m=amplitude)
 
     @property
     def T_base_workpiece_true(self) -> np.ndarray:

@@ -109,11 +109,12 @@ def study_keys() -> list[KeyDoc]:
               "adaptive": spec.ADAPTIVE_KEYS, "success": spec.SUCCESS_KEYS}
     for table, keys in tables.items():
         rows += [KeyDoc(table, key, "", _show(default), allowed) for key, (default, _, allowed) in keys.items()]
-    rows += [KeyDoc("inputs", name, "", "per_trial where the scenario has it on" if src.systematic and name != "part_pose"
-                    else "fixed" if name == "part_pose" else "per_reading where the scenario has it on",
-                    ", ".join(src.treatments) + (f"; per_trial: distribution, {', '.join(src.widths)}" if src.widths
-                                                 else "; per_trial: amplitude" if name == "linearity" else ""))
-             for name, src in inputs.SOURCES.items()]
+    for name, src in inputs.SOURCES.items():
+        default = ("fixed" if name == "part_pose" else
+                   f"{'per_trial' if src.systematic else 'per_reading'} where the scenario has it on, else off")
+        per_trial = (f"; per_trial: distribution, {', '.join(src.widths)}" if src.widths
+                     else "; per_trial: amplitude" if name == "linearity" else "")
+        rows.append(KeyDoc("inputs", name, "", default, ", ".join(src.treatments) + per_trial))
     return rows
 
 

@@ -115,7 +115,8 @@ def _parse_source(name: str, table: Any) -> dict:
     allowed = ("treatment",) + (("distribution",) if src.distribution else ()) + src.widths + _EXTRA_KEYS.get(name, ())
     bad = sorted(set(table) - set(allowed))
     if bad:
-        raise TwinError(f"unknown key(s) {', '.join(f'inputs.{name}.{k}' for k in bad)}; allowed: {', '.join(allowed)}")
+        keys = ", ".join(f"inputs.{name}.{k}" for k in bad)
+        raise TwinError(f"unknown key(s) {keys}; allowed: {', '.join(allowed)}")
     t = table["treatment"]
     if t not in src.treatments:
         raise TwinError(f"inputs.{name}.treatment = {t!r} is refused: the {src.label} is one of "
@@ -143,7 +144,7 @@ class Resolved:
 
     name: str
     treatment: str
-    distribution: str | None = None
+    distribution: str = "normal"
     widths: tuple[float, ...] = ()
     amplitude: str = "uniform"
 
@@ -174,6 +175,16 @@ def _default_widths(name: str, scenario) -> tuple[float, ...]:
     return (0.0, 0.0)  # part_pose: a width must be declared
 
 
+def _default_treatment(name: str, on: bool) -> str:
+    """An unknown systematic effect is drawn per trial, a random one per reading; the placement,
+    the measurand, is fixed; a source the scenario has off stays off."""
+    if name == "part_pose":
+        return "fixed"
+    if not on:
+        return "off"
+    return "per_trial" if SOURCES[name].systematic else "per_reading"
+
+
 def resolve(declared: dict[str, dict], scenario, kind: str) -> dict[str, Resolved]:
     """Every source of ``scenario`` as a ``kind`` trial treats it (declared or defaulted).
 
@@ -187,8 +198,7 @@ def resolve(declared: dict[str, dict], scenario, kind: str) -> dict[str, Resolve
         table = declared.get(name, {})
         explicit = any(table.get(k, 0) > 0 for k in src.widths)
         on = _scenario_on(name, scenario) or (table.get("treatment") == "per_trial" and explicit)
-        default = ("fixed" if name == "part_pose" else "per_trial" if src.systematic else "per_reading") if on else "off"
-        t = table.get("treatment", default)
+        t = table.get("treatment", _default_treatment(name, on))
         if t != "off" and not on and name != "part_pose":
             out[name] = Resolved(name, "off")  # nothing to draw or fix: the scenario has it off
             continue
@@ -207,7 +217,7 @@ def resolve(declared: dict[str, dict], scenario, kind: str) -> dict[str, Resolve
         widths = tuple(float(table.get(k, w)) for k, w in zip(src.widths, widths, strict=False))
         if name == "part_pose" and not all(k in table for k in src.widths):
             raise TwinError("inputs.part_pose drawn per trial needs width_m and width_rad (the placement's spread)")
-        out[name] = Resolved(name, t, table.get("distribution", src.distribution), widths,
+        out[name] = Resolved(name, t, table.get("distribution", src.distribution or "normal"), widths,
                              table.get("amplitude", "uniform"))
     return out
 
@@ -230,7 +240,7 @@ def check_not_both(declared: dict[str, dict], resolved: dict[str, Resolved], set
 
 def off_overrides(declared: dict[str, dict]) -> dict:
     """The scenario tables that switch off the sources a study declares ``off``."""
-    switch = {"repeatability": {"gaussian": False}, "quantization": {"quantization": False},
+    switch: dict[str, dict] = {"repeatability": {"gaussian": False}, "quantization": {"quantization": False},
               "incidence": {"incidence": False}, "encoder_noise": {"encoder_sigma_rad": 0.0},
               "linearity": {"linearity": False}, "time_skew": {"time_skew_s": 0.0},
               "kinematics": {"kinematic_sigma_m": 0.0, "kinematic_sigma_rad": 0.0},

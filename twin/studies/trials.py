@@ -78,9 +78,9 @@ from twin.scan_uncertainty import (
 from twin.scenario import Scenario, load_scenario, merge_tables
 from twin.sensors.base import Measurement, RawRays, RaySensor
 from twin.sim import simulate
+from twin.studies.inputs import AMPLITUDE_SECOND_MOMENT, Draw, Resolved, draw
 from twin.studies.methods import Outcome, run_method
 from twin.studies.point_sets import Design, make_design, measured_points, model_points
-from twin.studies.inputs import AMPLITUDE_SECOND_MOMENT, Draw, Resolved, draw
 from twin.studies.spec import Study
 from twin.workflows.loop import run as run_loop
 
@@ -244,14 +244,14 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
 def scan_measurement(scenario: Scenario, geo: NoiseFreeScan, rng: np.random.Generator,
                      sys: Draw | None = None) -> tuple[Measurement, np.ndarray]:
     """The scan redrawn: the sensor's errors on the ideal rays (this trial's sensor unit where
-    ``sys`` draws the linearity curve, else where the scenario's phase is "random"), encoder
-    noise and time skew (``sys``'s, else the scenario's) on the joint log; (the measurement,
-    (N, 6) the joint log [rad])."""
+    ``sys`` draws the linearity curve; without ``sys``, a unit of phase drawn from ``rng`` where
+    the scenario's phase is "random"), encoder noise and time skew (``sys``'s, else the
+    scenario's) on the joint log; (the measurement, (N, 6) the joint log [rad])."""
     sensor = geo.sensor
-    if sys is not None and sys.linearity_phase_deg is not None:
+    if sys is not None and sys.linearity_phase_deg is not None and sys.linearity_m is not None:
         sensor = copy.copy(sensor)
         sensor.spec = replace(sensor.spec, linearity_phase_deg=sys.linearity_phase_deg, linearity_m=sys.linearity_m)
-    elif scenario.sensor.linearity_phase_deg is None:
+    elif sys is None and scenario.sensor.linearity_phase_deg is None:
         sensor = copy.copy(sensor)
         sensor.spec = replace(sensor.spec, linearity_phase_deg=float(rng.uniform(0.0, 360.0)))
     meas = sensor.measure(geo.rays, rng, geo.model)
@@ -379,19 +379,19 @@ def full_trial(study: Study, cell: int, trial: int) -> dict:
 
 
 def _drawn_tables(sys: Draw) -> dict:
-    """The scenario tables that put a trial's sensor-side draws into its scenario."""
-    out: dict[str, dict] = {}
-    if sys.linearity_phase_deg is not None:
-        out["sensor"] = {"linearity_phase_deg": sys.linearity_phase_deg, "linearity_m": sys.linearity_m}
-    if sys.time_skew_s is not None:
-        out["noise"] = {"time_skew_s": sys.time_skew_s}
-    return out
+    """The scenario table that puts a trial's time skew into its scenario (only the simulation
+    reads it)."""
+    return {"noise": {"time_skew_s": sys.time_skew_s}} if sys.time_skew_s is not None else {}
 
 
 def _with_drawn_truth(realized: Realized, base: Scenario, inputs: dict[str, Resolved], sys: Draw) -> Realized:
-    """The realized trial with its robot-side systematic effects: drawn (``sys``), or fixed at the
-    scenario's (the kinematic errors its own seed draws, not the trial's)."""
+    """The realized trial with its systematic effects in the truth: drawn (``sys``: the sensor
+    unit's curve, the robot-side errors, the placement), or fixed at the scenario's (the kinematic
+    errors its own seed draws, not the trial's). The scenario, what the estimator reads, keeps the
+    data sheet's band and the nominal values."""
     truth = realized.truth
+    if sys.linearity_phase_deg is not None:
+        truth = replace(truth, linearity_phase_deg=sys.linearity_phase_deg, linearity_m=sys.linearity_m)
     if sys.link_errors is not None:
         truth = replace(truth, link_errors=tuple(LinkError(b, p, R) for b, p, R in sys.link_errors))
     elif inputs["kinematics"].treatment == "fixed":
