@@ -234,3 +234,36 @@ def test_an_adaptive_study_killed_with_sigkill_and_resumed_equals_an_uninterrupt
     assert resumed["trials_resumed"] >= done_before
     assert resumed["adaptive"] == whole["adaptive"]
     assert_same_table(pq.read_table(out / RESULTS), pq.read_table(tmp_path / "whole" / RESULTS))
+
+
+@pytest.mark.slow
+def test_independent_studies_intervals_and_means_hold_within_their_monte_carlo_standard_errors():
+    """The Bar's repeated studies, small: six independent runs of the shipped GUM study (every
+    systematic effect drawn per trial) of 100 trials each, against their pooled trials. Their
+    interval ends lie within 3 of their own Monte Carlo standard errors of the pooled 2.5 / 97.5 %
+    points and their mean errors within 3 of zero, mostly (5 batches: a t of 4 degrees of freedom
+    puts 96 % within 3); with the curve held fixed the mean is a bias far outside (the check's power)."""
+    from benchmarks.bench_mc_coverage import run, standardized, within
+    from tests.helpers import ROOT
+
+    drawn, _ = run(ROOT / "studies" / "s_surface_gum.toml", 6, 100, 2)
+    result = standardized(drawn)
+    z_ends = np.concatenate([r["z_ends"] for r in result["components"].values()])
+    z_mean = np.concatenate([r["z_mean"] for r in result["components"].values()])
+    assert result["not_ok"] == 0
+    assert within(z_ends, 3.0) >= 0.85 and within(z_mean, 3.0) >= 0.85, (z_ends, z_mean)
+    assert 0.5 < np.std(z_ends) < 2.0
+
+
+@pytest.mark.slow
+def test_a_linearity_curve_held_fixed_shows_as_a_bias_of_the_mean(tmp_path):
+    from benchmarks.bench_mc_coverage import run, standardized
+    from tests.helpers import ROOT
+
+    text = (ROOT / "studies" / "s_surface_gum.toml").read_text().replace(
+        'linearity = { treatment = "per_trial", amplitude = "uniform" }', 'linearity = "fixed"')
+    assert 'linearity = "fixed"' in text
+    fixed = tmp_path / "fixed.toml"
+    fixed.write_text(text.replace('"../scenarios/', f'"{ROOT / "scenarios"}/'))
+    result = standardized(run(fixed, 2, 60, 2)[0])
+    assert np.max(np.abs(result["components"]["v_z_um"]["z_mean"])) > 10.0
