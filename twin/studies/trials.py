@@ -26,9 +26,10 @@ Kinds:
   are those of the cached scan: a study declares them ``fixed``.
 * ``full``: :func:`twin.workflows.loop.run` on the scenario with its seed replaced by one drawn from
   the trial's stream (the per-reading noise) and the trial's systematic draws put into the
-  scenario (linearity curve, time skew) and the truth (kinematic and hand-eye errors, the part's
-  placement), a ``fixed`` one kept at the scenario's value (kinematic errors: the draw of the
-  scenario's own seed); the localization is the loop's own (from the nominal pose).
+  scenario (the time skew, which only the simulation reads) and the truth (the sensor unit's
+  linearity curve, the kinematic and hand-eye errors, the part's placement), a ``fixed`` one
+  kept at the scenario's value (kinematic errors: the draw of the scenario's own seed); the
+  localization is the loop's own (from the nominal pose), with the data sheet's band.
 * ``points``: document 000's simulation (:mod:`twin.studies.point_sets`): model points on the
   scenario's part, the known transform (the scenario's true placement), the noise; localized
   by ``localize.method`` (:mod:`twin.studies.methods`), after the subsampling rule.
