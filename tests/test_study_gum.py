@@ -268,3 +268,13 @@ def test_a_linearity_curve_held_fixed_shows_as_a_bias_of_the_mean(tmp_path):
     result = standardized(run(fixed, 2, 60, 2)[0])
     z = np.array([r["z_mean"] for r in result["components"].values()])  # (component, study)
     assert np.all(np.max(np.abs(z), axis=0) > 10.0), z  # phase 0: v_x, v_y and omega_z biased
+
+
+def test_the_gum_validation_is_yes_no_or_undecided_by_the_monte_carlo_standard_error():
+    from twin.studies.report import gum_validation
+
+    o = jcgm101.summarize(np.random.default_rng(4).normal(0.0, 1.0, 400))
+    tol, se_low = o.tolerance, o.mc_se[2]
+    assert gum_validation(tol / 2, tol / 2, o) == "yes"
+    assert gum_validation(tol + 3 * se_low, 0.0, o) == "no"
+    assert gum_validation(tol + se_low, 0.0, o).startswith("undecided")

@@ -312,11 +312,24 @@ def _propagation_table(s: dict) -> list[str]:
         if has_lpu:
             lin = math.sqrt(max(lpu[c] ** 2 - crlb[c] ** 2, 0.0)) if math.isfinite(lpu[c]) else float("nan")
             d_low, d_high = abs(-1.96 * lpu[c] - o.values[2]), abs(1.96 * lpu[c] - o.values[3])
-            ok = d_low <= o.tolerance and d_high <= o.tolerance
             row += [fmt(lpu[c], places), fmt(lin, places), f"{fmt(d_low, places)}, {fmt(d_high, places)}",
-                    ("yes" if ok else "no") + f" (tolerance {fmt_se(o.tolerance)})"]
+                    gum_validation(d_low, d_high, o) + f" (tolerance {fmt_se(o.tolerance)})"]
         lines.append("| " + " | ".join(row) + " |")
     return lines + [""]
+
+
+def gum_validation(d_low: float, d_high: float, o) -> str:
+    """JCGM 101 clause 8's verdict on the GUM's interval: "yes" when both ends are within the
+    numerical tolerance of the Monte Carlo's; "no" when an end is beyond it by more than twice the
+    Monte Carlo's standard error of that end (decided whatever more trials would give);
+    "undecided" otherwise (the Monte Carlo's ends are not known to the tolerance: more trials)."""
+    if d_low <= o.tolerance and d_high <= o.tolerance:
+        return "yes"
+    se_low, se_high = o.mc_se[2], o.mc_se[3]
+    if (np.isfinite(se_low) and d_low > o.tolerance + 2.0 * se_low) or \
+            (np.isfinite(se_high) and d_high > o.tolerance + 2.0 * se_high):
+        return "no"
+    return "undecided (more trials)"
 
 
 def _outputs_table(s: dict, columns: tuple[str, ...]) -> list[str]:
