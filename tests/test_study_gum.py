@@ -278,3 +278,13 @@ def test_the_gum_validation_is_yes_no_or_undecided_by_the_monte_carlo_standard_e
     assert gum_validation(tol / 2, tol / 2, o) == "yes"
     assert gum_validation(tol + 3 * se_low, 0.0, o) == "no"
     assert gum_validation(tol + se_low, 0.0, o).startswith("undecided")
+
+
+def test_the_mean_is_not_called_zero_without_standard_errors():
+    from twin.studies.report import _bias_line
+    from twin.studies.trials import TWIST_COLUMNS
+
+    few = {"outputs": {c: jcgm101.summarize(np.full(12, 5.0) + np.arange(12)) for c in TWIST_COLUMNS}}
+    assert "not tested" in _bias_line(few)[0]
+    many = {"outputs": {c: jcgm101.summarize(np.random.default_rng(5).normal(3.0, 1.0, 200)) for c in TWIST_COLUMNS}}
+    assert "beyond 3 Monte Carlo standard errors" in _bias_line(many)[0]

@@ -327,7 +327,7 @@ def describe(r: Resolved, scenario) -> str:
         return "random per reading"
     if r.treatment == "fixed":
         if r.name == "part_pose":
-            return "fixed: the scenario's true placement (the measurand)"
+            return "fixed: the scenario's true placement"
         value = {"linearity": lambda: f"phase {scenario.sensor.linearity_phase_deg:g} deg, amplitude the band",
                  "time_skew": lambda: f"{scenario.noise.time_skew_s:g} s",
                  "kinematics": lambda: "one draw for the study (the scenario's seed)",

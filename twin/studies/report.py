@@ -278,11 +278,15 @@ def _cell_section(study: Study, table: pa.Table, s: dict, i: int, out: Path,
 
 
 def _bias_line(s: dict) -> list[str]:
-    """The twist components whose mean error is more than 3 Monte Carlo standard errors from zero."""
+    """The twist components whose mean error is more than 3 Monte Carlo standard errors from zero
+    (nothing is claimed where there are too few trials for the standard errors)."""
+    if not all(np.isfinite(s["outputs"][c].mc_se[0]) for c in TWIST_COLUMNS):
+        return [f"Too few trials for the Monte Carlo standard errors ({2 * MIN_BATCH} at least): whether the mean "
+                "error is zero is not tested.", ""]
     far = []
     for c in TWIST_COLUMNS:
         o = s["outputs"][c]
-        if np.isfinite(o.mc_se[0]) and abs(o.values[0]) > 3.0 * o.mc_se[0]:
+        if abs(o.values[0]) > 3.0 * o.mc_se[0]:
             far.append(f"`{c}` ({fmt(o.values[0], decimals(o.values[1]))}, standard error {fmt_se(o.mc_se[0])})")
     if not far:
         return ["Every component's mean error is within 3 Monte Carlo standard errors of zero.", ""]
