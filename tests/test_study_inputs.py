@@ -170,3 +170,12 @@ def test_full_trials_put_the_robot_side_draws_into_the_truth(tmp_path):
     f0, f1 = truth(fixed, 0), truth(fixed, 1)
     np.testing.assert_array_equal(f0.T_flange_sensor, realized.truth.T_flange_sensor)
     np.testing.assert_array_equal(f1.link_errors[2].dpos_m, realized.truth.link_errors[2].dpos_m)
+
+
+def test_the_report_says_what_each_cell_draws_where_it_differs_from_cell_0(tmp_path):
+    from twin.studies.report import _inputs
+
+    study = load_study(_study(tmp_path, '[grid]\noverrides = [{}, { noise = { time_skew_s = 0.002 } }]\n', kind="full"))
+    text = "\n".join(_inputs(study))
+    assert "Cell 1: time skew: drawn per trial: uniform, width 0.002 s." in text
+    assert "Off: encoder noise, time skew" in text

@@ -170,25 +170,32 @@ def _head(study: Study) -> list[str]:
 def _inputs(study: Study) -> list[str]:
     """How each error source of the base scenario enters the trials (``[inputs]``,
     :mod:`twin.studies.inputs`): random per reading, drawn per trial from its distribution, or
-    held fixed -- so that a reader knows what the coverage intervals cover."""
+    held fixed -- so that a reader knows what the coverage intervals cover. Cell 0 in a table,
+    then what differs in each other cell."""
     if study.kind not in ("fast", "full"):
         return []
-    sc = study.cell_scenario(0)
-    resolved = study.cell_inputs(0, sc)
-    rows = [(r.label, describe(r, sc)) for r in resolved.values() if r.treatment != "off"]
-    off = [r.label for r in resolved.values() if r.treatment == "off"]
+    cells = []
+    for c in range(study.n_cells):
+        sc = study.cell_scenario(c)
+        cells.append({r.label: (r, describe(r, sc)) for r in study.cell_inputs(c, sc).values()})
     lines = ["Uncertain inputs of cell 0's scenario and how the trials treat them (`[inputs]`):", "",
              "| input | in the trials |", "|---|---|"]
-    lines += [f"| {name} | {how} |" for name, how in rows] + [""]
+    lines += [f"| {label} | {how} |" for label, (r, how) in cells[0].items() if r.treatment != "off"] + [""]
+    off = [label for label, (r, _) in cells[0].items() if r.treatment == "off"]
     if off:
         lines += ["Off: " + ", ".join(off) + ".", ""]
-    fixed = [r.label for r in resolved.values() if r.treatment == "fixed" and r.name != "part_pose"]
+    for c, inputs in enumerate(cells[1:], start=1):
+        changed = [f"{label}: {how}" for label, (_, how) in inputs.items() if how != cells[0][label][1]]
+        if changed:
+            lines += [f"Cell {c}: " + "; ".join(changed) + ".", ""]
+    fixed = sorted({label for inputs in cells for label, (r, _) in inputs.items()
+                    if r.treatment == "fixed" and r.name != "part_pose"})
     if fixed:
         lines += ["Held fixed: " + ", ".join(fixed) + ". Their effect is in each quantity's estimate (the mean "
                   "error), a bias, not in the intervals: the correction is minus the estimate.", ""]
     else:
         lines += ["No systematic effect is held fixed: each quantity's estimate (the mean error) should be zero "
-                  "within 3 of its Monte Carlo standard errors; the outputs table says where it is not.", ""]
+                  "within 3 of its Monte Carlo standard errors; each cell says where it is not.", ""]
     return lines
 
 
