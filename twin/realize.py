@@ -136,6 +136,12 @@ def draw_truth(scenario: Scenario, streams: Streams) -> Truth:
                  scenario.sensor.T_flange_sensor @ noise.T_hand_eye_error, tuple(errors), phase)
 
 
+def with_truth(realized: Realized, **changes) -> Realized:
+    """The realization with parts of its truth replaced (a study's draws per trial: the sensor
+    unit's curve, the link errors, the hand-eye transform, the placement; :class:`Truth`'s fields)."""
+    return replace(realized, truth=replace(realized.truth, **changes))
+
+
 def realize(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> Realized:
     """Realize a scenario: build (or take) the mesh and its index, draw the truth."""
     if mesh is None:

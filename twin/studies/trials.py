@@ -66,7 +66,7 @@ from twin import evaluate
 from twin.cell import build_cell
 from twin.errors import TwinError
 from twin.plan import ScanPlan, plan_scan
-from twin.realize import LinkError, Realized, Streams, draw_truth, realize
+from twin.realize import LinkError, Realized, Streams, draw_truth, realize, with_truth
 from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
 from twin.scan_uncertainty import (
@@ -390,18 +390,18 @@ def _with_drawn_truth(realized: Realized, base: Scenario, inputs: dict[str, Reso
     unit's curve, the robot-side errors, the placement), or fixed at the scenario's (the kinematic
     errors its own seed draws, not the trial's). The scenario, what the estimator reads, keeps the
     data sheet's band and the nominal values."""
-    truth = realized.truth
+    changes: dict[str, Any] = {}
     if sys.linearity_phase_deg is not None:
-        truth = replace(truth, linearity_phase_deg=sys.linearity_phase_deg, linearity_m=sys.linearity_m)
+        changes.update(linearity_phase_deg=sys.linearity_phase_deg, linearity_m=sys.linearity_m)
     if sys.link_errors is not None:
-        truth = replace(truth, link_errors=tuple(LinkError(b, p, R) for b, p, R in sys.link_errors))
+        changes["link_errors"] = tuple(LinkError(b, p, R) for b, p, R in sys.link_errors)
     elif inputs["kinematics"].treatment == "fixed":
-        truth = replace(truth, link_errors=draw_truth(base, Streams(base.seed)).link_errors)
+        changes["link_errors"] = draw_truth(base, Streams(base.seed)).link_errors
     if sys.T_hand_eye_error is not None:
-        truth = replace(truth, T_flange_sensor=base.sensor.T_flange_sensor @ sys.T_hand_eye_error)
+        changes["T_flange_sensor"] = base.sensor.T_flange_sensor @ sys.T_hand_eye_error
     if sys.T_part_error is not None:
-        truth = replace(truth, T_world_workpiece=base.workpiece.T_world_workpiece_true @ sys.T_part_error)
-    return replace(realized, truth=truth)
+        changes["T_world_workpiece"] = base.workpiece.T_world_workpiece_true @ sys.T_part_error
+    return with_truth(realized, **changes)
 
 
 def path_error_max_um(path, T_est: np.ndarray, T_true: np.ndarray) -> float:
