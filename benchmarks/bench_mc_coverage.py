@@ -22,7 +22,7 @@ import argparse
 import dataclasses
 import platform
 import time
-from multiprocessing import Pool
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +46,7 @@ def run(path: Path, studies: int, trials: int, workers: int) -> tuple[dict[int, 
     base = load_study(path).seed
     tasks = [(str(path), base + r, k, min(CHUNK, trials - k)) for r in range(studies) for k in range(0, trials, CHUNK)]
     t0 = time.perf_counter()
-    with Pool(workers) as pool:
+    with get_context("spawn").Pool(workers) as pool:  # spawn: a forked child of a threaded process can hang
         done = pool.map(_trials, tasks, chunksize=1)
     rows: dict[int, list[dict]] = {}
     for task, part in zip(tasks, done, strict=True):
