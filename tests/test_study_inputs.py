@@ -144,7 +144,8 @@ def test_full_trials_put_the_robot_side_draws_into_the_truth(tmp_path):
     drawn per trial differs between trials; fixed, it is the scenario's (its own seed's draw)."""
     from twin.realize import realize
     from twin.scenario import load_scenario
-    from twin.studies.trials import _with_drawn_truth, systematic_stream
+    from twin.studies.full_trials import _with_drawn_truth
+    from twin.studies.trials import systematic_stream
 
     body = ('[overrides.noise]\nkinematic_sigma_m = 1e-4\nkinematic_sigma_rad = 2e-4\n'
             'hand_eye_error = { xyz = [0.0002, 0.0, 0.0], rpy_deg = [0.1, 0.0, 0.0] }\n')

@@ -142,10 +142,11 @@ def with_truth(realized: Realized, **changes) -> Realized:
     return replace(realized, truth=replace(realized.truth, **changes))
 
 
-def realize(scenario: Scenario, mesh: trimesh.Trimesh | None = None) -> Realized:
-    """Realize a scenario: build (or take) the mesh and its index, draw the truth."""
-    if mesh is None:
-        mesh = load_workpiece_mesh(scenario)
+def realize(scenario: Scenario, mesh: trimesh.Trimesh | None = None, workpiece: Workpiece | None = None) -> Realized:
+    """Realize a scenario: build the part's mesh and its index (or take the ``mesh``, or the
+    ``workpiece`` with its index, made for the same part), draw the truth."""
+    if workpiece is None:
+        mesh = load_workpiece_mesh(scenario) if mesh is None else mesh
+        workpiece = Workpiece(mesh, MeshIndex(mesh))
     streams = Streams(scenario.seed)
-    truth = draw_truth(scenario, streams)
-    return Realized(scenario, Workpiece(mesh, MeshIndex(mesh)), truth, streams)
+    return Realized(scenario, workpiece, draw_truth(scenario, streams), streams)

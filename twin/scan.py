@@ -156,7 +156,6 @@ def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan 
         reachable: called with the plan once every sample's joints are solved (from then on
             nothing refuses the scenario: the simulation and the sensor model follow).
     """
-    scenario = realized.scenario
     timings = {}
     t0 = time.perf_counter()
     plan = plan_scan(nominal) if plan is None else plan
@@ -167,28 +166,35 @@ def run_scan(realized: Realized, nominal: Cell, true_cell: Cell, plan: ScanPlan 
     if reachable is not None:
         reachable(plan)
 
-    sensor = true_cell.sensor
     log = SampleLog(true_cell, len(q_ref))
     t0 = time.perf_counter()
     simulate(true_cell, q_ref, qd_ref, log.on_chunk)
     timings["simulate_s"] = time.perf_counter() - t0
+    return scan_from_log(realized, true_cell, plan, q_ref, log, timings)
 
+
+def scan_from_log(realized: Realized, true_cell: Cell, plan: ScanPlan, q_ref: np.ndarray, log: SampleLog,
+                  timings: dict | None = None) -> Scan:
+    """The scan from its rollout's log (``log``, the true cell's ideal rays and encoder readings
+    of the references ``q_ref``): the sensor model with the realization's ``sensor`` and
+    ``encoder`` streams and ``true_cell``'s sensor, then the points rebuilt (eq. 2). A rollout
+    depends on the true cell and the references only, so one log serves every realization that
+    shares them."""
+    scenario = realized.scenario
+    timings = {} if timings is None else timings
+    sensor = true_cell.sensor
     t0 = time.perf_counter()
     meas, q_log, points = measure_samples(scenario, true_cell, plan.t, log.q_enc, log.rays(),
                                           realized.streams.generator("sensor"),
                                           realized.streams.generator("encoder"))
     timings["sensor_model_s"] = time.perf_counter() - t0
-    q_true = log.q_true
-    t = plan.t.copy()
-    T_fs_nominal = scenario.sensor.T_flange_sensor
-
     return Scan(
-        scenario=scenario, t=t, q=q_log, d=meas.d, valid=meas.valid, status=meas.status,
-        line=plan.line.copy(), points_base=points, q_ref=q_ref, q_true=q_true, plan=plan,
+        scenario=scenario, t=plan.t.copy(), q=q_log, d=meas.d, valid=meas.valid, status=meas.status,
+        line=plan.line.copy(), points_base=points, q_ref=q_ref, q_true=log.q_true, plan=plan,
         T_base_workpiece_true=realized.T_base_workpiece_true,
         T_base_workpiece_nominal=realized.T_base_workpiece_nominal,
-        T_flange_sensor_nominal=T_fs_nominal, beam_dirs_sensor=sensor.beam_dirs_sensor(), d_true=meas.d_true,
-        sensor=sensor, timings_s=timings,
+        T_flange_sensor_nominal=scenario.sensor.T_flange_sensor, beam_dirs_sensor=sensor.beam_dirs_sensor(),
+        d_true=meas.d_true, sensor=sensor, timings_s=timings,
     )
 
 

@@ -7,9 +7,10 @@ randomness comes only from ``np.random.SeedSequence(study.seed, spawn_key=(cell,
 
 from __future__ import annotations
 
+from twin.studies.full_trials import full_trial
 from twin.studies.normal_trials import NORMALS_COLUMNS, normals_trial
 from twin.studies.spec import Study
-from twin.studies.trials import METRIC_COLUMNS, fast_trial, full_trial, points_trial
+from twin.studies.trials import METRIC_COLUMNS, fast_trial, points_trial
 
 TRIALS = {"fast": fast_trial, "full": full_trial, "points": points_trial, "normals": normals_trial}
 

@@ -24,12 +24,13 @@ Kinds:
   trial (``[inputs]``, by default every one the scenario has on) are redrawn: the linearity
   curve (a sensor unit per trial) and the time skew. Robot-side errors (kinematics, hand-eye)
   are those of the cached scan: a study declares them ``fixed``.
-* ``full``: :func:`twin.workflows.loop.run` on the scenario with its seed replaced by one drawn from
-  the trial's stream (the per-reading noise) and the trial's systematic draws put into the
-  scenario (the time skew, which only the simulation reads) and the truth (the sensor unit's
-  linearity curve, the kinematic and hand-eye errors, the part's placement), a ``fixed`` one
-  kept at the scenario's value (kinematic errors: the draw of the scenario's own seed); the
-  localization is the loop's own (from the nominal pose), with the data sheet's band.
+* ``full``: the loop of ``twin run`` up to the compensated CAD path (:mod:`twin.studies.full_trials`)
+  on the scenario with its seed replaced by one drawn from the trial's stream (the per-reading
+  noise) and the trial's systematic draws put into the scenario (the time skew, which only the
+  simulation reads) and the truth (the sensor unit's linearity curve, the kinematic and
+  hand-eye errors, the part's placement), a ``fixed`` one kept at the scenario's value
+  (kinematic errors: the draw of the scenario's own seed); the localization is the loop's own
+  (from the nominal pose), with the data sheet's band.
 * ``points``: document 000's simulation (:mod:`twin.studies.point_sets`): model points on the
   scenario's part, the known transform (the scenario's true placement), the noise; localized
   by ``localize.method`` (:mod:`twin.studies.methods`), after the subsampling rule.
@@ -64,26 +65,23 @@ from algorithms.registration.global_search.multistart import model_centroid
 from algorithms.registration.uncertainty import crlb, observability, pose_error_twist
 from twin import evaluate
 from twin.cell import build_cell
-from twin.errors import TwinError
 from twin.plan import ScanPlan, plan_scan
-from twin.realize import LinkError, Realized, Streams, draw_truth, realize, with_truth
+from twin.realize import Realized, realize
 from twin.robot import UR5E_DH
 from twin.scan import SampleLog, solve_joint_references
 from twin.scan_uncertainty import (
     beam_directions_base,
     linearity_covariance,
     reading_sigma_m,
-    scan_reading_sigma_m,
     white_reading_sigma_m,
 )
-from twin.scenario import Scenario, load_scenario, merge_tables
+from twin.scenario import Scenario, load_scenario
 from twin.sensors.base import Measurement, RawRays, RaySensor
 from twin.sim import simulate
 from twin.studies.inputs import AMPLITUDE_SECOND_MOMENT, Draw, Resolved, draw
 from twin.studies.methods import Outcome, run_method
 from twin.studies.point_sets import Design, make_design, measured_points, model_points
 from twin.studies.spec import Study
-from twin.workflows.loop import run as run_loop
 
 #: The metric columns of a trial, in order (units in :mod:`twin.studies.runner`'s docstring).
 TWIST_COLUMNS = ("omega_x_urad", "omega_y_urad", "omega_z_urad", "v_x_um", "v_y_um", "v_z_um")
@@ -349,67 +347,3 @@ def points_trial(study: Study, cell: int, trial: int) -> dict:
     T_init = start_pose(T_true, loc, pts, workpiece.mesh, rng_init)
     sigma = spec["noise_sigma_m"]
     return _localize(loc, pts, workpiece, T_true, T_init, sigma, rng_method, bound(pts, T_true, workpiece.index, sigma))
-
-
-def full_trial(study: Study, cell: int, trial: int) -> dict:
-    settings = study.cell_settings(cell)
-    _, rng_err, _, _ = trial_streams(study.seed, cell, trial)
-    seed = int(rng_err.integers(0, 2**63 - 1))
-    base = load_scenario(settings.scenario_path, settings.overrides, machine="arm")
-    inputs = study.cell_inputs(cell, base)
-    sys = draw(inputs, base.sensor.linearity_m, systematic_stream(study.seed, cell, trial))
-    over = merge_tables(settings.overrides, {"seed": seed, **_drawn_tables(sys)})
-    scenario = load_scenario(settings.scenario_path, over, machine="arm")
-    realized = _with_drawn_truth(realize(scenario), base, inputs, sys)
-    try:
-        result = run_loop(realized)
-    except TwinError:
-        return _failed("error")
-    loc = result.localization
-    if loc is None:
-        return _failed(f"failed_{result.failure[0]}" if result.failure else "failed")
-    pts = result.scan.line_points_base if result.scan is not None else np.empty((0, 3))
-    T_true = evaluate.Evaluation(realized).T_base_workpiece
-    out = Outcome(loc.T_world_workpiece, loc.rmse_m, loc.iterations, loc.status.value,
-                  result.timings_s.get("localize_s", loc.time_s))
-    white = (scan_reading_sigma_m(result.scan, realized.workpiece.index, white_only=True)
-             if result.scan is not None else None)
-    m = _metrics(out, T_true, len(pts), bound(pts, T_true, realized.workpiece.index, white))
-    m["path_error_max_um"] = path_error_max_um(result.cad_path_workpiece, loc.T_world_workpiece, T_true)
-    return m
-
-
-def _drawn_tables(sys: Draw) -> dict:
-    """The scenario table that puts a trial's time skew into its scenario (only the simulation
-    reads it)."""
-    return {"noise": {"time_skew_s": sys.time_skew_s}} if sys.time_skew_s is not None else {}
-
-
-def _with_drawn_truth(realized: Realized, base: Scenario, inputs: dict[str, Resolved], sys: Draw) -> Realized:
-    """The realized trial with its systematic effects in the truth: drawn (``sys``: the sensor
-    unit's curve, the robot-side errors, the placement), or fixed at the scenario's (the kinematic
-    errors its own seed draws, not the trial's). The scenario, what the estimator reads, keeps the
-    data sheet's band and the nominal values."""
-    changes: dict[str, Any] = {}
-    if sys.linearity_phase_deg is not None:
-        changes.update(linearity_phase_deg=sys.linearity_phase_deg, linearity_m=sys.linearity_m)
-    if sys.link_errors is not None:
-        changes["link_errors"] = tuple(LinkError(b, p, R) for b, p, R in sys.link_errors)
-    elif inputs["kinematics"].treatment == "fixed":
-        changes["link_errors"] = draw_truth(base, Streams(base.seed)).link_errors
-    if sys.T_hand_eye_error is not None:
-        changes["T_flange_sensor"] = base.sensor.T_flange_sensor @ sys.T_hand_eye_error
-    if sys.T_part_error is not None:
-        changes["T_world_workpiece"] = base.workpiece.T_world_workpiece_true @ sys.T_part_error
-    return with_truth(realized, **changes)
-
-
-def path_error_max_um(path, T_est: np.ndarray, T_true: np.ndarray) -> float:
-    """How far the CAD path compensated with the estimate lies from the same path on the true
-    part: the largest ``|T_est x - T_true x|`` over its contact points ``x`` [um] (NaN: no path)."""
-    if path is None:
-        return float("nan")
-    x = path.contact[np.all(np.isfinite(path.contact), axis=1)]
-    if len(x) == 0:
-        return float("nan")
-    return float(np.max(np.linalg.norm(transform_points(T_est, x) - transform_points(T_true, x), axis=1)) * 1e6)

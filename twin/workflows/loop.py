@@ -241,22 +241,29 @@ def _scan(loop: _Loop) -> Scan:
     return scan
 
 
-def _localize(loop: _Loop, scan: Scan) -> RegistrationResult:
+def localize_scan(realized: Realized, scan: Scan) -> RegistrationResult:
     """Symmetric-aware localization from the nominal pose, with the points' standard uncertainty
     (the sensor's, and the encoders' noise: :mod:`twin.scan_uncertainty`) as sigma;
     along free directions the estimate keeps the nominal pose (the points cannot move it)."""
+    index = realized.workpiece.index
+    loc = localize_symmetric(scan.line_points_base, realized.workpiece.mesh, symmetric="auto",
+                             init=realized.T_base_workpiece_nominal, sigma=scan_reading_sigma_m(scan, index),
+                             index=index)
+    if len(loc.free_directions):
+        loc = dataclasses.replace(loc, T_world_workpiece=nearest_along_free(
+            loc.T_world_workpiece, loc.free_directions, realized.T_base_workpiece_nominal))
+    return loc
+
+
+def _localize(loop: _Loop, scan: Scan) -> RegistrationResult:
+    """:func:`localize_scan`, then the pose covariance of the scan's points."""
     realized, index = loop.realized, loop.realized.workpiece.index
     with loop.runner.stage("localize"):
-        sigma = scan_reading_sigma_m(scan, index)
-        loc = localize_symmetric(scan.line_points_base, realized.workpiece.mesh, symmetric="auto",
-                                 init=realized.T_base_workpiece_nominal, sigma=sigma, index=index)
-        if len(loc.free_directions):
-            loc = dataclasses.replace(loc, T_world_workpiece=nearest_along_free(
-                loc.T_world_workpiece, loc.free_directions, realized.T_base_workpiece_nominal))
+        loc = localize_scan(realized, scan)
     loop.localization = loc
     loop.watch("localization", loc)
     with loop.runner.within("localize"):
-        loop.covariance = pose_covariance(scan, loc, index, sigma)
+        loop.covariance = pose_covariance(scan, loc, index, scan_reading_sigma_m(scan, index))
     free = len(loc.free_directions)
     loop.say(f"localized: {loc.status.value}, rms {loc.rmse_m * 1e6:.2f} um, {6 - free} determined, "
              f"{free} free direction(s)")
@@ -290,10 +297,7 @@ def _cad_path(loop: _Loop, loc: RegistrationResult, t_offset: float) -> None:
     with loop.runner.stage("cad_path"):
         region_lines = cad_path_lines(realized)
         planned = sum(len(line) for line in region_lines[0])
-        lines_wp, normals_wp = determined_part(*region_lines, loc, index)
-        if not lines_wp:
-            raise StageFailed("cad_path", "no CAD path point is determined by the scan: the free directions "
-                                          "move every point of the process region off the part")
+        lines_wp, normals_wp = determined_cad_lines(region_lines, loc, index)
         loop.cad_path_workpiece = build_path(lines_wp, normals_wp, settings)
     with loop.runner.stage("cad_path", timing="cad_path_ik_s"):
         path, ik, dropped = solve_with_drops("cad_path", lines_wp, normals_wp, settings, None, loop.nominal, T_est,
@@ -305,6 +309,19 @@ def _cad_path(loop: _Loop, loc: RegistrationResult, t_offset: float) -> None:
         loop.runs.append(_replayed("cad_path", path, ik, traj, dropped, planned, loop.replay_cell, realized,
                                    t_offset, loop.runner.timings_s, loop.say))
     loop.watch("run", loop.runs[-1])
+
+
+def determined_cad_lines(region_lines: tuple[list, list], loc: RegistrationResult, index) -> tuple[list, list]:
+    """The CAD raster's lines and normals (workpiece frame) that the estimate determines.
+
+    Raises:
+        StageFailed: the free directions leave no point of the process region on the part.
+    """
+    lines_wp, normals_wp = determined_part(*region_lines, loc, index)
+    if not lines_wp:
+        raise StageFailed("cad_path", "no CAD path point is determined by the scan: the free directions "
+                                      "move every point of the process region off the part")
+    return lines_wp, normals_wp
 
 
 def _collect(loop: _Loop) -> None:
