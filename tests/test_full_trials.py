@@ -45,7 +45,7 @@ def plain_full_trial(study, cell: int, trial: int) -> dict:
     out = Outcome(loc.T_world_workpiece, loc.rmse_m, loc.iterations, loc.status.value, 0.0)
     m = _metrics(out, T_true, len(pts), bound(pts, T_true, index, scan_reading_sigma_m(result.scan, index,
                                                                                        white_only=True)))
-    m["path_error_max_um"] = path_error_max_um(result.cad_path_workpiece, loc.T_world_workpiece, T_true)
+    m["path_error_max_um"] = path_error_max_um(result.cad_path_workpiece.contact, loc.T_world_workpiece, T_true)
     return m
 
 

@@ -91,6 +91,14 @@ class RaySensor(Sensor):
         self.spec = spec
         self.noise = noise
 
+    def with_settings(self, spec: SensorSpec, noise: NoiseSpec) -> RaySensor:
+        """This sensor as another unit of its kind (``spec``: e.g. its own linearity curve) under
+        other error switches (``noise``), sharing its ray casters (built per cell model)."""
+        other = object.__new__(type(self))   # not copy.copy: the pickled state leaves the casters out
+        other.__dict__.update(self.__dict__)
+        other.spec, other.noise = spec, noise
+        return other
+
     @property
     @abstractmethod
     def beams(self) -> int:

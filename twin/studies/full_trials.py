@@ -37,17 +37,15 @@ import numpy as np
 
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.se3 import transform_points
-from algorithms.paths.toolpath import ProcessPath, build_path
 from twin import evaluate
 from twin.cell import Cell, build_cell
 from twin.errors import TwinError
 from twin.plan import ScanPlan, plan_scan
-from twin.process_paths import cad_path_lines, check_process_region, tool_settings
+from twin.process_paths import cad_path_lines, check_process_region
 from twin.realize import LinkError, Realized, Streams, Workpiece, draw_truth, realize, with_truth
 from twin.scan import SampleLog, scan_from_log, solve_joint_references
 from twin.scan_uncertainty import scan_reading_sigma_m
 from twin.scenario import Scenario, load_scenario, merge_tables
-from twin.sensors import make_sensor
 from twin.sim import simulate
 from twin.stages import StageFailed
 from twin.studies.inputs import Draw, Resolved, draw
@@ -133,6 +131,7 @@ def _make_rollout(realized: Realized, nominal: Nominal) -> TrueRollout:
     cell = build_cell(realized, "true")
     log = SampleLog(cell, len(nominal.q_ref))
     simulate(cell, nominal.q_ref, nominal.qd_ref, log.on_chunk)
+    cell.sensor.cell_rays(cell.model)   # its ray casters (the part's Embree scene), shared by every trial's unit
     return TrueRollout(cell, log)
 
 
@@ -168,7 +167,7 @@ def _measured(realized: Realized, nominal: Nominal) -> dict:
     path; the trial's metric columns."""
     rollout = _ROLLOUTS.get_or_make(truth_key(realized), lambda: _make_rollout(realized, nominal))
     true_cell = replace(rollout.cell, scenario=realized.scenario,
-                        sensor=make_sensor(realized.sensor, realized.scenario.noise))
+                        sensor=rollout.cell.sensor.with_settings(realized.sensor, realized.scenario.noise))
     scan = scan_from_log(realized, true_cell, nominal.plan, nominal.q_ref, rollout.log)
     index = realized.workpiece.index
     t0 = time.perf_counter()
@@ -182,10 +181,10 @@ def _measured(realized: Realized, nominal: Nominal) -> dict:
     out = Outcome(loc.T_world_workpiece, loc.rmse_m, loc.iterations, loc.status.value, time_s)
     m = _metrics(out, T_true, len(pts), bound(pts, T_true, index, scan_reading_sigma_m(scan, index, white_only=True)))
     try:
-        path = build_path(*determined_cad_lines(nominal.cad_lines, loc, index), tool_settings(realized.scenario))
+        contact = np.concatenate(determined_cad_lines(nominal.cad_lines, loc, index)[0])
     except StageFailed:
-        path = None
-    m["path_error_max_um"] = path_error_max_um(path, loc.T_world_workpiece, T_true)
+        contact = None
+    m["path_error_max_um"] = path_error_max_um(contact, loc.T_world_workpiece, T_true)
     return m
 
 
@@ -214,12 +213,13 @@ def _with_drawn_truth(realized: Realized, base: Scenario, inputs: dict[str, Reso
     return with_truth(realized, **changes)
 
 
-def path_error_max_um(path: ProcessPath | None, T_est: np.ndarray, T_true: np.ndarray) -> float:
+def path_error_max_um(contact: np.ndarray | None, T_est: np.ndarray, T_true: np.ndarray) -> float:
     """How far the CAD path compensated with the estimate lies from the same path on the true
-    part: the largest ``|T_est x - T_true x|`` over its contact points ``x`` [um] (NaN: no path)."""
-    if path is None:
+    part: the largest ``|T_est x - T_true x|`` over its contact points ``x`` (workpiece frame)
+    [um] (NaN: no path)."""
+    if contact is None:
         return float("nan")
-    x = path.contact[np.all(np.isfinite(path.contact), axis=1)]
+    x = contact[np.all(np.isfinite(contact), axis=1)]
     if len(x) == 0:
         return float("nan")
     return float(np.max(np.linalg.norm(transform_points(T_est, x) - transform_points(T_true, x), axis=1)) * 1e6)

@@ -48,7 +48,6 @@ the same path on the true part (NaN for the other kinds).
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import json
 import time
@@ -248,11 +247,11 @@ def scan_measurement(scenario: Scenario, geo: NoiseFreeScan, rng: np.random.Gene
     scenario's) on the joint log; (the measurement, (N, 6) the joint log [rad])."""
     sensor = geo.sensor
     if sys is not None and sys.linearity_phase_deg is not None and sys.linearity_m is not None:
-        sensor = copy.copy(sensor)
-        sensor.spec = replace(sensor.spec, linearity_phase_deg=sys.linearity_phase_deg, linearity_m=sys.linearity_m)
+        sensor = sensor.with_settings(replace(sensor.spec, linearity_phase_deg=sys.linearity_phase_deg,
+                                              linearity_m=sys.linearity_m), sensor.noise)
     elif sys is None and scenario.sensor.linearity_phase_deg is None:
-        sensor = copy.copy(sensor)
-        sensor.spec = replace(sensor.spec, linearity_phase_deg=float(rng.uniform(0.0, 360.0)))
+        sensor = sensor.with_settings(replace(sensor.spec, linearity_phase_deg=float(rng.uniform(0.0, 360.0))),
+                                      sensor.noise)
     meas = sensor.measure(geo.rays, rng, geo.model)
     t, q_log = geo.plan.t, geo.q_enc
     noise = scenario.noise

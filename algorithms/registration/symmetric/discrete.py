@@ -15,6 +15,7 @@ whether a foot lies on or beside an edge.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,6 +76,16 @@ def model_symmetries(mesh: TriangleMesh, tol_rel: float = SYMMETRY_TOL_REL,
         AlgorithmError: a model without surface area.
     """
     index = index if index is not None else MeshIndex(mesh)
+    known = _SYMMETRIES.setdefault(index, {})   # a property of the model: found once per index
+    if tol_rel not in known:
+        known[tol_rel] = _symmetries(index, tol_rel)
+    return known[tol_rel].copy()
+
+
+_SYMMETRIES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _symmetries(index: MeshIndex, tol_rel: float) -> FloatArray:
     surface = _surface(index)
     candidates = [np.eye(3), *_cluster_rotations(index.face_normals, surface),
                   *_principal_axis_motions(surface)]
