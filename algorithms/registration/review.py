@@ -69,6 +69,7 @@ rate of the rule on sound fits and its misses on wrong ones are measured by
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING
 
@@ -161,6 +162,7 @@ def localize(points: ArrayLike, mesh: trimesh.Trimesh | None = None, method: str
     rejected points reviewed when it would be trusted (module docstring): the localization
     ``algorithms.registration.localize`` and ``twin localize`` give. The local fit alone, as
     the documents print it, stays :func:`algorithms.registration.local.localize`."""
+    t_start = time.perf_counter()
     index = mesh_index(mesh, index)
     result = local_localize(points, method=method, init=init, sigma=sigma, max_iterations=max_iterations,
                             tolerance=tolerance, outlier=outlier, index=index)
@@ -170,7 +172,8 @@ def localize(points: ArrayLike, mesh: trimesh.Trimesh | None = None, method: str
     P, rows = finite_rows(points)
     if cfg is not None and result.n_outliers > 0:
         result = review_rejected(result, P[rows], rows, index, sigma=sigma, outlier_cfg=cfg, method=method)
-    return profile_checked(result, P[rows], rows, index)
+    # time_s: the whole call, the review's global search included
+    return replace(profile_checked(result, P[rows], rows, index), time_s=time.perf_counter() - t_start)
 
 
 def profile_checked(result: RegistrationResult, Y: FloatArray, rows: np.ndarray,
