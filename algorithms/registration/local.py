@@ -86,6 +86,7 @@ from algorithms.registration.pose_updates import (
     update_tangent,
     update_va,
 )
+from algorithms.registration.printed import VARIANTS, iterate_printed
 from algorithms.registration.result import RegistrationResult, fit_status
 from algorithms.registration.robust import (
     ALL,
@@ -158,6 +159,7 @@ def localize(
     tolerance: float | None = None,
     outlier: OutlierConfig = "mad",
     index: MeshIndex | None = None,
+    variant: str = "ours",
 ) -> RegistrationResult:
     """Find ``T_world_workpiece`` from measured points, the workpiece's CAD mesh and a start.
 
@@ -178,6 +180,9 @@ def localize(
         outlier: ``"mad"`` (default), a maximum distance [m], or None (keep all); see
             :mod:`algorithms.registration.robust`.
         index: a prebuilt :class:`MeshIndex` of ``mesh`` to reuse across calls.
+        variant: ``"ours"`` (the iteration above) or ``"printed"``: document 000's Algorithm 1
+            as printed (:mod:`.printed`: every point, the update as it is, the relative-decrease
+            test alone; ``outlier`` must then be left at its default or None).
 
     Returns:
         RegistrationResult (``method`` the update used; ``solutions`` the one pose). Its
@@ -203,7 +208,12 @@ def localize(
     if not (np.isfinite(tolerance) and tolerance >= 0):
         raise AlgorithmError(f"tolerance must be a finite number >= 0, got {tolerance}")
     sigma = check_sigma(sigma)
-    cfg = outlier_config(outlier)
+    if variant not in VARIANTS:
+        raise AlgorithmError(f"variant must be one of {', '.join(VARIANTS)}; got {variant!r}")
+    if variant == "printed" and outlier not in ("mad", None):
+        raise AlgorithmError(f"variant='printed' uses every point (document 000 has no outlier rule); got outlier="
+                             f"{outlier!r}: leave it out or pass None")
+    cfg = None if variant == "printed" else outlier_config(outlier)
     Y = P[rows]
     check_units(Y, index)
     if isinstance(init, str):
@@ -217,7 +227,7 @@ def localize(
     T0 = np.eye(4) if init is None else as_pose(init, name="init")
     return localize_checked(Y, index, method, T0, sigma=sigma, outlier_cfg=cfg,
                             max_iterations=int(max_iterations), tolerance=float(tolerance),
-                            rows=rows, n_input=len(P), t_start=t_start)
+                            rows=rows, n_input=len(P), t_start=t_start, variant=variant)
 
 
 def localize_checked(
@@ -233,6 +243,7 @@ def localize_checked(
     rows: IntArray | None = None,
     n_input: int | None = None,
     t_start: float | None = None,
+    variant: str = "ours",
 ) -> RegistrationResult:
     """:func:`localize` on inputs already checked (for callers that checked them once).
 
@@ -248,6 +259,7 @@ def localize_checked(
             default ``arange(M)``.
         n_input: the number of input rows (default M); ``n_dropped_nonfinite = n_input - M``.
         t_start: ``time.perf_counter()`` at the call, for ``time_s``.
+        variant: ``"ours"`` or ``"printed"`` (:mod:`.printed`; ``outlier_cfg`` None).
     """
     if t_start is None:
         t_start = time.perf_counter()
@@ -267,9 +279,13 @@ def localize_checked(
     def restart(T_start: Pose) -> LocalFit:
         return _iterate_staged(method, Y, index, T_start, max_it, tol, outlier_cfg)
 
-    fit = restart(T0)
-    if sigma is not None:
-        fit = escape_wrong_minimum(fit, restart, float(sigma))
+    if variant == "printed":
+        fit = iterate_printed(method, lambda T, Ym, cp: printed_update(method, T, Ym, cp), Y, index, T0, max_it, tol,
+                              (FLOOR_REL * index.extent) ** 2)
+    else:
+        fit = restart(T0)
+        if sigma is not None:
+            fit = escape_wrong_minimum(fit, restart, float(sigma))
     n_used = count(fit.mask, len(Y))
     if n_used < MIN_POINTS:
         raise AlgorithmError(
@@ -687,6 +703,17 @@ def _update_hong_tan(T: Pose, Ym: FloatArray, cp: ClosestPoints, mask: Mask, edg
     A, g, c = _plane_system(Ym, cp, mask, edges)
     xi = solve_sym6(A, g) if _nb_solve is None else _nb_solve(A, g)
     return centered(T, c, xi), float(g @ xi)
+
+
+def printed_update(method: str, T: Pose, Ym: FloatArray, cp: ClosestPoints) -> tuple[Pose, float | None]:
+    """The method's pose update from every pair, taken as it is (:mod:`.printed`): Hong-Tan's
+    least squares, menq's Levenberg-Marquardt step at ``LM_LAMBDA0``, the others' own."""
+    if method == "hong_tan":
+        return _update_hong_tan(T, Ym, cp, ALL)[0], None
+    if method == "menq":
+        A, g, c = _plane_system(Ym, cp, ALL)
+        return centered(T, c, solve_sym6(A + LM_LAMBDA0 * np.diag(np.diag(A)), g)), None
+    return _UPDATES[method](T, Ym, cp, ALL)
 
 
 #: The pose update of the methods that take it as it is (:func:`_propose`): (T, Ym, cp, mask) to

@@ -157,7 +157,7 @@ class RejectedInformation:
 def localize(points: ArrayLike, mesh: trimesh.Trimesh | None = None, method: str = DEFAULT_METHOD,
              init: ArrayLike | None = None, sigma: float | None = None, max_iterations: int | None = None,
              tolerance: float | None = None, outlier: OutlierConfig = "mad",
-             index: MeshIndex | None = None) -> RegistrationResult:
+             index: MeshIndex | None = None, variant: str = "ours") -> RegistrationResult:
     """:func:`algorithms.registration.local.localize` (same arguments, same result), its
     rejected points reviewed when it would be trusted (module docstring): the localization
     ``algorithms.registration.localize`` and ``twin localize`` give. The local fit alone, as
@@ -165,10 +165,10 @@ def localize(points: ArrayLike, mesh: trimesh.Trimesh | None = None, method: str
     t_start = time.perf_counter()
     index = mesh_index(mesh, index)
     result = local_localize(points, method=method, init=init, sigma=sigma, max_iterations=max_iterations,
-                            tolerance=tolerance, outlier=outlier, index=index)
+                            tolerance=tolerance, outlier=outlier, index=index, variant=variant)
     if not result.trusted:
         return result
-    cfg = outlier_config(outlier)
+    cfg = None if variant == "printed" else outlier_config(outlier)
     P, rows = finite_rows(points)
     if cfg is not None and result.n_outliers > 0:
         result = review_rejected(result, P[rows], rows, index, sigma=sigma, outlier_cfg=cfg, method=method)

@@ -46,9 +46,10 @@ class Outcome:
 
 
 def run_method(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np.ndarray, sigma_m: float | None,
-               rng: np.random.Generator, init_distance_m: float) -> Outcome | str:
+               rng: np.random.Generator, init_distance_m: float, variant: str = "ours") -> Outcome | str:
     """Localize ``points`` (world frame) on ``workpiece`` (its ``mesh`` and ``index``) by
-    ``method`` (module docstring); a status string instead of an outcome when it cannot run."""
+    ``method`` (module docstring; a local method as ``variant``: ours or Algorithm 1 as printed);
+    a status string instead of an outcome when it cannot run."""
     index = workpiece.index
     t0 = time.perf_counter()
     if method in GLOBAL_METHODS:
@@ -68,7 +69,7 @@ def run_method(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np
         return Outcome(T, _rms_m(points, T, index), len(diag.fitness_history) - 1, "ok", time.perf_counter() - t0)
     if method in ("open3d_icp", "small_gicp"):
         return _peer(method, points, workpiece, T_init, max(3.0 * init_distance_m, 1e-3))
-    res = localize(points, index=index, method=method, init=T_init, sigma=sigma_m)
+    res = localize(points, index=index, method=method, init=T_init, sigma=sigma_m, variant=variant)
     return Outcome(res.T_world_workpiece, res.rmse_m, res.iterations, res.status.value, res.time_s)
 
 

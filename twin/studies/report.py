@@ -88,6 +88,7 @@ def cell_stats(table: pa.Table, cell: int, success: dict | None = None) -> dict:
     status = _col(table, "status", object)[sel]
     posed = np.isfinite(rot) & np.isfinite(tra)
     out: dict = {"n": n, "n_ok": int(ok.sum()), "n_within": int(within.sum()), "n_posed": int(posed.sum()),
+                 "n_ok_outside": int((ok & ~within).sum()),
                  "statuses": {k: int(v) for k, v in sorted(Counter(status.tolist()).items(),
                                                              key=lambda kv: (kv[0] != "ok", kv[0]))},
                  "all_translation_error_um": float(np.mean(tra[posed])) if posed.any() else float("nan"),
@@ -223,17 +224,19 @@ def provenance() -> str:
 
 
 def _summary_table(study: Study, table: pa.Table, stats: list[dict]) -> list[str]:
-    """One row per cell: factors, trials, ok and within counts, mean errors, CRLB ratio, time."""
+    """One row per cell: factors, trials, ok and within counts, the trials ok outside the
+    tolerance (a wrong answer called good), mean errors, CRLB ratio, time."""
     factors = list(study.factors)
     path = study.kind == "full"  # the compensated CAD path's error is known
     head = (["cell"] + [f"`{f}`" for f in factors]
-            + ["trials", "ok", "within", "translation error mean [um]", "rotation error mean [deg]", "CRLB ratio"]
+            + ["trials", "ok", "within", "ok outside the tolerance", "translation error mean [um]",
+               "rotation error mean [deg]", "CRLB ratio"]
             + (["compensated path error, max, mean [um]"] if path else []) + ["median time [ms]"])
     rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for i, values in enumerate(study.cells):
         s = stats[i]
         cells = ([str(i)] + [str(values[f]) for f in factors]
-                 + [str(s["n"]), _count(s["n_ok"], s["n"]), _count(s["n_within"], s["n"]),
+                 + [str(s["n"]), _count(s["n_ok"], s["n"]), _count(s["n_within"], s["n"]), str(s["n_ok_outside"]),
                     _fmt(s["translation_error_um"][0]), _fmt(s["rotation_error_deg"][0]), _fmt(s["crlb_ratio"])]
                  + ([_fmt(s["path_error_max_um"][0])] if path else []) + [f"{s['median_time_s'] * 1e3:.3g}"])
         rows.append("| " + " | ".join(cells) + " |")

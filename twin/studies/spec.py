@@ -24,6 +24,7 @@ from typing import Any
 
 from algorithms.registration.global_search.search import GLOBAL_METHODS
 from algorithms.registration.local import METHODS
+from algorithms.registration.printed import VARIANTS
 from twin.errors import TwinError
 from twin.formats.toml_files import read_toml
 from twin.scenario import Scenario, load_scenario, merge_tables
@@ -52,6 +53,7 @@ LOCALIZE_KEYS: dict[str, tuple[Any, Any, str]] = {
     "points": (0, lambda v: _is_int(v) and (v == 0 or 6 <= v <= 10_000_000),
                "0 (every scanned point) or an integer in [6, 10^7]"),
     "subsample": ("none", lambda v: v in SUBSAMPLE_RULES, f"one of {', '.join(SUBSAMPLE_RULES)}"),
+    "variant": ("ours", lambda v: v in VARIANTS, f"one of {', '.join(VARIANTS)}"),
 }
 #: Point sets of ``kind = "points"`` (document 000's simulation): name -> (default, check, allowed).
 POINTS_KEYS: dict[str, tuple[Any, Any, str]] = {
@@ -496,6 +498,9 @@ def _check_cell(cell: CellSettings, kind: str) -> None:
     if kind == "points" and pts["layout"] == "grid" and pts["grid_rows"] > pts["grid_cols"]:
         raise TwinError(f"points.grid_rows {pts['grid_rows']} > points.grid_cols {pts['grid_cols']}: "
                         "document 000's Algorithm 4 needs M <= N")
+    if loc["variant"] == "printed" and loc["method"] not in METHODS:
+        raise TwinError(f"localize.variant = 'printed' is document 000's Algorithm 1 as printed: a local method "
+                        f"({', '.join(METHODS)}), not {loc['method']!r}")
     if loc["points"] and kind == "points":
         raise TwinError("localize.points subsets scanned points; with kind = 'points' set points.count")
     if kind == "normals":

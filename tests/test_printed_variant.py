@@ -1,0 +1,70 @@
+"""Document 000's Algorithm 1 as printed (``localize(..., variant="printed")``): every point, the
+update as it is, the stopping test alone; the library's verdict on what it returns."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from algorithms.errors import AlgorithmError
+from algorithms.geometry.se3 import exp_se3, rotation_error_rad, transform_points, translation_error_m
+from algorithms.registration import localize
+from algorithms.registration.local import METHODS
+from tests.helpers import ROOT, scenario
+from twin.errors import TwinError
+from twin.realize import realize
+from twin.studies import load_study
+
+SIGMA_M = 5e-6
+
+
+@pytest.fixture(scope="module")
+def part():
+    """Workpiece A's points (the hemisphere punch), a known transform and a start 3 deg / 2 mm off."""
+    r = realize(scenario("hemisphere_punch"))
+    rng = np.random.default_rng(3)
+    x = r.workpiece.mesh.sample(300, seed=3)
+    T = exp_se3(np.r_[0.1, -0.2, 0.3, 0.01, 0.02, -0.03])
+    Y = transform_points(T, x) + rng.normal(0.0, SIGMA_M, x.shape)
+    return r.workpiece.index, Y, T, T @ exp_se3(np.r_[np.radians(3.0) * np.array([0.6, 0.0, 0.8]), 0.002, 0, 0])
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_each_rule_as_printed_recovers_a_known_transform(part, method):
+    index, Y, T, T0 = part
+    res = localize(Y, index=index, init=T0, sigma=SIGMA_M, method=method, variant="printed")
+    assert res.status.value == "ok", res.message
+    assert res.message.startswith("Algorithm 1 as printed")
+    assert np.degrees(rotation_error_rad(res.T_world_workpiece, T)) < 0.01
+    assert translation_error_m(res.T_world_workpiece, T) < 1e-5
+
+
+def test_as_printed_every_point_counts_and_the_verdict_says_so(part):
+    """Gross errors: ours rejects them and is ok; as printed keeps them (no outlier rule) and the
+    fit check calls the fit poor instead of ok."""
+    index, Y, T, T0 = part
+    bad = Y.copy()
+    bad[::10] += np.random.default_rng(5).normal(0.0, 0.003, bad[::10].shape)   # spurious returns, scattered
+    ours = localize(bad, index=index, init=T0, sigma=SIGMA_M)
+    printed = localize(bad, index=index, init=T0, sigma=SIGMA_M, variant="printed")
+    assert ours.status.value == "ok" and ours.n_outliers >= 25
+    assert printed.n_outliers == 0 and printed.status.value == "poor_fit"
+
+
+def test_bad_variants_are_refused(part):
+    index, Y, _, T0 = part
+    with pytest.raises(AlgorithmError, match="variant must be one of ours, printed"):
+        localize(Y, index=index, init=T0, variant="document")
+    with pytest.raises(AlgorithmError, match="uses every point"):
+        localize(Y, index=index, init=T0, variant="printed", outlier=0.001)
+
+
+def test_a_study_refuses_the_printed_variant_of_a_global_method(tmp_path):
+    text = (ROOT / "studies" / "doc000_basin.toml").read_text().replace(
+        'scenario = "../scenarios/', f'scenario = "{ROOT}/scenarios/')
+    text = text.replace('"localize.method" = ["va", "icp", "tangent", "menq", "hong_tan"]',
+                        '"localize.method" = ["multistart"]')
+    path = tmp_path / "basin.toml"
+    path.write_text(text)
+    with pytest.raises(TwinError, match="localize.variant = 'printed' is document 000's Algorithm 1 as printed"):
+        load_study(path)
