@@ -59,12 +59,26 @@ def test_bad_variants_are_refused(part):
         localize(Y, index=index, init=T0, variant="printed", outlier=0.001)
 
 
-def test_a_study_refuses_the_printed_variant_of_a_global_method(tmp_path):
+def test_a_study_refuses_a_printed_variant_the_documents_do_not_print(tmp_path):
     text = (ROOT / "studies" / "doc000_basin.toml").read_text().replace(
         'scenario = "../scenarios/', f'scenario = "{ROOT}/scenarios/')
     text = text.replace('"localize.method" = ["va", "icp", "tangent", "menq", "hong_tan"]',
-                        '"localize.method" = ["multistart"]')
+                        '"localize.method" = ["genetic"]')
     path = tmp_path / "basin.toml"
     path.write_text(text)
-    with pytest.raises(TwinError, match="localize.variant = 'printed' is document 000's Algorithm 1 as printed"):
+    with pytest.raises(TwinError, match="localize.variant = 'printed' is document 000's Algorithm 1"):
         load_study(path)
+
+
+def test_algorithm_5_as_printed_runs_the_36_euler_starts_and_stops_at_the_first(part):
+    from algorithms.registration import global_localize
+
+    index, Y, T, _ = part
+    printed = global_localize(Y, index=index, noise_sigma_m=SIGMA_M, variant="printed")
+    ours = global_localize(Y, index=index, noise_sigma_m=SIGMA_M)
+    assert printed.diagnostics.n_starts == 36 and ours.diagnostics.n_starts >= 60
+    assert printed.diagnostics.starts_accepted >= 1 and not printed.diagnostics.second_round
+    with pytest.raises(AlgorithmError, match="leave both out"):
+        global_localize(Y, index=index, variant="printed", stop_at_first=True)
+    with pytest.raises(AlgorithmError, match="has none"):
+        global_localize(Y, index=index, method="genetic", variant="printed")

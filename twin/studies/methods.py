@@ -53,7 +53,7 @@ def run_method(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np
     index = workpiece.index
     t0 = time.perf_counter()
     if method in GLOBAL_METHODS:
-        found = global_localize(points, index=index, method=method, rng=rng, noise_sigma_m=sigma_m)
+        found = global_localize(points, index=index, method=method, rng=rng, noise_sigma_m=sigma_m, variant=variant)
         return Outcome(found.T_world_workpiece, found.rmse_m, found.iterations, found.status.value, found.time_s)
     if method == "genetic_coarse":
         found = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma_m, polish=None,

@@ -498,9 +498,9 @@ def _check_cell(cell: CellSettings, kind: str) -> None:
     if kind == "points" and pts["layout"] == "grid" and pts["grid_rows"] > pts["grid_cols"]:
         raise TwinError(f"points.grid_rows {pts['grid_rows']} > points.grid_cols {pts['grid_cols']}: "
                         "document 000's Algorithm 4 needs M <= N")
-    if loc["variant"] == "printed" and loc["method"] not in METHODS:
-        raise TwinError(f"localize.variant = 'printed' is document 000's Algorithm 1 as printed: a local method "
-                        f"({', '.join(METHODS)}), not {loc['method']!r}")
+    if loc["variant"] == "printed" and loc["method"] not in (*METHODS, "multistart"):
+        raise TwinError(f"localize.variant = 'printed' is document 000's Algorithm 1 (a local method: "
+                        f"{', '.join(METHODS)}) or Algorithm 5 (multistart) as printed, not {loc['method']!r}")
     if loc["points"] and kind == "points":
         raise TwinError("localize.points subsets scanned points; with kind = 'points' set points.count")
     if kind == "normals":

@@ -253,6 +253,7 @@ def global_localize(
     pso_rotation_range_rad: float = math.radians(5.0),
     pso_translation_range_m: float | None = None,
     pso_fitness: str = "exact",
+    variant: str = "ours",
 ) -> GlobalLocalizationResult:
     """Localize a workpiece from any initial pose: document 000's multistart (Algorithm 5),
     document 001's genetic coarse + fine stages, or document 003's particle swarm.
@@ -288,6 +289,11 @@ def global_localize(
         pso_rotation_range_rad: PSO rotation range around the pre-registration (default 5 deg).
         pso_translation_range_m: PSO translation range (default 2 % of the model's size).
         pso_fitness: ``"exact"`` (patent: nearest model points) or ``"field"`` (coarse field).
+        variant: ``"ours"`` or ``"printed"``: the multistart's start table and stopping rule as
+            document 000 prints Algorithm 5 (the 36 Euler starts ``start_table="liu2001"``, stop at
+            the first start that passes all tests ``stop_at_first=True``); the descents, the
+            verification of the candidates and the polish stay ours. Multistart only; it sets
+            ``start_table`` and ``stop_at_first``, which must then be left at their defaults.
 
     Returns:
         GlobalLocalizationResult: ``status`` OK, AMBIGUOUS (``solutions``: every equally good
@@ -299,6 +305,7 @@ def global_localize(
     t0 = time.perf_counter()
     if method not in GLOBAL_METHODS:
         raise AlgorithmError(f"method must be one of {', '.join(GLOBAL_METHODS)}; got {method!r}")
+    start_table, stop_at_first = _variant_starts(variant, method, start_table, stop_at_first)
     P, rows = finite_rows(points)
     rng = _checked_rng(rng)
     index = mesh_index(mesh, index)
@@ -343,6 +350,20 @@ def _checked_rng(rng: np.random.Generator | None) -> np.random.Generator:
     if not isinstance(rng, np.random.Generator):
         raise AlgorithmError(f"rng must be a numpy.random.Generator or None, got {type(rng).__name__}")
     return rng
+
+
+def _variant_starts(variant: str, method: str, start_table: StartTable,
+                    stop_at_first: bool) -> tuple[StartTable, bool]:
+    """The start table and stopping rule of ``variant`` (see :func:`global_localize`)."""
+    if variant == "ours":
+        return start_table, stop_at_first
+    if variant != "printed":
+        raise AlgorithmError(f"variant must be 'ours' or 'printed', got {variant!r}")
+    if method != "multistart":
+        raise AlgorithmError(f"variant='printed' is Algorithm 5's multistart as printed; method {method!r} has none")
+    if not (isinstance(start_table, str) and start_table == "icosahedral") or stop_at_first:
+        raise AlgorithmError("variant='printed' sets start_table='liu2001' and stop_at_first=True: leave both out")
+    return "liu2001", True
 
 
 def _checked_options(method: str, noise_sigma_m: float | None, model_error_m: float, polish: str | None,
