@@ -43,25 +43,43 @@ from twin.studies.trials import part_design
 PARTS = {"A (hemisphere punch)": "doc000_basin.toml", "B (bottle punch)": "doc000_basin_B.toml"}
 VARIANTS = ("printed", "ours")
 ANGLE_DEG, DISTANCE_M = 0.5, 0.0005
+SIGMA_M = 5e-6   # the studies' points.noise_sigma_m
 
 
-def run_part(study_file: str, trials: int, seed: int) -> dict[str, list[dict]]:
+def _part(study_file: str):
+    """The study's part (its mesh index and true position) and point-set settings and design."""
     study = load_study(ROOT / "studies" / study_file)
     settings = study.cell_settings(0)
     spec = settings.points
     realized, design = part_design(load_scenario(settings.scenario_path, settings.overrides, machine="arm"), spec)
-    index, mesh = realized.workpiece.index, realized.workpiece.mesh
-    position = realized.scenario.workpiece.T_world_workpiece_true[:3, 3]
+    return realized.workpiece.index, realized.scenario.workpiece.T_world_workpiece_true[:3, 3], spec, design
+
+
+def _trials(study_file: str, trials: int, seed: int):
+    """Each trial's (index, measured points (150, 3) [m], T_true), the true orientation uniform."""
+    index, position, spec, design = _part(study_file)
     rng = np.random.default_rng(seed)
-    rows: dict[str, list[dict]] = {v: [] for v in VARIANTS}
     for _ in range(trials):
         T_true = make_pose(Rotation.random(random_state=rng).as_matrix(), position)
-        x = model_points(mesh, design, spec, "none", rng)
+        x = model_points(index.mesh, design, spec, "none", rng)
         cp = index.query(x)
-        pts = measured_points(x, index.smooth_normals(cp.face, cp.foot), T_true, spec, rng)
+        yield index, measured_points(x, index.smooth_normals(cp.face, cp.foot), T_true, spec, rng), T_true
+
+
+def _trial_points(study_file: str, seed: int, trial: int):
+    """Trial ``trial``'s (index, points, T_true) of a run with ``seed`` (for a test to replay one)."""
+    for i, out in enumerate(_trials(study_file, trial + 1, seed)):
+        if i == trial:
+            return out
+    raise ValueError(f"no trial {trial}")
+
+
+def run_part(study_file: str, trials: int, seed: int) -> dict[str, list[dict]]:
+    rows: dict[str, list[dict]] = {v: [] for v in VARIANTS}
+    for index, pts, T_true in _trials(study_file, trials, seed):
         for variant in VARIANTS:
             t0 = time.perf_counter()
-            res = global_localize(pts, index=index, noise_sigma_m=spec["noise_sigma_m"], variant=variant,
+            res = global_localize(pts, index=index, noise_sigma_m=SIGMA_M, variant=variant,
                                   rng=np.random.default_rng(0))
             dt = time.perf_counter() - t0
             right = (np.degrees(rotation_error_rad(res.T_world_workpiece, T_true)) <= ANGLE_DEG

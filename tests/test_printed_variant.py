@@ -82,3 +82,19 @@ def test_algorithm_5_as_printed_runs_the_36_euler_starts_and_stops_at_the_first(
         global_localize(Y, index=index, variant="printed", stop_at_first=True)
     with pytest.raises(AlgorithmError, match="has none"):
         global_localize(Y, index=index, method="genetic", variant="printed")
+
+
+def test_the_first_start_that_passes_is_not_called_ok_on_a_wrong_turn():
+    """Workpiece A turned 90 deg about its dome fits all but the few points that tell the turns
+    apart; Algorithm 5 as printed stops there (measured: trial 18 of
+    ``benchmarks.bench_multistart_printed --seed 5``). The polish rejects those points and they
+    would carry more information than the kept ones: unconfirmed, a poor fit, never ok."""
+    from algorithms.registration import global_localize
+    from benchmarks.bench_multistart_printed import _trial_points
+
+    index, pts, T_true = _trial_points("doc000_basin.toml", seed=5, trial=18)
+    res = global_localize(pts, index=index, noise_sigma_m=SIGMA_M, variant="printed", rng=np.random.default_rng(0))
+    assert np.degrees(rotation_error_rad(res.T_world_workpiece, T_true)) > 45.0   # the wrong turn
+    assert res.status.value == "poor_fit" and "unconfirmed" in res.poor_fit_reason
+    ours = global_localize(pts, index=index, noise_sigma_m=SIGMA_M, rng=np.random.default_rng(0))
+    assert ours.status.value == "ok" and np.degrees(rotation_error_rad(ours.T_world_workpiece, T_true)) < 0.5

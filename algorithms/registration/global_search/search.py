@@ -329,9 +329,14 @@ def global_localize(
         res, T_final = _polish(opts, model, pts, noise, T_best, t0)
     verdict = _verify_on_inliers(opts, model, pts, noise, res, T_final, refined_T, refined_eps)
     status, message = _final_status(opts.polish, res, verdict)
+    unconfirmed = _first_start_unconfirmed(res, T_final, P[rows], rows, index) \
+        if opts.stop_at_first and status == Status.OK else None
+    if unconfirmed is not None:
+        status, message = Status.POOR_FIT, f"poor fit: {unconfirmed}; {message}"
     base = {f.name: getattr(res, f.name) for f in fields(RegistrationResult)}
     base.update(T_world_workpiece=T_final, method=method, status=status, message=message,
-                solutions=verdict.solutions, time_s=time.perf_counter() - t0)
+                solutions=verdict.solutions, time_s=time.perf_counter() - t0,
+                poor_fit_reason=unconfirmed or res.poor_fit_reason)
     return GlobalLocalizationResult(**base, candidates=verdict.candidates,
                                     diagnostics=_diagnostics(opts, model, pts, noise, search, res, verdict, timings))
 
@@ -506,6 +511,26 @@ def _diagnostics(opts: _Options, model: _Model, pts: _Points, noise: _Noise, sea
         genetic=search.genetic,
         pso=search.pso,
     )
+
+
+def _first_start_unconfirmed(res: RegistrationResult, T: Pose, y: FloatArray, rows: np.ndarray,
+                             index: Any) -> str | None:
+    """A search that stopped at the first start that passed (``stop_at_first``, Algorithm 5 as
+    printed) never compared its answer with the other starts': the review's rule for an
+    unconfirmed fit (:mod:`algorithms.registration.review`) applies. The reason it is a poor fit
+    where the points the polish rejected would carry at least ``LOAD_BEARING_INFORMATION`` of the
+    kept points' information (workpiece A turned 90 deg about its dome fits all but the few points
+    that tell the turns apart), else None."""
+    from algorithms.registration.review import LOAD_BEARING_INFORMATION, rejected_information
+
+    if res.n_outliers == 0:
+        return None
+    info = rejected_information(y, res.inliers[rows], T, index)
+    if info.ratio < LOAD_BEARING_INFORMATION:
+        return None
+    return (f"the search stopped at the first start that passed (the other starts not run) and its polish rejected "
+            f"{info.n_rejected} point(s) that would carry {info.ratio:.2g} x the kept points' information: "
+            "unconfirmed")
 
 
 def _final_status(polish: str | None, res: RegistrationResult, verdict: Verdict) -> tuple[Status, str]:
