@@ -98,3 +98,33 @@ def test_the_first_start_that_passes_is_not_called_ok_on_a_wrong_turn():
     assert res.status.value == "poor_fit" and "unconfirmed" in res.poor_fit_reason
     ours = global_localize(pts, index=index, noise_sigma_m=SIGMA_M, rng=np.random.default_rng(0))
     assert ours.status.value == "ok" and np.degrees(rotation_error_rad(ours.T_world_workpiece, T_true)) < 0.5
+
+
+def test_document_001s_ga_under_constraints_searches_about_the_nominal_orientation(part):
+    """The constrained GA's coarse pose stays within its range of the nominal orientation; the
+    document's fine stage then ends the fit at the truth."""
+    from algorithms.registration import global_localize
+
+    index, Y, T, _ = part
+    nominal = T @ exp_se3(np.r_[np.radians(20.0) * np.array([0.0, 0.6, 0.8]), 0.0, 0.0, 0.0])
+    found = global_localize(Y, index=index, method="genetic", noise_sigma_m=SIGMA_M, polish=None, ga_restarts=1,
+                            init=nominal, ga_rotation_range_rad=np.radians(30.0), rng=np.random.default_rng(2))
+    coarse = found.diagnostics.genetic.T_coarse
+    # each Euler angle within 30 deg: the whole turn within sqrt(3) x 30 deg of the nominal
+    assert np.degrees(rotation_error_rad(coarse, nominal)) <= np.sqrt(3.0) * 30.0 + 1e-6
+    assert np.degrees(rotation_error_rad(found.T_world_workpiece, T)) < 0.05
+    with pytest.raises(AlgorithmError, match="needs init"):
+        global_localize(Y, index=index, method="genetic", ga_rotation_range_rad=0.5)
+    with pytest.raises(AlgorithmError, match="has none"):
+        global_localize(Y, index=index, ga_rotation_range_rad=0.5, init=nominal)
+    with pytest.raises(AlgorithmError, match=r"in \(0, pi\]"):
+        global_localize(Y, index=index, method="genetic", ga_rotation_range_rad=4.0, init=nominal)
+
+
+def test_a_study_refuses_ga_readings_on_a_method_without_the_ga(tmp_path):
+    text = (ROOT / "studies" / "doc001_printed.toml").read_text().replace('"../scenarios/', f'"{ROOT}/scenarios/')
+    text = text.replace('"localize.method" = ["genetic_coarse", "genetic_001"]', '"localize.method" = ["hong_tan"]')
+    path = tmp_path / "d1.toml"
+    path.write_text(text)
+    with pytest.raises(TwinError, match="read document 001's GA"):
+        load_study(path)

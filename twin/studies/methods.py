@@ -6,6 +6,10 @@
   (no initial pose; polished with Hong-Tan);
 * a stage alone: ``genetic_coarse`` is document 001's coarse stage, one GA run with the
   document's constants and no fine stage (the GA's own pose; its time is the GA's);
+  ``genetic_001`` is document 001's pipeline as printed: that GA run, then the document's fine
+  stage ending the fit (no verification's choice among candidates, no Hong-Tan polish). Both
+  take the study's ``ga_mutation`` reading and ``ga_rotation_range_deg`` constraint (the GA's
+  orientations within that range of the trial's initial pose; 0: every orientation);
   ``pso_alone`` is document 003's swarm from the trial's initial pose (the pre-registration)
   without the polish (:func:`algorithms.registration.global_search.pso_refine`);
 * a peer, where installed: ``open3d_icp`` (Open3D point-to-plane ICP) and ``small_gicp``
@@ -46,24 +50,19 @@ class Outcome:
 
 
 def run_method(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np.ndarray, sigma_m: float | None,
-               rng: np.random.Generator, init_distance_m: float, variant: str = "ours") -> Outcome | str:
+               rng: np.random.Generator, init_distance_m: float, variant: str = "ours",
+               ga: dict | None = None) -> Outcome | str:
     """Localize ``points`` (world frame) on ``workpiece`` (its ``mesh`` and ``index``) by
-    ``method`` (module docstring; a local method as ``variant``: ours or Algorithm 1 as printed);
-    a status string instead of an outcome when it cannot run."""
+    ``method`` (module docstring; a local method or the multistart as ``variant``: ours or as
+    printed; document 001's stages with ``ga``: ``mutation`` and ``rotation_range_deg``); a
+    status string instead of an outcome when it cannot run."""
     index = workpiece.index
     t0 = time.perf_counter()
     if method in GLOBAL_METHODS:
         found = global_localize(points, index=index, method=method, rng=rng, noise_sigma_m=sigma_m, variant=variant)
         return Outcome(found.T_world_workpiece, found.rmse_m, found.iterations, found.status.value, found.time_s)
-    if method == "genetic_coarse":
-        found = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma_m, polish=None,
-                                ga_restarts=1)
-        ga = found.diagnostics.genetic
-        if ga is None:
-            raise RuntimeError("internal error: the genetic search returned no GA diagnostics")
-        T = ga.T_coarse
-        return Outcome(T, _rms_m(points, T, index), ga.generations, "ok",
-                       float(found.diagnostics.timings_s.get("ga_s", found.time_s)))
+    if method in ("genetic_coarse", "genetic_001"):
+        return _document_001(method, points, index, T_init, sigma_m, rng, ga or {})
     if method == "pso_alone":
         T, diag = pso_refine(points, T_init, index=index, rng=rng)
         return Outcome(T, _rms_m(points, T, index), len(diag.fitness_history) - 1, "ok", time.perf_counter() - t0)
@@ -71,6 +70,25 @@ def run_method(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np
         return _peer(method, points, workpiece, T_init, max(3.0 * init_distance_m, 1e-3))
     res = localize(points, index=index, method=method, init=T_init, sigma=sigma_m, variant=variant)
     return Outcome(res.T_world_workpiece, res.rmse_m, res.iterations, res.status.value, res.time_s)
+
+
+def _document_001(method: str, points: np.ndarray, index, T_init: np.ndarray, sigma_m: float | None,
+                  rng: np.random.Generator, ga: dict) -> Outcome:
+    """Document 001's coarse stage alone (``genetic_coarse``), or with its fine stage ending the
+    fit (``genetic_001``): one GA run with the document's constants, as ``ga`` reads them."""
+    range_deg = float(ga.get("rotation_range_deg", 0.0))
+    found = global_localize(points, index=index, method="genetic", rng=rng, noise_sigma_m=sigma_m, polish=None,
+                            ga_restarts=1, ga_mutation=ga.get("mutation", "per_bit"),
+                            ga_rotation_range_rad=np.radians(range_deg) if range_deg > 0 else None,
+                            init=T_init if range_deg > 0 else None)
+    diag = found.diagnostics.genetic
+    if diag is None:
+        raise RuntimeError("internal error: the genetic search returned no GA diagnostics")
+    if method == "genetic_001":
+        return Outcome(found.T_world_workpiece, found.rmse_m, diag.generations + diag.fine_001_iterations, "ok",
+                       found.time_s)
+    return Outcome(diag.T_coarse, _rms_m(points, diag.T_coarse, index), diag.generations, "ok",
+                   float(found.diagnostics.timings_s.get("ga_s", found.time_s)))
 
 
 def _rms_m(points: np.ndarray, T_world_workpiece: np.ndarray, index) -> float:

@@ -41,7 +41,7 @@ from twin.studies.jcgm101 import BATCHES, INDICATIVE_BELOW, MIN_BATCH, decimals,
 from twin.studies.report_plots import cell_plots as _cell_plots
 from twin.studies.report_plots import figure as _figure
 from twin.studies.report_plots import save as _save
-from twin.studies.spec import GUIDE_BATCH, Study
+from twin.studies.spec import GUIDE_BATCH, PEER_METHODS, STAGE_METHODS, Study
 from twin.studies.trials import TWIST_COLUMNS
 
 REPORT = "report.md"
@@ -225,7 +225,7 @@ def provenance() -> str:
 
 def _summary_table(study: Study, table: pa.Table, stats: list[dict]) -> list[str]:
     """One row per cell: factors, trials, ok and within counts, the trials ok outside the
-    tolerance (a wrong answer called good), mean errors, CRLB ratio, time."""
+    tolerance (a wrong answer called good; n/a for a stage or a peer), mean errors, CRLB ratio, time."""
     factors = list(study.factors)
     path = study.kind == "full"  # the compensated CAD path's error is known
     head = (["cell"] + [f"`{f}`" for f in factors]
@@ -236,11 +236,18 @@ def _summary_table(study: Study, table: pa.Table, stats: list[dict]) -> list[str
     for i, values in enumerate(study.cells):
         s = stats[i]
         cells = ([str(i)] + [str(values[f]) for f in factors]
-                 + [str(s["n"]), _count(s["n_ok"], s["n"]), _count(s["n_within"], s["n"]), str(s["n_ok_outside"]),
+                 + [str(s["n"]), _count(s["n_ok"], s["n"]), _count(s["n_within"], s["n"]), _ok_outside(study, i, s),
                     _fmt(s["translation_error_um"][0]), _fmt(s["rotation_error_deg"][0]), _fmt(s["crlb_ratio"])]
                  + ([_fmt(s["path_error_max_um"][0])] if path else []) + [f"{s['median_time_s'] * 1e3:.3g}"])
         rows.append("| " + " | ".join(cells) + " |")
     return rows + [""]
+
+
+def _ok_outside(study: Study, cell: int, s: dict) -> str:
+    """The trials called ok outside the tolerance; "n/a" for a stage or a peer, whose ``ok``
+    only says that it returned a pose (no verdict of its own)."""
+    method = study.cell_settings(cell).localize["method"]
+    return "n/a" if method in STAGE_METHODS + PEER_METHODS else str(s["n_ok_outside"])
 
 
 def _count(k: int, n: int) -> str:

@@ -39,7 +39,7 @@ INPUT_KINDS = ("fast", "full")
 KIND_TABLES = {"points": "points", "normals": "normals"}
 #: Stages of the global methods run alone: document 001's genetic coarse stage (one GA run, no
 #: fine stage), document 003's swarm without the polish.
-STAGE_METHODS = ("genetic_coarse", "pso_alone")
+STAGE_METHODS = ("genetic_coarse", "genetic_001", "pso_alone")
 #: Peers, rows where the package is installed (``pip install -e ".[peers]"``).
 PEER_METHODS = ("open3d_icp", "small_gicp")
 ALL_METHODS = tuple(METHODS) + tuple(GLOBAL_METHODS) + STAGE_METHODS + PEER_METHODS
@@ -54,6 +54,9 @@ LOCALIZE_KEYS: dict[str, tuple[Any, Any, str]] = {
                "0 (every scanned point) or an integer in [6, 10^7]"),
     "subsample": ("none", lambda v: v in SUBSAMPLE_RULES, f"one of {', '.join(SUBSAMPLE_RULES)}"),
     "variant": ("ours", lambda v: v in VARIANTS, f"one of {', '.join(VARIANTS)}"),
+    "ga_mutation": ("per_bit", lambda v: v in ("per_bit", "per_chromosome"), "'per_bit' or 'per_chromosome'"),
+    "ga_rotation_range_deg": (0.0, lambda v: _is_number(v) and 0.0 <= v <= 180.0,
+                              "a number in [0, 180] (0: every orientation)"),
 }
 #: Point sets of ``kind = "points"`` (document 000's simulation): name -> (default, check, allowed).
 POINTS_KEYS: dict[str, tuple[Any, Any, str]] = {
@@ -501,6 +504,10 @@ def _check_cell(cell: CellSettings, kind: str) -> None:
     if loc["variant"] == "printed" and loc["method"] not in (*METHODS, "multistart"):
         raise TwinError(f"localize.variant = 'printed' is document 000's Algorithm 1 (a local method: "
                         f"{', '.join(METHODS)}) or Algorithm 5 (multistart) as printed, not {loc['method']!r}")
+    ga_set = loc["ga_mutation"] != "per_bit" or loc["ga_rotation_range_deg"] > 0
+    if ga_set and loc["method"] not in ("genetic_coarse", "genetic_001"):
+        raise TwinError(f"localize.ga_mutation and localize.ga_rotation_range_deg read document 001's GA "
+                        f"(method 'genetic_coarse' or 'genetic_001'), not {loc['method']!r}")
     if loc["points"] and kind == "points":
         raise TwinError("localize.points subsets scanned points; with kind = 'points' set points.count")
     if kind == "normals":

@@ -231,7 +231,8 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
     Cramer-Rao bound of the white reading noise (:func:`bound`)."""
     t0 = time.perf_counter()
     try:
-        out = run_method(loc["method"], pts, workpiece, T_init, sigma_m, rng, loc["init_distance_m"], loc["variant"])
+        out = run_method(loc["method"], pts, workpiece, T_init, sigma_m, rng, loc["init_distance_m"], loc["variant"],
+                         {"mutation": loc["ga_mutation"], "rotation_range_deg": loc["ga_rotation_range_deg"]})
     except AlgorithmError:
         return _failed("error", len(pts), time.perf_counter() - t0, C)
     if isinstance(out, str):

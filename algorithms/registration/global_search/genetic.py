@@ -11,6 +11,10 @@ fine stage (document 001's variable-iteration-centre linearised least squares,
 
 Readings and choices (the original does not state them):
 
+* The search space: every orientation by default (our reading: nothing in the document says
+  where the part lies); ``rotation_range_rad`` and a centre orientation constrain each Euler
+  angle to that range about it (the document's "under specific constraints": a part clamped
+  roughly as planned; a study states the range it reads from the document's experiment).
 * Bits: 10 per parameter (60 per chromosome), plain binary code as the document says.
   Angles ``R = Rz(gamma) Ry(beta) Rx(alpha)``: alpha, gamma in [-180, 180) degrees, beta in
   [-90, 90] degrees (resolution 0.35 and 0.18 degrees, below the document's "a few tenths of
@@ -88,13 +92,18 @@ RUN_CHECK_ITERATIONS = 30
 @dataclass(frozen=True)
 class GASettings:
     """The genetic algorithm's settings: bits per parameter, ``"per_bit"`` or
-    ``"per_chromosome"`` mutation, population, generations, and the most runs (restarts)."""
+    ``"per_chromosome"`` mutation, population, generations, the most runs (restarts), and the
+    search's constraint: None (every orientation), or the rotations within
+    ``rotation_range_rad`` of ``R_center`` (3, 3) on each Euler angle (document 001's GA
+    "under specific constraints")."""
 
     bits: int = GA_BITS
     mutation: str = "per_bit"
     population: int = GA_POPULATION
     generations: int = GA_GENERATIONS
     restarts: int = 10
+    rotation_range_rad: float | None = None
+    R_center: FloatArray | None = None
 
 
 def decode(bits: np.ndarray, lo: FloatArray, hi: FloatArray, nbits: int) -> FloatArray:
@@ -106,12 +115,16 @@ def decode(bits: np.ndarray, lo: FloatArray, hi: FloatArray, nbits: int) -> Floa
     return lo + (hi - lo) * ints / float((1 << nbits) - 1)
 
 
-def ga_poses(params: FloatArray, y_mean: FloatArray, c_model: FloatArray) -> FloatArray:
-    """(P, 4, 4) poses of chromosomes' parameters (P, 6): ``R = Rz(gamma) Ry(beta) Rx(alpha)``,
-    and ``[X_T, Y_T, Z_T]`` the model-frame position of the points' centroid relative to the
-    model centroid, so that ``T^-1 y = R^T (y - mean(y)) + c_model + [X_T, Y_T, Z_T]`` (the
-    best translation genes do not depend on the rotation genes)."""
+def ga_poses(params: FloatArray, y_mean: FloatArray, c_model: FloatArray,
+             R_center: FloatArray | None = None) -> FloatArray:
+    """(P, 4, 4) poses of chromosomes' parameters (P, 6): ``R = Rz(gamma) Ry(beta) Rx(alpha)``
+    (``R_center`` times it for a constrained search), and ``[X_T, Y_T, Z_T]`` the model-frame
+    position of the points' centroid relative to the model centroid, so that
+    ``T^-1 y = R^T (y - mean(y)) + c_model + [X_T, Y_T, Z_T]`` (the best translation genes do
+    not depend on the rotation genes)."""
     R = Rotation.from_euler("ZYX", params[:, [5, 4, 3]]).as_matrix()
+    if R_center is not None:
+        R = np.einsum("ij,kjl->kil", R_center, R)
     p = y_mean[None, :] - np.einsum("kij,kj->ki", R, c_model[None, :] + params[:, :3])
     return make_poses(R, p)
 
@@ -134,19 +147,22 @@ class _GeneSpace:
     nbits: int
     y_mean: FloatArray  # (3,) [m] the points' centroid, world frame
     c_model: FloatArray  # (3,) [m] the model's area centroid, workpiece frame
+    R_center: FloatArray | None = None  # (3, 3) the constrained search's centre orientation
 
     @classmethod
-    def around(cls, half_size: FloatArray, nbits: int, y: FloatArray, c_model: FloatArray) -> _GeneSpace:
-        lo = np.concatenate([-half_size, [-np.pi, -np.pi / 2, -np.pi]])
-        hi = np.concatenate([half_size, [np.pi, np.pi / 2, np.pi]])
-        return cls(lo, hi, nbits, y.mean(axis=0), c_model)
+    def around(cls, half_size: FloatArray, settings: GASettings, y: FloatArray, c_model: FloatArray) -> _GeneSpace:
+        r = settings.rotation_range_rad
+        angles = np.array([np.pi, np.pi / 2, np.pi]) if r is None else np.full(3, r)
+        lo = np.concatenate([-half_size, -angles])
+        hi = np.concatenate([half_size, angles])
+        return cls(lo, hi, int(settings.bits), y.mean(axis=0), c_model, None if r is None else settings.R_center)
 
     @property
     def n_genes(self) -> int:
         return 6 * self.nbits
 
     def poses(self, pop: np.ndarray) -> FloatArray:
-        return ga_poses(decode(pop, self.lo, self.hi, self.nbits), self.y_mean, self.c_model)
+        return ga_poses(decode(pop, self.lo, self.hi, self.nbits), self.y_mean, self.c_model, self.R_center)
 
 
 @dataclass(frozen=True)
@@ -164,7 +180,7 @@ class _GARun:
 def genetic(field: NearestSurface, y_g: FloatArray, c_model: FloatArray, half_size: FloatArray,
             rng: np.random.Generator, settings: GASettings) -> _GARun:
     """One run of document 001's GA on the points y_g (n, 3) [m] (world frame)."""
-    space = _GeneSpace.around(half_size, int(settings.bits), y_g, c_model)
+    space = _GeneSpace.around(half_size, settings, y_g, c_model)
     population = int(settings.population)
     generations = int(settings.generations)
     pop = rng.integers(0, 2, size=(population, space.n_genes), dtype=np.int8)

@@ -32,6 +32,7 @@ import numpy as np
 
 from algorithms.arraytypes import ArrayLike, FloatArray, IntArray, Pose
 from algorithms.errors import AlgorithmError
+from algorithms.geometry.se3 import as_pose
 from algorithms.registration.global_search.fields import CoarseField, ExactOracle, coarse_field
 from algorithms.registration.global_search.genetic import (
     GA_BITS,
@@ -254,6 +255,8 @@ def global_localize(
     pso_translation_range_m: float | None = None,
     pso_fitness: str = "exact",
     variant: str = "ours",
+    init: ArrayLike | None = None,
+    ga_rotation_range_rad: float | None = None,
 ) -> GlobalLocalizationResult:
     """Localize a workpiece from any initial pose: document 000's multistart (Algorithm 5),
     document 001's genetic coarse + fine stages, or document 003's particle swarm.
@@ -284,6 +287,11 @@ def global_localize(
         ga_generations: GA generations (default: the document's 100).
         ga_restarts: at most this many GA runs, until one passes Algorithm 5's acceptance (needs
             ``noise_sigma_m``; without it one run, the document's algorithm).
+        ga_rotation_range_rad: None (default: the GA searches every orientation) or the GA's
+            constraint: each Euler angle within this range [rad] (in (0, pi]) of ``init``'s
+            orientation.
+        init: a (4, 4) nominal ``T_world_workpiece``, the centre of the constrained GA's
+            orientations (needed with ``ga_rotation_range_rad``; no other method reads it).
         pso_particles: PSO swarm size (default: the patent's 40).
         pso_iterations: PSO iterations (default: the patent's 100).
         pso_rotation_range_rad: PSO rotation range around the pre-registration (default 5 deg).
@@ -311,7 +319,8 @@ def global_localize(
     index = mesh_index(mesh, index)
     opts = _checked_options(
         method, noise_sigma_m, model_error_m, polish, outlier, start_table, stop_at_first, n_coarse, n_verify,
-        max_candidates, GASettings(ga_bits, ga_mutation, ga_population, ga_generations, ga_restarts),
+        max_candidates, GASettings(ga_bits, ga_mutation, ga_population, ga_generations, ga_restarts,
+                                   *_ga_constraint(method, ga_rotation_range_rad, init)),
         PSOSettings(pso_rotation_range_rad, pso_translation_range_m, pso_particles, pso_iterations, pso_fitness))
     R0 = orientation_table(start_table)
     y = P[rows]
@@ -355,6 +364,19 @@ def _checked_rng(rng: np.random.Generator | None) -> np.random.Generator:
     if not isinstance(rng, np.random.Generator):
         raise AlgorithmError(f"rng must be a numpy.random.Generator or None, got {type(rng).__name__}")
     return rng
+
+
+def _ga_constraint(method: str, range_rad: float | None, init: ArrayLike | None) -> tuple[float | None, Any]:
+    """The GA's (rotation range [rad], centre orientation (3, 3)), or (None, None): every orientation."""
+    if range_rad is None:
+        return None, None
+    if method != "genetic":
+        raise AlgorithmError(f"ga_rotation_range_rad constrains the genetic search; method {method!r} has none")
+    if not (np.isfinite(range_rad) and 0.0 < range_rad <= math.pi):
+        raise AlgorithmError(f"ga_rotation_range_rad must be in (0, pi], got {range_rad}")
+    if init is None:
+        raise AlgorithmError("ga_rotation_range_rad needs init: the nominal pose whose orientation the range is about")
+    return float(range_rad), as_pose(init, name="init")[:3, :3]
 
 
 def _variant_starts(variant: str, method: str, start_table: StartTable,
