@@ -12,6 +12,11 @@ scenario's true placement; the noise is ``noise_mean_m + noise_sigma_m * N(0, 1)
 coordinate of the measured point in the machine frame (``noise_direction = "isotropic"``) or
 along the surface normal (``"normal"``).
 
+Model error: the true part may differ from the CAD model the fit uses by a form error, a
+smooth random deviation along the surface normal of RMS ``form_error_m`` and wavelength
+``form_wavelength_m`` (:func:`form_error_m`), a new part (a new field) each trial, drawn from the
+trial's error stream before the noise.
+
 A region is a list of selectors; a face is selected when it passes any one of them, and passes
 a selector when its normal is within ``cone_deg`` of ``normal`` (if given) and its centroid is
 inside the box ``[box_min_m, box_max_m]`` (if given). An empty list selects every face.
@@ -32,6 +37,9 @@ from algorithms.registration.subsampling import (
     uniform_subsample,
 )
 from twin.errors import TwinError
+
+#: The plane waves of a form error field.
+FORM_WAVES = 8
 
 
 def _selector_faces(mesh, sel: dict) -> np.ndarray:
@@ -135,9 +143,25 @@ def model_points(mesh, design: Design, points: dict, subsample: str, rng: np.ran
     return kept[np.all(np.isfinite(kept), axis=1)]
 
 
+def form_error_m(x: np.ndarray, amplitude_m: float, wavelength_m: float, rng: np.random.Generator) -> np.ndarray:
+    """A smooth random deviation (N,) [m] of the true part from its CAD model at the model
+    points ``x`` (N, 3) [m]: ``FORM_WAVES`` plane waves of ``wavelength_m`` with random
+    directions and phases, scaled to the RMS ``amplitude_m``
+    (``A sqrt(2 / K) sum_j cos(2 pi / lambda d_j . x + phi_j)``)."""
+    d = rng.standard_normal((FORM_WAVES, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    phase = rng.uniform(0.0, 2.0 * np.pi, FORM_WAVES)
+    waves = np.cos((2.0 * np.pi / wavelength_m) * (x @ d.T) + phase)
+    return amplitude_m * np.sqrt(2.0 / FORM_WAVES) * waves.sum(axis=1)
+
+
 def measured_points(x_model: np.ndarray, normals: np.ndarray, T_true: np.ndarray, points: dict,
                     rng: np.random.Generator) -> np.ndarray:
-    """The model points moved by the noise (module docstring) and mapped by the known transform."""
+    """The model points moved onto the true part (its form error, where the study gives one),
+    then by the noise (module docstring), and mapped by the known transform."""
+    if points["form_error_m"] > 0.0:   # drawn only then: a study without form error keeps its numbers
+        x_model = x_model + form_error_m(x_model, points["form_error_m"], points["form_wavelength_m"], rng)[:, None] \
+            * normals
     mean, sigma = points["noise_mean_m"], points["noise_sigma_m"]
     if points["noise_direction"] == "normal":
         x = x_model + (mean + sigma * rng.standard_normal(len(x_model)))[:, None] * normals

@@ -67,6 +67,8 @@ POINTS_KEYS: dict[str, tuple[Any, Any, str]] = {
     "noise_mean_m": (0.0, lambda v: _is_number(v) and abs(v) <= 0.01, "a number in [-0.01, 0.01]"),
     "noise_sigma_m": (5e-6, lambda v: _is_number(v) and 0.0 < v <= 0.01, "a number in (0, 0.01]"),
     "noise_direction": ("isotropic", lambda v: v in ("isotropic", "normal"), "'isotropic' or 'normal'"),
+    "form_error_m": (0.0, lambda v: _is_number(v) and 0.0 <= v <= 0.001, "a number in [0, 0.001]"),
+    "form_wavelength_m": (0.05, lambda v: _is_number(v) and 0.001 <= v <= 10.0, "a number in [0.001, 10]"),
     "region": ([], lambda v: _is_region(v), "a list of tables, each with normal = [x, y, z] and cone_deg, "
                "and/or box_min_m = [x, y, z] and box_max_m = [x, y, z] (workpiece frame)"),
 }
