@@ -128,3 +128,24 @@ def test_a_study_refuses_ga_readings_on_a_method_without_the_ga(tmp_path):
     path.write_text(text)
     with pytest.raises(TwinError, match="read document 001's GA"):
         load_study(path)
+
+
+def test_document_004s_triangle_list_as_printed_gives_normals_on_a_sphere():
+    """Scan lines 4 mm apart on a sphere of radius 0.1 m: our fan's normals are within a
+    hundredth of a degree (median); the document's list as printed tilts its sliver triangles
+    (0.2 mm along a line, 4 mm across) by the surface's curvature, measured: about 11 deg."""
+    from algorithms.paths.normals import NormalsError, angle_deg, triangulation_normals
+
+    lines, truth = [], []
+    for y in np.arange(-0.02, 0.0201, 0.004):
+        x = np.arange(-0.03, 0.03, 0.0002)
+        P = np.c_[x, np.full_like(x, y), np.sqrt(0.1**2 - x**2 - y**2)]
+        lines.append(P)
+        truth.append(P / 0.1)
+    T = np.concatenate(truth)
+    fan = angle_deg(np.concatenate(triangulation_normals(lines, orient=[0, 0, 1])), T)
+    printed = angle_deg(np.concatenate(triangulation_normals(lines, orient=[0, 0, 1], triangles="printed")), T)
+    assert np.median(fan) < 0.01
+    assert 5.0 < np.median(printed) < 20.0 and np.all(np.isfinite(printed))
+    with pytest.raises(NormalsError, match="triangles must be one of fan, printed"):
+        triangulation_normals(lines, triangles="document")

@@ -16,6 +16,16 @@ document says, one at a corner. (The document lists the four triangles with one 
 garbled; the fan above is the reading whose sum is the central difference
 ``(a - b) x (n+ - n-)``: second-order accurate when the neighbours sit symmetrically.)
 
+As printed (``triangles="printed"``): the document's own list, with ``n+'`` and ``n-'`` the
+points after ``n+`` and ``n-`` on their lines (``p_i+1,j+1`` and ``p_i-1,j+1``),
+
+    (p, a, n-),  (p, n-, n-'),  (p, n-', n+),  (p, n+, n+'),
+
+each "ordered to satisfy the right-hand rule": its normal turned to the side of the fan's (the
+orientation the line structure gives), then the area-weighted mean; a triangle whose points
+are missing (first or last line, a line's end) is left out, which leaves two on a boundary
+(at a corner where none exists, the fan's normal).
+
 Orientation: with lines ordered across the part by ``across`` and points along each line by
 ``direction`` (as :func:`algorithms.paths.pointcloud.organize_scan_lines` orders them), the fan's
 normal is ``direction x across``; ``orient`` (a direction the normals should face, e.g.
@@ -58,12 +68,18 @@ def _check_lines(lines: Sequence[ArrayLike]) -> list[FloatArray]:
     return out
 
 
-def triangulation_normals(lines: Sequence[ArrayLike], orient: ArrayLike | None = None) -> tuple[FloatArray, ...]:
+TRIANGLES = ("fan", "printed")
+
+
+def triangulation_normals(lines: Sequence[ArrayLike], orient: ArrayLike | None = None,
+                          triangles: str = "fan") -> tuple[FloatArray, ...]:
     """Unit normals of every point of a scan-line cloud by cross-line triangulation.
 
     Args:
         lines: L >= 2 arrays (n_i, 3) [m], ordered along the lines and across (see module).
         orient: optional (3,) direction the normals should face on the whole.
+        triangles: ``"fan"`` (ours, the central-difference fan) or ``"printed"`` (the
+            document's list; module docstring).
 
     Returns:
         L arrays (n_i, 3) of unit normals, aligned with ``lines``.
@@ -72,6 +88,8 @@ def triangulation_normals(lines: Sequence[ArrayLike], orient: ArrayLike | None =
         NormalsError: fewer than 2 lines, an empty line, non-finite points, or a point whose
             triangles are all degenerate (coincident or collinear neighbours).
     """
+    if triangles not in TRIANGLES:
+        raise NormalsError(f"triangles must be one of {', '.join(TRIANGLES)}, got {triangles!r}")
     L = _check_lines(lines)
     trees = [cKDTree(line) for line in L]
     out = []
@@ -92,15 +110,19 @@ def triangulation_normals(lines: Sequence[ArrayLike], orient: ArrayLike | None =
         has_b = ib >= 0
         a = p[np.minimum(ia, n - 1)] - p
         b = p[np.maximum(ib, 0)] - p
+        near = {}   # adjacent line -> the index of each point's nearest point on it
         for adj, sign in ((i + 1, 1.0), (i - 1, -1.0)):
             if adj < 0 or adj >= len(L):
                 continue
             _, m = trees[adj].query(p)
+            near[adj] = m
             c = L[adj][m] - p
             # Next line (sign +1): (p, a, n+) and (p, n+, b); previous line: (p, b, n-), (p, n-, a).
             # Both pairs reduce to sign * (a x c) and sign * (c x b).
             acc += sign * has_a[:, None] * np.cross(a, c)
             acc += sign * has_b[:, None] * np.cross(c, b)
+        if triangles == "printed":
+            acc = _printed_sum(L, i, p, a, has_a, near, acc)
         norm = np.linalg.norm(acc, axis=1)
         bad = np.flatnonzero(norm <= 1e-300)
         if len(bad):
@@ -115,6 +137,31 @@ def triangulation_normals(lines: Sequence[ArrayLike], orient: ArrayLike | None =
         if total @ o < 0:
             out = [-n for n in out]
     return tuple(out)
+
+
+def _printed_sum(L: list[FloatArray], i: int, p: FloatArray, a: FloatArray, has_a: np.ndarray, near: dict,
+                 fan: FloatArray) -> FloatArray:
+    """The document's four triangles' cross products (each twice its area along its normal),
+    each turned to the side of the ``fan``'s sum, added; the fan's sum where none exists
+    (module docstring)."""
+    n = len(p)
+    vertex: dict[str, tuple[FloatArray, np.ndarray]] = {"a": (a, has_a)}
+    for adj, tag in ((i - 1, "-"), (i + 1, "+")):
+        if adj in near:
+            m = near[adj]
+            vertex[tag] = (L[adj][m] - p, np.ones(n, dtype=bool))
+            after = np.minimum(m + 1, len(L[adj]) - 1)
+            vertex[tag + "'"] = (L[adj][after] - p, m + 1 < len(L[adj]))
+    acc = np.zeros((n, 3))
+    for u, v in (("a", "-"), ("-", "-'"), ("-'", "+"), ("+", "+'")):
+        if u not in vertex or v not in vertex:
+            continue
+        cross = np.cross(vertex[u][0], vertex[v][0])
+        cross *= np.where(np.einsum("ij,ij->i", cross, fan) < 0.0, -1.0, 1.0)[:, None]
+        acc += (vertex[u][1] & vertex[v][1])[:, None] * cross
+    none = ~np.any(acc != 0.0, axis=1)
+    acc[none] = fan[none]   # a corner where none of the listed triangles exists: the fan's
+    return acc
 
 
 def pca_normals(points: ArrayLike, k: int = 16, orient: ArrayLike | None = None) -> FloatArray:

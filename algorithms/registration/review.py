@@ -70,7 +70,7 @@ rate of the rule on sound fits and its misses on wrong ones are measured by
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import fields, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -80,6 +80,11 @@ from algorithms.geometry.se3 import exp_se3, inv_pose, rotation_error_rad, trans
 from algorithms.registration.inputs import finite_rows, mesh_index
 from algorithms.registration.local import DEFAULT_METHOD
 from algorithms.registration.local import localize as local_localize
+from algorithms.registration.rejected import (
+    LOAD_BEARING_INFORMATION,
+    RejectedInformation,
+    rejected_information,
+)
 from algorithms.registration.result import RegistrationResult, Status
 from algorithms.registration.robust import OutlierConfig, outlier_config
 from algorithms.registration.uncertainty import information_rows
@@ -95,17 +100,6 @@ __all__ = ["LOAD_BEARING_INFORMATION", "PROFILE_FRACTION", "PROFILE_SIGMAS", "RE
 #: The rejected points are reviewed when, were they sound, they would add at least this
 #: fraction of the kept points' information in some direction.
 REVIEW_INFORMATION = 0.05
-#: An unconfirmed fit is not trusted when the rejected points would add at least this fraction.
-LOAD_BEARING_INFORMATION = 0.25
-#: A rejected set is a coherent patch when at least this fraction of its points has a rejected
-#: neighbour (within ``PATCH_SPACING`` typical point spacings) whose distance to the model is
-#: within ``PATCH_SIMILARITY`` of its own, and it holds at least ``PATCH_MIN_POINTS`` points
-#: (benchmarks/results_verdicts.md: sound fits with spurious returns stay below, the fits of a
-#: mirrored part that looked good lie above).
-PATCH_FRACTION = 0.12
-PATCH_SPACING = 3.0
-PATCH_SIMILARITY = 0.2
-PATCH_MIN_POINTS = 10
 #: ... and a patch makes the fit a poor fit only when its points would carry at least this
 #: fraction of the kept points' information: a table or fixture beyond the part's edges, seen
 #: past a cube's sides, carries 0.05 and leaves the pose alone; the mirrored parts' 0.15.
@@ -125,33 +119,6 @@ CLUSTER_RATIO = 0.5
 CLUSTER_DRAWS = 20
 #: The global search's random stream (the review is deterministic).
 REVIEW_SEED = 0
-
-
-@dataclass(frozen=True)
-class RejectedInformation:
-    """What the rejected points would say about the pose, were they sound.
-
-    Attributes:
-        n_rejected: finite points the outlier rule rejected.
-        ratio: ``max eig(I_K^-1 I_R)`` (0 when nothing was rejected; inf when the kept points
-            leave a direction free that the rejected ones would fix).
-        direction: (6,) the unit twist ``[omega, v]`` (workpiece frame, about its origin)
-            where the ratio is largest; zeros when nothing was rejected.
-        centroid_m: (3,) the rejected points' mean, workpiece frame [m] (NaN when none).
-        coherent_fraction: the fraction of rejected points with a near rejected neighbour at
-            a similar distance from the model (:func:`coherent_fraction`).
-    """
-
-    n_rejected: int
-    ratio: float
-    direction: FloatArray
-    centroid_m: FloatArray
-    coherent_fraction: float = 0.0
-
-    @property
-    def patch(self) -> bool:
-        """The rejected points form a coherent patch (a surface the model lacks, not noise)."""
-        return self.n_rejected >= PATCH_MIN_POINTS and self.coherent_fraction >= PATCH_FRACTION
 
 
 def localize(points: ArrayLike, mesh: trimesh.Trimesh | None = None, method: str = DEFAULT_METHOD,
@@ -229,57 +196,6 @@ def profile_checked(result: RegistrationResult, Y: FloatArray, rows: np.ndarray,
                    determined_directions=D[keep], covariance=C_kept,
                    free_directions=np.vstack([np.asarray(result.free_directions, dtype=np.float64).reshape(-1, 6),
                                               freed]))
-
-
-def rejected_information(Y: FloatArray, kept: np.ndarray, T_world_workpiece: Pose,
-                         index: MeshIndex) -> RejectedInformation:
-    """The information ratio of the rejected points (module docstring, question 1).
-
-    Args:
-        Y: (M, 3) finite points, world frame [m].
-        kept: (M,) bool, the fit's inliers among them.
-        T_world_workpiece: the fit's pose.
-        index: the model's mesh index.
-    """
-    rejected = ~kept
-    m = int(rejected.sum())
-    if m == 0:
-        return RejectedInformation(0, 0.0, np.zeros(6), np.full(3, np.nan))
-    X = transform_points(inv_pose(T_world_workpiece), Y)
-    cp = index.query(X)
-    signed = np.einsum("ij,ij->i", X - cp.foot, cp.normal)
-    G = information_rows(cp.foot, cp.normal)
-    I_kept, I_rejected = G[kept].T @ G[kept], G[rejected].T @ G[rejected]
-    # generalized symmetric eigenproblem I_R u = lambda I_K u, by whitening with I_K's eigenbasis
-    w, V = np.linalg.eigh(I_kept)
-    if w[0] <= 1e-12 * max(w[-1], 1e-300):
-        ratio, direction = np.inf, V[:, 0]
-    else:
-        W = V / np.sqrt(w)
-        lam, U = np.linalg.eigh(W.T @ I_rejected @ W)
-        ratio, direction = float(lam[-1]), W @ U[:, -1]
-    return RejectedInformation(m, float(ratio), direction / np.linalg.norm(direction), X[rejected].mean(axis=0),
-                               coherent_fraction(X, rejected, signed))
-
-
-def coherent_fraction(X: FloatArray, rejected: np.ndarray, signed_m: FloatArray) -> float:
-    """The fraction of rejected points whose nearest rejected neighbour lies within
-    ``PATCH_SPACING`` typical spacings (the median nearest-neighbour distance of all points) and
-    differs in signed distance to the model by at most ``PATCH_SIMILARITY`` of the larger one.
-
-    Points of a surface the model lacks (a feature, a fixture, another part) sit side by side at
-    similar distances; spurious returns and mixed pixels scatter in both.
-    """
-    if int(rejected.sum()) < 2:
-        return 0.0
-    from scipy.spatial import cKDTree  # here: only a review loads scipy.spatial
-
-    spacing = float(np.median(cKDTree(X).query(X, k=2)[0][:, 1]))
-    R, d = X[rejected], signed_m[rejected]
-    dist, j = cKDTree(R).query(R, k=2)
-    near = dist[:, 1] <= PATCH_SPACING * max(spacing, 1e-12)
-    similar = np.abs(d - d[j[:, 1]]) <= PATCH_SIMILARITY * np.maximum(np.abs(d), np.abs(d[j[:, 1]]))
-    return float(np.mean(near & similar))
 
 
 def clustering_ratio(X: FloatArray, rejected: np.ndarray) -> float:

@@ -46,6 +46,7 @@ from twin.realize import LinkError, Realized, Streams, Workpiece, draw_truth, re
 from twin.scan import SampleLog, scan_from_log, solve_joint_references
 from twin.scan_uncertainty import scan_reading_sigma_m
 from twin.scenario import Scenario, load_scenario, merge_tables
+from twin.sensors.laser import LaserSensor
 from twin.sim import simulate
 from twin.stages import StageFailed
 from twin.studies.inputs import Draw, Resolved, draw
@@ -131,7 +132,8 @@ def _make_rollout(realized: Realized, nominal: Nominal) -> TrueRollout:
     cell = build_cell(realized, "true")
     log = SampleLog(cell, len(nominal.q_ref))
     simulate(cell, nominal.q_ref, nominal.qd_ref, log.on_chunk)
-    cell.sensor.cell_rays(cell.model)   # its ray casters (the part's Embree scene), shared by every trial's unit
+    if isinstance(cell.sensor, LaserSensor):   # its ray casters (the part's Embree scene), shared by every trial's unit
+        cell.sensor.cell_rays(cell.model)
     return TrueRollout(cell, log)
 
 

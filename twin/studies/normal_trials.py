@@ -8,7 +8,8 @@ line, prepares the cloud named by ``normals.cloud`` and estimates the normals by
 * clouds: ``raw`` (the organised samples after the outlier filter), ``simplified`` (document
   004's steps 1-4: also boundary and 0.2 mm simplification), ``bspline`` (per-line cubic
   least-squares B-splines resampled every 1 mm: the process path's contact points);
-* methods: ``triangulation`` (document 004's cross-line triangulation, oriented) or ``pca``
+* methods: ``triangulation`` (document 004's cross-line triangulation, oriented; its triangles
+  ``normals.triangles``: our fan, or the document's list as printed) or ``pca``
   (k-nearest-neighbour PCA with ``normals.k`` neighbours, unsigned: the better of n and -n).
 
 The truth is the model's smooth normal at the point's closest point on the part at its true
@@ -69,7 +70,7 @@ def normals_trial(study: Study, cell: int, trial: int) -> dict:
         T = evaluate.Evaluation(geo.realized).T_base_workpiece
         t0 = time.perf_counter()
         if spec["method"] == "triangulation":
-            n = np.concatenate(triangulation_normals(lines, orient=T[:3, 2]))
+            n = np.concatenate(triangulation_normals(lines, orient=T[:3, 2], triangles=spec["triangles"]))
         else:
             n = pca_normals(pts, spec["k"], orient=T[:3, 2])
         elapsed = time.perf_counter() - t0

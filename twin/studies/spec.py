@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from algorithms.paths.normals import TRIANGLES
 from algorithms.registration.global_search.search import GLOBAL_METHODS
 from algorithms.registration.local import METHODS
 from algorithms.registration.printed import VARIANTS
@@ -77,6 +78,7 @@ NORMALS_KEYS: dict[str, tuple[Any, Any, str]] = {
     "method": ("triangulation", lambda v: v in ("triangulation", "pca"), "'triangulation' or 'pca'"),
     "k": (16, lambda v: _is_int(v) and 3 <= v <= 1000, "an integer in [3, 1000]"),
     "cloud": ("raw", lambda v: v in ("raw", "simplified", "bspline"), "'raw', 'simplified' or 'bspline'"),
+    "triangles": ("fan", lambda v: v in TRIANGLES, f"one of {', '.join(TRIANGLES)}"),
 }
 #: JCGM 101 7.9.4 a)'s batch size for a 95 % interval: M = max(100 / (1 - p), 10^4).
 GUIDE_BATCH = 10_000
@@ -512,6 +514,8 @@ def _check_cell(cell: CellSettings, kind: str) -> None:
                         f"(method 'genetic_coarse' or 'genetic_001'), not {loc['method']!r}")
     if loc["points"] and kind == "points":
         raise TwinError("localize.points subsets scanned points; with kind = 'points' set points.count")
+    if kind == "normals" and cell.normals["method"] == "pca" and cell.normals["triangles"] != "fan":
+        raise TwinError("normals.triangles chooses the triangulation's triangles; method 'pca' has none")
     if kind == "normals":
         scenario = load_scenario(cell.scenario_path, cell.overrides, machine="arm")
         if scenario.sensor.kind != "point":

@@ -63,6 +63,7 @@ from algorithms.registration.global_search.pso import (
 from algorithms.registration.global_search.verify import Verdict, refine, refine_candidates, symmetries_of, verify
 from algorithms.registration.inputs import check_units, finite_rows, mesh_index
 from algorithms.registration.local import METHODS, localize_checked
+from algorithms.registration.rejected import LOAD_BEARING_INFORMATION, rejected_information
 from algorithms.registration.result import RegistrationResult, Status
 from algorithms.registration.robust import OutlierConfig, outlier_config
 
@@ -539,12 +540,10 @@ def _first_start_unconfirmed(res: RegistrationResult, T: Pose, y: FloatArray, ro
                              index: Any) -> str | None:
     """A search that stopped at the first start that passed (``stop_at_first``, Algorithm 5 as
     printed) never compared its answer with the other starts': the review's rule for an
-    unconfirmed fit (:mod:`algorithms.registration.review`) applies. The reason it is a poor fit
+    unconfirmed fit (:mod:`algorithms.registration.review`, :mod:`..rejected`) applies. The reason it is a poor fit
     where the points the polish rejected would carry at least ``LOAD_BEARING_INFORMATION`` of the
     kept points' information (workpiece A turned 90 deg about its dome fits all but the few points
     that tell the turns apart), else None."""
-    from algorithms.registration.review import LOAD_BEARING_INFORMATION, rejected_information
-
     if res.n_outliers == 0:
         return None
     info = rejected_information(y, res.inliers[rows], T, index)
