@@ -10,7 +10,7 @@ import pytest
 from algorithms.geometry.mesh_index import MeshIndex
 from algorithms.geometry.se3 import make_pose
 from algorithms.registration import localize
-from algorithms.registration.review import PATCH_FRACTION, coherent_fraction, rejected_information
+from algorithms.registration.rejected import PATCH_FRACTION, coherent_fraction, rejected_information
 from benchmarks.verdict_battery import ADVERSARIAL_KINDS, PARTS, SOUND_KINDS, battery, trial
 from twin.parts import make_workpiece
 

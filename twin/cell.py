@@ -98,6 +98,15 @@ class Cell:
         return T
 
 
+def true_cell_content(realized: Realized) -> tuple:
+    """What the true cell is built from besides the scenario's tables: the truth's link errors,
+    hand-eye transform and placement, as plain lists (a key for sharing one compiled true cell
+    among realizations that draw the same truth)."""
+    t = realized.truth
+    errors = [(e.body, np.asarray(e.dpos_m).tolist(), np.asarray(e.dR).tolist()) for e in t.link_errors]
+    return errors, np.asarray(t.T_flange_sensor).tolist(), np.asarray(t.T_world_workpiece).tolist()
+
+
 def _body_rotation(body) -> np.ndarray:
     """Rotation of a spec body relative to its parent, whichever way the XML wrote it."""
     if body.alt.type == mujoco.mjtOrientation.mjORIENTATION_EULER:

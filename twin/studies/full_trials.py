@@ -38,7 +38,7 @@ import numpy as np
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.se3 import transform_points
 from twin import evaluate
-from twin.cell import Cell, build_cell
+from twin.cell import Cell, build_cell, true_cell_content
 from twin.errors import TwinError
 from twin.plan import ScanPlan, plan_scan
 from twin.process_paths import cad_path_lines, check_process_region
@@ -113,11 +113,8 @@ def nominal_key(scenario: Scenario) -> str:
 
 
 def truth_key(realized: Realized) -> str:
-    """The nominal key and the truth the true cell is built from."""
-    t = realized.truth
-    errors = [(e.body, np.asarray(e.dpos_m).tolist(), np.asarray(e.dR).tolist()) for e in t.link_errors]
-    return _digest(nominal_key(realized.scenario), errors, np.asarray(t.T_flange_sensor).tolist(),
-                   np.asarray(t.T_world_workpiece).tolist())
+    """The nominal key and the truth the true cell is built from (:func:`twin.cell.true_cell_content`)."""
+    return _digest(nominal_key(realized.scenario), true_cell_content(realized))
 
 
 def _make_nominal(realized: Realized) -> Nominal:

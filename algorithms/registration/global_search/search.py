@@ -278,31 +278,22 @@ def global_localize(
             a distance [m] or None (see :mod:`algorithms.registration.robust`).
         start_table: multistart start orientations (see :func:`orientation_table`).
         stop_at_first: document 000's literal rule: stop at the first start passing all tests.
-        n_coarse: points used in the coarse phases (farthest-point subset).
-        n_verify: points used to refine and compare candidate minima (random subset).
+        n_coarse, n_verify: points of the coarse phases (farthest-point subset) and of the
+            candidates' refinement and comparison (random subset).
         max_candidates: distinct coarse minima refined with exact closest points.
-        ga_bits: GA bits per pose coordinate (default: our 10).
-        ga_mutation: ``"per_bit"`` (default) or ``"per_chromosome"``: what the document's
-            mutation probability applies to.
-        ga_population: GA population (default: the document's 100).
-        ga_generations: GA generations (default: the document's 100).
+        ga_bits, ga_population, ga_generations: GA bits per coordinate (our 10), population and
+            generations (the document's 100 and 100).
+        ga_mutation: what the document's Pm applies to: ``"per_bit"`` or ``"per_chromosome"``.
         ga_restarts: at most this many GA runs, until one passes Algorithm 5's acceptance (needs
             ``noise_sigma_m``; without it one run, the document's algorithm).
-        ga_rotation_range_rad: None (default: the GA searches every orientation) or the GA's
-            constraint: each Euler angle within this range [rad] (in (0, pi]) of ``init``'s
-            orientation.
-        init: a (4, 4) nominal ``T_world_workpiece``, the centre of the constrained GA's
-            orientations (needed with ``ga_rotation_range_rad``; no other method reads it).
-        pso_particles: PSO swarm size (default: the patent's 40).
-        pso_iterations: PSO iterations (default: the patent's 100).
-        pso_rotation_range_rad: PSO rotation range around the pre-registration (default 5 deg).
-        pso_translation_range_m: PSO translation range (default 2 % of the model's size).
+        ga_rotation_range_rad: None (every orientation) or each GA Euler angle within this
+            range [rad], in (0, pi], of ``init``'s orientation (a (4, 4) nominal pose).
+        pso_particles, pso_iterations: PSO swarm size and iterations (the patent's 40 and 100).
+        pso_rotation_range_rad, pso_translation_range_m: PSO ranges around the pre-registration
+            (default 5 deg and 2 % of the model's size).
         pso_fitness: ``"exact"`` (patent: nearest model points) or ``"field"`` (coarse field).
-        variant: ``"ours"`` or ``"printed"``: the multistart's start table and stopping rule as
-            document 000 prints Algorithm 5 (the 36 Euler starts ``start_table="liu2001"``, stop at
-            the first start that passes all tests ``stop_at_first=True``); the descents, the
-            verification of the candidates and the polish stay ours. Multistart only; it sets
-            ``start_table`` and ``stop_at_first``, which must then be left at their defaults.
+        variant: ``"ours"`` or ``"printed"``: Algorithm 5's start table and stop as printed
+            (sets ``start_table="liu2001"``, ``stop_at_first=True``: leave both out); multistart only.
 
     Returns:
         GlobalLocalizationResult: ``status`` OK, AMBIGUOUS (``solutions``: every equally good
@@ -323,30 +314,19 @@ def global_localize(
         max_candidates, GASettings(ga_bits, ga_mutation, ga_population, ga_generations, ga_restarts,
                                    *_ga_constraint(method, ga_rotation_range_rad, init)),
         PSOSettings(pso_rotation_range_rad, pso_translation_range_m, pso_particles, pso_iterations, pso_fitness))
-    R0 = orientation_table(start_table)
-    y = P[rows]
+    R0, y = orientation_table(start_table), P[rows]
     check_units(y, index)
     model = _model(index, index.mesh if mesh is None else mesh)
     pts = _subsets(P, rows, y, opts, rng, model.extent)
     noise = _noise(noise_sigma_m, model_error_m)
     timings: dict[str, float] = {}
-    search = _search(opts, model, pts, noise, R0, rng, timings)
-    with _stopwatch(timings, "refine_s"):
-        refined_T, refined_eps = refine_candidates(model.exact, pts.y_v, search.primary, search.coarse.lanes,
-                                                   model.extent, opts.max_candidates, pts.L)
-    with _stopwatch(timings, "polish_s"):
-        T_best = search.primary if search.primary is not None else refined_T[int(np.argmin(refined_eps))]
-        res, T_final = _polish(opts, model, pts, noise, T_best, t0)
-    verdict = _verify_on_inliers(opts, model, pts, noise, res, T_final, refined_T, refined_eps)
-    status, message = _final_status(opts.polish, res, verdict)
-    unconfirmed = _first_start_unconfirmed(res, T_final, P[rows], rows, index) \
-        if opts.stop_at_first and status == Status.OK else None
-    if unconfirmed is not None:
-        status, message = Status.POOR_FIT, f"poor fit: {unconfirmed}; {message}"
+    search, res, T_final, verdict = _search_and_polish(opts, model, pts, noise, R0, rng, timings, t0)
+    status, message, reason = _final_status(opts, res, verdict, _first_start_unconfirmed(res, T_final, y, rows, index)
+                                            if opts.stop_at_first else None)
     base = {f.name: getattr(res, f.name) for f in fields(RegistrationResult)}
     base.update(T_world_workpiece=T_final, method=method, status=status, message=message,
                 solutions=verdict.solutions, time_s=time.perf_counter() - t0,
-                poor_fit_reason=unconfirmed or res.poor_fit_reason)
+                poor_fit_reason=reason)
     return GlobalLocalizationResult(**base, candidates=verdict.candidates,
                                     diagnostics=_diagnostics(opts, model, pts, noise, search, res, verdict, timings))
 
@@ -536,6 +516,20 @@ def _diagnostics(opts: _Options, model: _Model, pts: _Points, noise: _Noise, sea
     )
 
 
+def _search_and_polish(opts: _Options, model: Any, pts: Any, noise: Any, R0: FloatArray, rng: np.random.Generator,
+                       timings: dict[str, float], t0: float) -> tuple[Any, RegistrationResult, Pose, Verdict]:
+    """The method's search, its candidates refined, the best polished and verified:
+    (the search, the polish's result, the final pose, the verification's verdict)."""
+    search = _search(opts, model, pts, noise, R0, rng, timings)
+    with _stopwatch(timings, "refine_s"):
+        refined_T, refined_eps = refine_candidates(model.exact, pts.y_v, search.primary, search.coarse.lanes,
+                                                   model.extent, opts.max_candidates, pts.L)
+    with _stopwatch(timings, "polish_s"):
+        T_best = search.primary if search.primary is not None else refined_T[int(np.argmin(refined_eps))]
+        res, T_final = _polish(opts, model, pts, noise, T_best, t0)
+    return search, res, T_final, _verify_on_inliers(opts, model, pts, noise, res, T_final, refined_T, refined_eps)
+
+
 def _first_start_unconfirmed(res: RegistrationResult, T: Pose, y: FloatArray, rows: np.ndarray,
                              index: Any) -> str | None:
     """A search that stopped at the first start that passed (``stop_at_first``, Algorithm 5 as
@@ -554,18 +548,22 @@ def _first_start_unconfirmed(res: RegistrationResult, T: Pose, y: FloatArray, ro
             "unconfirmed")
 
 
-def _final_status(polish: str | None, res: RegistrationResult, verdict: Verdict) -> tuple[Status, str]:
+def _final_status(opts: _Options, res: RegistrationResult, verdict: Verdict,
+                  unconfirmed: str | None) -> tuple[Status, str, str | None]:
     """The verification's verdict, overruled by the polish: its fit check sees what a residual
     test against an estimated sigma cannot (POOR_FIT), and a polish that did not converge
-    returns a pose not at its minimum (NOT_CONVERGED)."""
+    returns a pose not at its minimum (NOT_CONVERGED); an ``ok`` from a search stopped at its
+    first start, by ``unconfirmed`` (:func:`_first_start_unconfirmed`). With the poor fit's reason."""
     status, message = verdict.status, verdict.message
     if status not in (Status.OK, Status.AMBIGUOUS, Status.UNOBSERVABLE):
-        return status, message
+        return status, message, res.poor_fit_reason
     if res.poor_fit_reason is not None:
-        return Status.POOR_FIT, f"poor fit: {res.poor_fit_reason}; {verdict.message}"
-    if polish is not None and not res.converged:
-        return Status.NOT_CONVERGED, f"polish {res.message}; {verdict.message}"
-    return status, message
+        return Status.POOR_FIT, f"poor fit: {res.poor_fit_reason}; {verdict.message}", res.poor_fit_reason
+    if opts.polish is not None and not res.converged:
+        return Status.NOT_CONVERGED, f"polish {res.message}; {verdict.message}", None
+    if status == Status.OK and unconfirmed is not None:
+        return Status.POOR_FIT, f"poor fit: {unconfirmed}; {message}", unconfirmed
+    return status, message, None
 
 
 def pso_refine(points: ArrayLike, T_init: ArrayLike, *, index: Any = None, mesh: Any = None,
