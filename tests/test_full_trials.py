@@ -27,7 +27,9 @@ STUDY = ROOT / "studies" / "robot_errors.toml"
 
 def plain_full_trial(study, cell: int, trial: int) -> dict:
     """The trial as the whole loop of ``twin run`` on its own realization (cells compiled, scan
-    planned, solved and simulated, paths solved and replayed): nothing shared."""
+    planned, solved and simulated, paths solved and replayed): nothing shared. The realization
+    is made here as the trial makes it, on purpose written out again: the plain path owes the
+    shared one nothing."""
     settings = study.cell_settings(cell)
     _, rng_err, _, _ = trial_streams(study.seed, cell, trial)
     seed = int(rng_err.integers(0, 2**63 - 1))
