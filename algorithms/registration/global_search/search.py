@@ -274,23 +274,23 @@ def global_localize(
         model_error_m: model error (tessellation, form) [m], added in quadrature to sigma.
         polish: local method of :func:`algorithms.registration.local.localize` applied to the
             best pose with all points (None: no polish; the GA's fine stage still runs).
-        outlier: the outlier rule of the polish and the GA's fine stage: ``"mad"`` (default),
-            a distance [m] or None (see :mod:`algorithms.registration.robust`).
+        outlier: the polish's and the GA fine stage's outlier rule (:mod:`..robust`).
         start_table: multistart start orientations (see :func:`orientation_table`).
         stop_at_first: document 000's literal rule: stop at the first start passing all tests.
-        n_coarse, n_verify: points of the coarse phases (farthest-point subset) and of the
-            candidates' refinement and comparison (random subset).
+        n_coarse: points used in the coarse phases (farthest-point subset).
+        n_verify: points used to refine and compare candidate minima (random subset).
         max_candidates: distinct coarse minima refined with exact closest points.
-        ga_bits, ga_population, ga_generations: GA bits per coordinate (our 10), population and
-            generations (the document's 100 and 100).
+        ga_bits: GA bits per pose coordinate (default: our 10).
         ga_mutation: what the document's Pm applies to: ``"per_bit"`` or ``"per_chromosome"``.
-        ga_restarts: at most this many GA runs, until one passes Algorithm 5's acceptance (needs
-            ``noise_sigma_m``; without it one run, the document's algorithm).
+        ga_population: GA population (default: the document's 100).
+        ga_generations: GA generations (default: the document's 100).
+        ga_restarts: the most GA runs, until one passes Algorithm 5's test (one without a sigma).
         ga_rotation_range_rad: None (every orientation) or each GA Euler angle within this
             range [rad], in (0, pi], of ``init``'s orientation (a (4, 4) nominal pose).
-        pso_particles, pso_iterations: PSO swarm size and iterations (the patent's 40 and 100).
-        pso_rotation_range_rad, pso_translation_range_m: PSO ranges around the pre-registration
-            (default 5 deg and 2 % of the model's size).
+        pso_particles: PSO swarm size (default: the patent's 40).
+        pso_iterations: PSO iterations (default: the patent's 100).
+        pso_rotation_range_rad: PSO rotation range around the pre-registration (default 5 deg).
+        pso_translation_range_m: PSO translation range (default 2 % of the model's size).
         pso_fitness: ``"exact"`` (patent: nearest model points) or ``"field"`` (coarse field).
         variant: ``"ours"`` or ``"printed"``: Algorithm 5's start table and stop as printed
             (sets ``start_table="liu2001"``, ``stop_at_first=True``: leave both out); multistart only.
