@@ -55,6 +55,8 @@ LOCALIZE_KEYS: dict[str, tuple[Any, Any, str]] = {
                "0 (every scanned point) or an integer in [6, 10^7]"),
     "subsample": ("none", lambda v: v in SUBSAMPLE_RULES, f"one of {', '.join(SUBSAMPLE_RULES)}"),
     "variant": ("ours", lambda v: v in VARIANTS, f"one of {', '.join(VARIANTS)}"),
+    "tolerance": (0.0, lambda v: _is_number(v) and 0.0 <= v <= 0.1,
+                  "a number in [0, 0.1]: delta of the stopping rule (0: the method's default)"),
     "ga_mutation": ("per_bit", lambda v: v in ("per_bit", "per_chromosome"), "'per_bit' or 'per_chromosome'"),
     "ga_rotation_range_deg": (0.0, lambda v: _is_number(v) and 0.0 <= v <= 180.0,
                               "a number in [0, 180] (0: every orientation)"),
@@ -512,6 +514,9 @@ def _check_cell(cell: CellSettings, kind: str) -> None:
     if ga_set and loc["method"] not in ("genetic_coarse", "genetic_001"):
         raise TwinError(f"localize.ga_mutation and localize.ga_rotation_range_deg read document 001's GA "
                         f"(method 'genetic_coarse' or 'genetic_001'), not {loc['method']!r}")
+    if loc["tolerance"] and loc["method"] not in METHODS:
+        raise TwinError(f"localize.tolerance is the stopping rule's delta of a local method ({', '.join(METHODS)}), "
+                        f"not of {loc['method']!r}")
     if loc["points"] and kind == "points":
         raise TwinError("localize.points subsets scanned points; with kind = 'points' set points.count")
     if kind == "normals" and cell.normals["method"] == "pca" and cell.normals["triangles"] != "fan":

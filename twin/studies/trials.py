@@ -232,7 +232,8 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
     t0 = time.perf_counter()
     try:
         out = run_method(loc["method"], pts, workpiece, T_init, sigma_m, rng, loc["init_distance_m"], loc["variant"],
-                         {"mutation": loc["ga_mutation"], "rotation_range_deg": loc["ga_rotation_range_deg"]})
+                         {"mutation": loc["ga_mutation"], "rotation_range_deg": loc["ga_rotation_range_deg"]},
+                         loc["tolerance"] or None)
     except AlgorithmError:
         return _failed("error", len(pts), time.perf_counter() - t0, C)
     if isinstance(out, str):
