@@ -35,7 +35,7 @@ def bar_algorithm2() -> list[str]:
             "errors are measured in the directions the feature fixes; the rank is that of the Tangent / "
             "Hong-Tan linear system (document 000, section 4: singular on a symmetric feature).", "",
             "| feature | free | table | fixed-direction rotation error [rad] | fixed-direction translation error [m] "
-            "| Tangent/Hong-Tan rank | full rank |", "|---|---|---|---|---|---|---|"]
+            "| Tangent/Hong-Tan rank | full rank | rank deficit |", "|---|---|---|---|---|---|---|---|"]
     for kind in FEATURE_TYPES:
         rng = np.random.default_rng(FEATURE_TYPES.index(kind) + 100)
         f = example_features()[kind]
@@ -46,7 +46,8 @@ def bar_algorithm2() -> list[str]:
         res = algorithm2(transform_points(T, X), f, init=T @ exp_se3(xi0))
         ang, dist = f.group.distance(inv_pose(T) @ res.T_world_workpiece)
         rows.append(f"| {kind} | {res.free_dofs} | {FEATURE_TABLE[kind].group_dim} | {ang:.2e} | {dist:.2e} | "
-                    f"{res.general_system_rank} | {3 if f.planar else 6} |")
+                    f"{res.general_system_rank} | {3 if f.planar else 6} | "
+                    f"{(3 if f.planar else 6) - res.general_system_rank} |")
     return rows
 
 
