@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tests.helpers import commit_stamp
+
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = (("inner_sphere", "inner_sphere"), ("through_hole", "through_hole"),
                ("inner_sphere", "inner_sphere_below_plane"))
@@ -49,8 +51,29 @@ def _rows(teach, setup, seed: int) -> list[dict]:
     rows = []
     for m, p in plan_programs(teach, setup).items():
         run = execute(p.program, setup, np.random.default_rng(seed))
-        rows.append({"method": m, "plan": plan_report(p), "run": run_report(run)})
+        rows.append({"method": m, "plan": plan_report(p), "run": run_report(run), "dmis": _read_back(p.program)})
     return rows
+
+
+def _read_back(program) -> dict:
+    """The program written as DMIS and read back by both readers: the strict one (the format the
+    planners write) and the general one (programs from measurement software), lowered to moves."""
+    from algorithms.probing.dmis import parse_dmis, write_dmis
+    from algorithms.probing.dmis.model import lower
+    from algorithms.probing.dmis.reader import parse_program
+
+    text = write_dmis(program)
+    return {"lines": len(text.splitlines()), "strict": parse_dmis(text) == program,
+            "general": lower(parse_program(text)).program == program}
+
+
+def _read_back_table(rows: list[dict]) -> str:
+    lines = ["| program | DMIS lines | read back, strict reader | read back, general reader |", "|---|---|---|---|"]
+    for r in rows:
+        d = r["dmis"]
+        lines += [f"| {r['method']} | {d['lines']} | {'same' if d['strict'] else 'differs'} | "
+                  f"{'same' if d['general'] else 'differs'} |"]
+    return "\n".join(lines)
 
 
 def experiments() -> str:
@@ -62,7 +85,9 @@ def experiments() -> str:
         t0 = time.perf_counter()
         rows = _rows(load_teach(ROOT / "scenarios" / "cmm" / "teach" / f"{teach}.toml"), _setup(part), 1)
         out.append(f"### {teach} (scenarios/cmm/{part}.toml)\n\n{comparison_table(rows)}\n"
-                   f"({time.perf_counter() - t0:.1f} s to plan and run the three)\n")
+                   f"({time.perf_counter() - t0:.1f} s to plan and run the three)\n\n"
+                   f"Each program written as DMIS and read back (the same program: every statement, point and "
+                   f"setting):\n\n{_read_back_table(rows)}\n")
     return "\n".join(out)
 
 
@@ -117,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     text = ["# CMM measurement programs (document 002)", "",
             f"Command: `python -m benchmarks.bench_cmm --random {args.random} --workers {args.workers}`; "
-            f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python "
+            f"commit {commit_stamp()}; {platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python "
             f"{sys.version.split()[0]}.", "",
             "Contacts are counted in the twin (every 1 ms sample of the executed motion against the exact part); "
             "predicted collisions are the planner's swept check of the program's moves.", "",

@@ -1,0 +1,28 @@
+"""A CAM program's cutter locations moved to where the part is (document 003, step 5).
+
+The CAM program is written in the CAD (programming) frame for the part at its nominal place;
+the located pose ``T_machine_workpiece`` maps CAD coordinates to machine coordinates. For a
+ball-end tool of radius ``r`` on a 3-axis machine (tool axis ``+z`` in both frames) the ball's
+centre ``c = tip + r z`` is what touches the surface the same way wherever the part is: the
+centre moves rigidly, ``c' = T c``, and the new tip is ``c' - r z``. The shank stays vertical,
+so its clearance changes by the part's rotation (a few degrees at most after localization);
+a flat or bull-nose tool would need the part's rotation in the tool axis (5 axes).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from algorithms.geometry.se3 import as_pose, transform_points
+
+
+def relocate_tool_tips(tips_mm: ArrayLike, tool_radius_mm: float, T_machine_workpiece: ArrayLike) -> np.ndarray:
+    """The tool tips [mm] that machine the CAD-frame program ``tips_mm`` (N, 3) on the part at
+    ``T_machine_workpiece`` (a rigid (4, 4) pose in metres) with a ball-end tool."""
+    if not tool_radius_mm > 0:
+        raise ValueError(f"tool_radius_mm must be > 0, got {tool_radius_mm}")
+    T = as_pose(T_machine_workpiece)
+    up = np.array([0.0, 0.0, float(tool_radius_mm)])
+    centres_m = (np.asarray(tips_mm, dtype=np.float64).reshape(-1, 3) + up) * 1e-3
+    return transform_points(T, centres_m) * 1e3 - up
