@@ -9,7 +9,8 @@
 """
 
 from algorithms.nc.cam import drop_cutter_raster
-from algorithms.nc.gcode import GCodeError, Move, read_gcode, write_gcode
-from algorithms.nc.relocate import relocate_tool_tips
+from algorithms.nc.gcode import GCodeError, Move, program_text, read_gcode, write_gcode
+from algorithms.nc.relocate import relocate_program, relocate_tool_tips
 
-__all__ = ["GCodeError", "Move", "drop_cutter_raster", "read_gcode", "relocate_tool_tips", "write_gcode"]
+__all__ = ["GCodeError", "Move", "drop_cutter_raster", "program_text", "read_gcode", "relocate_program",
+           "relocate_tool_tips", "write_gcode"]

@@ -1,8 +1,9 @@
 """A 3-axis G-code program: written from tool-tip passes, read back into moves.
 
-Written: ``G21`` (mm), ``G90`` (absolute), ``G17``; per pass a rapid ``G0`` to the safe height,
-a rapid over the pass's first point, a ``G1`` plunge at the plunge feed, ``G1`` moves through the
-pass at the feed, a rapid back to the safe height; ``M30`` at the end. Coordinates are printed
+Written: ``G21`` (mm), ``G90`` (absolute), ``G17``; a rapid ``G0`` to the safe height, then per
+pass a rapid over its first point, a ``G1`` plunge at the plunge feed, ``G1`` moves through the
+pass at the feed, a rapid back to the safe height; ``M30`` at the end. A word is written only
+where its value changes. Coordinates are printed
 with ``decimals`` digits in mm (3: 1 um, ten times finer than document 004's 0.01 mm).
 
 Read: the words of ISO 6983 that such a program holds: ``G0``/``G00``, ``G1``/``G01`` (modal),
@@ -34,12 +35,19 @@ class GCodeError(ValueError):
 @dataclass(frozen=True)
 class Move:
     """One straight move: ``rapid`` (G0) or feed (G1), its end point [mm], feed [mm/min] (G1),
-    and the program line it comes from."""
+    the program line it comes from, and ``axes``: the axes its line names (``"Z"`` for a
+    retract), all three when it ends where X, Y and Z are all known."""
 
     rapid: bool
     xyz_mm: tuple[float, float, float]
     feed_mm_min: float
     line: int
+    axes: str = "XYZ"
+
+    @property
+    def complete(self) -> bool:
+        """Whether the end point is known in all three axes (not a move of the start's axes alone)."""
+        return self.axes == "XYZ"
 
 
 def write_gcode(passes_mm: Sequence[ArrayLike], *, feed_mm_min: float = 1000.0, plunge_feed_mm_min: float = 300.0,
@@ -59,21 +67,38 @@ def write_gcode(passes_mm: Sequence[ArrayLike], *, feed_mm_min: float = 1000.0, 
     top = max(float(p[:, 2].max()) for p in passes)
     if safe_z_mm <= top:
         raise GCodeError(f"safe_z_mm {safe_z_mm:g} is not above the highest point of the passes ({top:g} mm)")
-    f = f"{{:.{decimals}f}}"
-    lines = ["%", f"({title.replace('(', '').replace(')', '')})" if title else "(program)", "G21 G90 G17",
-             f"G0 Z{f.format(safe_z_mm)}"]
+    moves = [Move(True, (0.0, 0.0, safe_z_mm), 0.0, 0, "Z")]
     for p in passes:
         x, y, z = p[0]
-        lines += [f"G0 X{f.format(x)} Y{f.format(y)}", f"G1 Z{f.format(z)} F{plunge_feed_mm_min:g}"]
-        lines += [f"G1 X{f.format(a)} Y{f.format(b)} Z{f.format(c)}" + (f" F{feed_mm_min:g}" if i == 0 else "")
-                  for i, (a, b, c) in enumerate(p[1:])]
-        lines.append(f"G0 Z{f.format(safe_z_mm)}")
+        moves += [Move(True, (x, y, safe_z_mm), 0.0, 0), Move(False, (x, y, z), plunge_feed_mm_min, 0)]
+        moves += [Move(False, (a, b, c), feed_mm_min, 0) for a, b, c in p[1:]]
+        moves.append(Move(True, (p[-1][0], p[-1][1], safe_z_mm), 0.0, 0))
+    return program_text(moves, decimals=decimals, title=title)
+
+
+def program_text(moves: Sequence[Move], *, decimals: int = 3, title: str = "") -> str:
+    """G-code of ``moves`` (mm, absolute): each its G0 or G1 and the axes it names, a feed
+    where it changes; ``M30`` at the end."""
+    f = f"{{:.{decimals}f}}"
+    lines = ["%", f"({title.replace('(', '').replace(')', '')})" if title else "(program)", "G21 G90 G17"]
+    feed, last = None, None
+    for m in moves:
+        words = ["G0" if m.rapid else "G1"]
+        words += [f"{a}{f.format(v)}" for a, v in zip("XYZ", m.xyz_mm, strict=True) if a in m.axes
+                  and (last is None or not m.complete or f.format(v) != f.format(last[a]))]
+        if not m.rapid and m.feed_mm_min != feed:
+            words.append(f"F{m.feed_mm_min:g}")
+            feed = m.feed_mm_min
+        if len(words) > 1:
+            lines.append(" ".join(words))
+        last = dict(zip("XYZ", m.xyz_mm, strict=True)) if m.complete else None
     return "\n".join([*lines, "M30", "%"]) + "\n"
 
 
 def read_gcode(text: str) -> list[Move]:
     """The straight moves of a program (module docstring), end points in mm, absolute."""
     pos = np.zeros(3)
+    known = ""
     mm, absolute, rapid, feed = 1.0, True, True, 0.0
     moves: list[Move] = []
     for number, raw in enumerate(text.splitlines(), start=1):
@@ -95,7 +120,9 @@ def read_gcode(text: str) -> list[Move]:
             pos = new if absolute else pos + new
             if not rapid and feed <= 0:
                 raise GCodeError(f"line {number}: a G1 move with no feed (F) set before it")
-            moves.append(Move(rapid, (float(pos[0]), float(pos[1]), float(pos[2])), 0.0 if rapid else feed, number))
+            known = "".join(a for a in "XYZ" if a in known or a in axes)
+            moves.append(Move(rapid, (float(pos[0]), float(pos[1]), float(pos[2])), 0.0 if rapid else feed, number,
+                              known))
     return moves
 
 
@@ -104,6 +131,9 @@ def _words(line: str, number: int) -> list[tuple[str, float]]:
     rest = _WORD.sub("", line).strip()
     if rest:
         raise GCodeError(f"line {number}: {rest!r} is not a G-code word (a letter and a number)")
+    for letter, value in words:
+        if letter == "G":
+            _g_word(value, number, 1.0, True, True)  # refuses what it cannot execute, before its arguments
     for letter, _ in words:
         if letter not in _ALLOWED_LETTERS:
             raise GCodeError(f"line {number}: word {letter} is refused: only straight 3-axis moves are read "

@@ -11,10 +11,14 @@ a flat or bull-nose tool would need the part's rotation in the tool axis (5 axes
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import ArrayLike
 
 from algorithms.geometry.se3 import as_pose, transform_points
+from algorithms.nc.gcode import Move
 
 
 def relocate_tool_tips(tips_mm: ArrayLike, tool_radius_mm: float, T_machine_workpiece: ArrayLike) -> np.ndarray:
@@ -26,3 +30,13 @@ def relocate_tool_tips(tips_mm: ArrayLike, tool_radius_mm: float, T_machine_work
     up = np.array([0.0, 0.0, float(tool_radius_mm)])
     centres_m = (np.asarray(tips_mm, dtype=np.float64).reshape(-1, 3) + up) * 1e-3
     return transform_points(T, centres_m) * 1e3 - up
+
+
+def relocate_program(moves: Sequence[Move], tool_radius_mm: float, T_machine_workpiece: ArrayLike) -> list[Move]:
+    """Every move of a CAD-frame program (:func:`algorithms.nc.read_gcode`) relocated by
+    :func:`relocate_tool_tips`; the moves made before X, Y and Z are all known (a program's
+    opening retract, ``G0 Z50``) are kept as written: their end point is not a cutter location."""
+    done = [m for m in moves if m.complete]
+    tips = relocate_tool_tips([m.xyz_mm for m in done], tool_radius_mm, T_machine_workpiece) if done else []
+    moved = iter(tips)
+    return [replace(m, xyz_mm=tuple(float(v) for v in next(moved))) if m.complete else m for m in moves]

@@ -16,6 +16,11 @@ sensor's linearity curve as a systematic effect of unknown phase
 ``chi2_0.95(q)``. How often it holds the true error is measured by
 ``benchmarks/bench_coverage.py``.
 
+``--nc PROGRAM --nc-out FILE --tool-radius VALUE`` is document 003's last step: the CAM
+program's cutter locations (G-code in the model's frame, a ball-end tool) moved to the found
+pose (:func:`algorithms.nc.relocate_program`) and written, only when the pose is trusted; when
+it is not, nothing is written and the exit status is ``EXIT_UNTRUSTED``.
+
 From a start (``--init FILE``) the local method runs (document 000's Algorithm 1); without
 ``--init`` (or with ``--init global``) every orientation is searched first
 (:func:`algorithms.registration.global_search.global_localize`: Algorithm 5's multistart from
@@ -36,6 +41,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -130,6 +136,14 @@ def add_parser(sub) -> None:
     p.add_argument("--stock", type=positive_float, default=None, metavar="VALUE",
                    help="nominal stock in --units: rough points inside the finished model by more are "
                         "refused (default: the 10th percentile of the rough points' stock)")
+    p.add_argument("--nc", default=None, metavar="PROGRAM",
+                   help="a G-code CAM program written in the model's frame (3 axes, straight moves; document "
+                        "003's last step): with --nc-out, its cutter locations are moved to where the part is "
+                        "and the program written there, only when the result is trusted")
+    p.add_argument("--nc-out", default=None, metavar="FILE", help="where the relocated program is written")
+    p.add_argument("--tool-radius", type=positive_float, default=None, metavar="VALUE",
+                   help="the ball-end tool's radius in --units (the program's tips are relocated about the "
+                        "ball's centre)")
     p.set_defaults(run=run)
 
 
@@ -302,6 +316,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise TwinError(f"--outlier must be 'mad', 'none' or a distance, got {args.outlier!r}") from None
     symmetric = _symmetric_choice(args)
+    program = _read_nc(args)
     found = None
     if search:
         from algorithms.registration.global_search import global_localize
@@ -321,8 +336,54 @@ def run(args: argparse.Namespace) -> int:
     res, uncertainty = _with_uncertainty(res, readings, index, sigma, sigma_given=args.sigma is not None)
     out = result_to_json(res)
     out["uncertainty"] = uncertainty
+    if program is not None:
+        out["nc_program"] = _write_nc(args, program, res, scale)
     _print(res, out, args.json)
+    if program is not None and not out["nc_program"]["written"]:
+        return EXIT_UNTRUSTED
     return _exit_code(res, symmetric_asked)
+
+
+def _read_nc(args: argparse.Namespace):
+    """The CAM program of ``--nc`` read before any work (refused: exit 2), or None."""
+    given = [args.nc is not None, args.nc_out is not None, args.tool_radius is not None]
+    if not any(given):
+        return None
+    if not all(given):
+        raise TwinError("--nc PROGRAM, --nc-out FILE and --tool-radius VALUE go together")
+    from algorithms.nc import GCodeError, read_gcode
+
+    try:
+        text = Path(args.nc).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise TwinError(f"--nc {args.nc}: cannot read it as a UTF-8 text file ({e.__class__.__name__})") from None
+    try:
+        moves = read_gcode(text)
+    except GCodeError as e:
+        raise TwinError(f"--nc {args.nc}: {e}") from None
+    if not any(m.complete for m in moves):
+        raise TwinError(f"--nc {args.nc}: no move with X, Y and Z known: nothing to relocate")
+    out = Path(args.nc_out)
+    if not out.parent.is_dir():
+        raise TwinError(f"--nc-out {args.nc_out}: its folder does not exist")
+    return moves
+
+
+def _write_nc(args: argparse.Namespace, moves, res: RegistrationResult, scale: float) -> dict:
+    """The relocated program written to ``--nc-out`` (atomically) when the pose is trusted."""
+    if not res.trusted:
+        return {"written": False, "path": args.nc_out,
+                "why": f"the pose is not trusted (status {res.status.value}): an NC program is written only "
+                       "from a trusted pose"}
+    from algorithms.nc import program_text, relocate_program
+
+    moved = relocate_program(moves, args.tool_radius * scale * 1e3, res.T_world_workpiece)
+    text = program_text(moved, title=f"{Path(args.nc).name} relocated to the localized pose")
+    target = Path(args.nc_out)
+    tmp = target.with_name(f".{target.name}.partial")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, target)
+    return {"written": True, "path": args.nc_out, "moves": len(moved)}
 
 
 def _with_uncertainty(res, readings, index: MeshIndex, sigma: float | None, sigma_given: bool):
@@ -381,6 +442,10 @@ def _print(res, out: dict, as_json: bool) -> None:
     print(f"iterations {res.iterations}, rmse {res.rmse_m * 1e6:.3f} um, "
           f"{res.n_points_used} points used, {res.n_outliers} outliers, "
           f"{res.n_dropped_nonfinite} non-finite dropped, {res.time_s * 1e3:.1f} ms")
+    if "nc_program" in out:
+        nc = out["nc_program"]
+        print(f"NC program written to {nc['path']} ({nc['moves']} moves)" if nc["written"]
+              else f"NC program NOT written: {nc['why']}")
     if "min_allowance_m" in out:
         print("smallest stock per group [mm]: "
               + ", ".join(f"{k} {v * 1e3:.4f}" for k, v in out["min_allowance_m"].items()))
