@@ -37,6 +37,13 @@ def relocate_program(moves: Sequence[Move], tool_radius_mm: float, T_machine_wor
     :func:`relocate_tool_tips`; the moves made before X, Y and Z are all known (a program's
     opening retract, ``G0 Z50``) are kept as written: their end point is not a cutter location."""
     done = [m for m in moves if m.complete]
-    tips = relocate_tool_tips([m.xyz_mm for m in done], tool_radius_mm, T_machine_workpiece) if done else []
+    tips = (relocate_tool_tips([m.xyz_mm for m in done], tool_radius_mm, T_machine_workpiece) if done
+            else np.zeros((0, 3)))
     moved = iter(tips)
-    return [replace(m, xyz_mm=tuple(float(v) for v in next(moved))) if m.complete else m for m in moves]
+    out = []
+    for m in moves:
+        if m.complete:
+            x, y, z = next(moved)
+            m = replace(m, xyz_mm=(float(x), float(y), float(z)))
+        out.append(m)
+    return out

@@ -13,6 +13,7 @@ import numpy as np
 from algorithms.arraytypes import ArrayLike, FloatArray, IntArray
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.mesh_index import MeshIndex
+from algorithms.geometry.parametric import ParametricModel
 
 __all__ = ["MIN_POINTS", "UNITS_MAX_RATIO", "UNITS_MIN_RATIO", "check_sigma", "check_units", "finite_rows",
            "mesh_index"]
@@ -43,13 +44,15 @@ def finite_rows(points: ArrayLike, min_points: int = MIN_POINTS) -> tuple[FloatA
 
 
 def mesh_index(mesh: object, index: MeshIndex | None) -> MeshIndex:
-    """A prebuilt index, or one built for ``mesh`` (a trimesh or what :class:`MeshIndex` takes)."""
+    """A prebuilt index, or one built for ``mesh`` (a trimesh or what :class:`MeshIndex` takes).
+    A :class:`~algorithms.geometry.parametric.ParametricModel` (exact surfaces, Newton foot
+    points) passes too: Algorithm 1 as printed runs on it."""
     if index is None:
         if mesh is None:
             raise AlgorithmError("give a mesh (or a prebuilt index)")
         return MeshIndex(mesh)
-    if not isinstance(index, MeshIndex):
-        raise AlgorithmError(f"index must be a MeshIndex, got {type(index).__name__}")
+    if not isinstance(index, (MeshIndex, ParametricModel)):
+        raise AlgorithmError(f"index must be a MeshIndex or a ParametricModel, got {type(index).__name__}")
     return index
 
 

@@ -49,6 +49,7 @@ from algorithms.arraytypes import ArrayLike, FloatArray, IntArray, Pose
 from algorithms.errors import AlgorithmError
 from algorithms.geometry.bvh_kernels import kernels_cached
 from algorithms.geometry.mesh_index import ClosestPoints, MeshIndex, NearFaces
+from algorithms.geometry.parametric import ParametricModel
 from algorithms.geometry.query_pool import PARALLEL_MIN_POINTS
 from algorithms.geometry.se3 import as_pose, exp_se3, inv_pose, log_se3
 from algorithms.registration.escape import escape_wrong_minimum
@@ -213,6 +214,9 @@ def localize(
     if variant == "printed" and outlier not in ("mad", None):
         raise AlgorithmError(f"variant='printed' uses every point (document 000 has no outlier rule); got outlier="
                              f"{outlier!r}: leave it out or pass None")
+    if isinstance(index, ParametricModel) and variant != "printed":
+        raise AlgorithmError("Newton foot points on exact surfaces (a ParametricModel) run document 000's "
+                             "Algorithm 1 as printed: pass variant='printed'")
     cfg = None if variant == "printed" else outlier_config(outlier)
     Y = P[rows]
     check_units(Y, index)

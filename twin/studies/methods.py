@@ -51,12 +51,13 @@ class Outcome:
 
 def run_method(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np.ndarray, sigma_m: float | None,
                rng: np.random.Generator, init_distance_m: float, variant: str = "ours",
-               ga: dict | None = None, tolerance: float | None = None) -> Outcome | str:
+               ga: dict | None = None, tolerance: float | None = None, feet=None) -> Outcome | str:
     """Localize ``points`` (world frame) on ``workpiece`` (its ``mesh`` and ``index``) by
     ``method`` (module docstring; a local method or the multistart as ``variant``: ours or as
     printed; document 001's stages with ``ga``: ``mutation`` and ``rotation_range_deg``; a
-    local method with ``tolerance``, the ``delta`` of its stopping rule, None: its default); a
-    status string instead of an outcome when it cannot run."""
+    local method with ``tolerance``, the ``delta`` of its stopping rule, None: its default, and
+    ``feet``, the part's exact surfaces for document 000's Newton foot points, None: the mesh);
+    a status string instead of an outcome when it cannot run."""
     index = workpiece.index
     t0 = time.perf_counter()
     if method in GLOBAL_METHODS:
@@ -69,8 +70,8 @@ def run_method(method: str, points: np.ndarray, workpiece: Workpiece, T_init: np
         return Outcome(T, _rms_m(points, T, index), len(diag.fitness_history) - 1, "ok", time.perf_counter() - t0)
     if method in ("open3d_icp", "small_gicp"):
         return _peer(method, points, workpiece, T_init, max(3.0 * init_distance_m, 1e-3))
-    res = localize(points, index=index, method=method, init=T_init, sigma=sigma_m, variant=variant,
-                   tolerance=tolerance)
+    res = localize(points, index=index if feet is None else feet, method=method, init=T_init, sigma=sigma_m,
+                   variant=variant, tolerance=tolerance)
     return Outcome(res.T_world_workpiece, res.rmse_m, res.iterations, res.status.value, res.time_s)
 
 

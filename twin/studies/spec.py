@@ -55,6 +55,9 @@ LOCALIZE_KEYS: dict[str, tuple[Any, Any, str]] = {
                "0 (every scanned point) or an integer in [6, 10^7]"),
     "subsample": ("none", lambda v: v in SUBSAMPLE_RULES, f"one of {', '.join(SUBSAMPLE_RULES)}"),
     "variant": ("ours", lambda v: v in VARIANTS, f"one of {', '.join(VARIANTS)}"),
+    "foot_points": ("mesh", lambda v: v in ("mesh", "newton"),
+                    "'mesh' (closest points on the CAD mesh) or 'newton' (document 000's Newton foot points on "
+                    "the part's exact surfaces, with variant 'printed')"),
     "tolerance": (0.0, lambda v: _is_number(v) and 0.0 <= v <= 0.1,
                   "a number in [0, 0.1]: delta of the stopping rule (0: the method's default)"),
     "ga_mutation": ("per_bit", lambda v: v in ("per_bit", "per_chromosome"), "'per_bit' or 'per_chromosome'"),
@@ -71,6 +74,9 @@ POINTS_KEYS: dict[str, tuple[Any, Any, str]] = {
     "noise_sigma_m": (5e-6, lambda v: _is_number(v) and 0.0 < v <= 0.01, "a number in (0, 0.01]"),
     "noise_direction": ("isotropic", lambda v: v in ("isotropic", "normal"), "'isotropic' or 'normal'"),
     "form_error_m": (0.0, lambda v: _is_number(v) and 0.0 <= v <= 0.001, "a number in [0, 0.001]"),
+    "truth": ("cad", lambda v: v in ("cad", "exact"),
+              "'cad' (points on the CAD mesh the fit sees) or 'exact' (on the part's exact surfaces: "
+              "hemisphere_punch, bottle_punch)"),
     "form_wavelength_m": (0.05, lambda v: _is_number(v) and 0.001 <= v <= 10.0, "a number in [0.001, 10]"),
     "region": ([], lambda v: _is_region(v), "a list of tables, each with normal = [x, y, z] and cone_deg, "
                "and/or box_min_m = [x, y, z] and box_max_m = [x, y, z] (workpiece frame)"),
@@ -514,6 +520,9 @@ def _check_cell(cell: CellSettings, kind: str) -> None:
     if ga_set and loc["method"] not in ("genetic_coarse", "genetic_001"):
         raise TwinError(f"localize.ga_mutation and localize.ga_rotation_range_deg read document 001's GA "
                         f"(method 'genetic_coarse' or 'genetic_001'), not {loc['method']!r}")
+    if loc["foot_points"] == "newton" and (loc["variant"] != "printed" or loc["method"] not in METHODS):
+        raise TwinError("localize.foot_points = 'newton' runs document 000's Algorithm 1 as printed: it needs "
+                        f"localize.variant = 'printed' and a local method ({', '.join(METHODS)})")
     if loc["tolerance"] and loc["method"] not in METHODS:
         raise TwinError(f"localize.tolerance is the stopping rule's delta of a local method ({', '.join(METHODS)}), "
                         f"not of {loc['method']!r}")

@@ -59,11 +59,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from algorithms.errors import AlgorithmError
+from algorithms.geometry.parametric import ParametricModel
 from algorithms.geometry.se3 import inv_pose, make_pose, rotation_error_rad, transform_points, translation_error_m
 from algorithms.registration.global_search.multistart import model_centroid
 from algorithms.registration.uncertainty import crlb, observability, pose_error_twist
 from twin import evaluate
 from twin.cell import build_cell
+from twin.errors import TwinError
+from twin.parts.exact import exact_surfaces
 from twin.plan import ScanPlan, plan_scan
 from twin.realize import Realized, realize
 from twin.robot import UR5E_DH
@@ -225,7 +228,7 @@ def _failed(status: str, n_points: int = 0, time_s: float = 0.0, C: np.ndarray |
 
 
 def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init: np.ndarray, sigma_m: float | None,
-              rng: np.random.Generator, C: np.ndarray | None) -> dict:
+              rng: np.random.Generator, C: np.ndarray | None, feet: ParametricModel | None = None) -> dict:
     """Localize by ``loc["method"]`` (its fit check with ``sigma_m``, every random and systematic
     effect of a reading) and measure against the truth (the metric columns), with ``C`` the
     Cramer-Rao bound of the white reading noise (:func:`bound`)."""
@@ -233,7 +236,7 @@ def _localize(loc: dict, pts: np.ndarray, workpiece, T_true: np.ndarray, T_init:
     try:
         out = run_method(loc["method"], pts, workpiece, T_init, sigma_m, rng, loc["init_distance_m"], loc["variant"],
                          {"mutation": loc["ga_mutation"], "rotation_range_deg": loc["ga_rotation_range_deg"]},
-                         loc["tolerance"] or None)
+                         loc["tolerance"] or None, feet)
     except AlgorithmError:
         return _failed("error", len(pts), time.perf_counter() - t0, C)
     if isinstance(out, str):
@@ -342,9 +345,46 @@ def points_trial(study: Study, cell: int, trial: int) -> dict:
     realized, design = part_design(scenario, spec)
     rng_init, rng_err, rng_points, rng_method = trial_streams(study.seed, cell, trial)
     workpiece, T_true = realized.workpiece, evaluate.Evaluation(realized).T_base_workpiece
+    exact = exact_model(scenario, workpiece) if spec["truth"] == "exact" or loc["foot_points"] == "newton" else None
     x = model_points(workpiece.mesh, design, spec, loc["subsample"], rng_points)
-    cp = workpiece.index.query(x)
-    pts = measured_points(x, workpiece.index.smooth_normals(cp.face, cp.foot), T_true, spec, rng_err)
+    if exact is not None and spec["truth"] == "exact":
+        x, normals = on_exact_surfaces(x, exact)
+    else:
+        cp = workpiece.index.query(x)
+        normals = workpiece.index.smooth_normals(cp.face, cp.foot)
+    pts = measured_points(x, normals, T_true, spec, rng_err)
     T_init = start_pose(T_true, loc, pts, workpiece.mesh, rng_init)
     sigma = spec["noise_sigma_m"]
-    return _localize(loc, pts, workpiece, T_true, T_init, sigma, rng_method, bound(pts, T_true, workpiece.index, sigma))
+    feet = exact if loc["foot_points"] == "newton" else None
+    return _localize(loc, pts, workpiece, T_true, T_init, sigma, rng_method, bound(pts, T_true, workpiece.index, sigma),
+                     feet)
+
+
+#: A point sampled on the CAD mesh lies this close to its exact surface (the chord tolerance of
+#: the generated parts, 10 um, with room); farther, the region samples a face the model lacks.
+EXACT_MAX_GAP_M = 1e-4
+_EXACT: dict[str, ParametricModel] = {}
+
+
+def exact_model(scenario: Scenario, workpiece) -> ParametricModel:
+    """The part's exact surfaces (:mod:`twin.parts.exact`), cached per process."""
+    key = scenario_key(scenario)
+    if key not in _EXACT:
+        wp = scenario.workpiece
+        surfaces = exact_surfaces(wp.shape, **wp.params) if wp.shape is not None else None
+        if surfaces is None:
+            raise TwinError(f"points.truth = 'exact' and localize.foot_points = 'newton' need a part with exact "
+                            f"surfaces (hemisphere_punch, bottle_punch), not {wp.shape or wp.mesh!r}")
+        if len(_EXACT) >= _CACHE_SIZE:
+            _EXACT.pop(next(iter(_EXACT)))
+        _EXACT[key] = ParametricModel(surfaces, workpiece.index.extent)
+    return _EXACT[key]
+
+
+def on_exact_surfaces(x: np.ndarray, exact: ParametricModel) -> tuple[np.ndarray, np.ndarray]:
+    """Points sampled on the CAD mesh moved onto the exact surface (their feet there), with its normals."""
+    cp = exact.query(x)
+    if np.max(cp.distance) > EXACT_MAX_GAP_M:
+        raise TwinError(f"points.truth = 'exact': points.region samples a face the part's exact surfaces lack "
+                        f"({np.max(cp.distance) * 1e3:.2f} mm from every one)")
+    return cp.foot, cp.normal
