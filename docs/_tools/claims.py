@@ -38,8 +38,9 @@ DOCUMENTS = ("000", "001", "002", "003", "004")
 _OPS = {">=": operator.ge, "<=": operator.le, ">": operator.gt, "<": operator.lt}
 _HOLDS = re.compile(r"^\s*(>=|<=|>|<)\s*(-?[\d.eE+-]+)\s*$")
 _OF = re.compile(r"^(\d+) of (\d+)")
+_MARKER = re.compile(r"<!--\s*twin:report\s+(.*?)\s*-->")
 _YES, _NO = {"same", "yes", "True"}, {"differs", "no", "False"}
-_NUMBER = re.compile(r"^-?\d+(\.\d+)?([eE][+-]?\d+)?")
+_NUMBER = re.compile(r"^[-+]?\d+(\.\d+)?([eE][+-]?\d+)?")
 
 
 @dataclass(frozen=True)
@@ -176,8 +177,19 @@ def reports(claim: dict) -> list[str]:
     return list(dict.fromkeys(found))
 
 
+def modules_of(report: str) -> list[str]:
+    """The code a report measured, as the site's include markers of it name (``modules=``)."""
+    found: list[str] = []
+    for page in sorted((ROOT / "docs").rglob("*.md")):
+        for args in _MARKER.findall(page.read_text(encoding="utf-8")):
+            parts = args.split()
+            if parts and parts[0] == report:
+                found += [m for p in parts[1:] if p.startswith("modules=") for m in p[8:].split(",")]
+    return list(dict.fromkeys(found))
+
+
 def _stamped(report: str) -> str:
-    s = stamp(ROOT / report, [])
+    s = stamp(ROOT / report, modules_of(report))
     stale = f", **{s.changed_since} later commit(s) changed what it measured**" if s.changed_since else ""
     return f"`{report}` (commit `{s.commit}`{stale})"
 

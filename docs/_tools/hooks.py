@@ -8,7 +8,9 @@ A page holds a marker where generated text goes:
 - ``<!-- twin:report PATH [modules=A,B] -->``: a committed report, included as it is, under its
   stamp (the commit and date it was made from, and whether the code it measured, ``modules``
   and the benchmark or study its command names, has changed since: ``reports.py``);
-- ``<!-- twin:reports -->``: the table of every report the site includes, with the same stamps.
+- ``<!-- twin:reports -->``: the table of every report the site includes, with the same stamps;
+- ``<!-- twin:claims 000 -->``: a document's claims, as printed and ours, with their verdicts,
+  read from the reports ``docs/claims.toml`` names (``claims.py``).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from claims import claims_markdown  # noqa: E402
 from report_stamps import ROOT, stamp, stamp_markdown  # noqa: E402
 
 MARKER = re.compile(r"<!--\s*twin:([\w-]+)\s*(.*?)\s*-->")
@@ -78,6 +81,8 @@ def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
             return include_report(*_report_args(args), depth)
         if name == "reports":
             return reports_table(Path(config["docs_dir"]), page.file.src_uri)
+        if name == "claims":
+            return claims_markdown(args.strip())
         return generated(name, Path(config["docs_dir"]))
 
     return MARKER.sub(fill, markdown)
