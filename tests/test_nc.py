@@ -49,7 +49,8 @@ def test_written_program_reads_back_to_its_cutter_locations(sphere_program):
 
 
 def test_inch_incremental_and_modal_words_are_read():
-    moves = read_gcode("%\nN10 G20 G91 G0 X1 Y1 Z1 (start)\nN20 G1 X1 F10 ; feed in inch/min\nY-1\nM30\n%\n")
+    moves = read_gcode("%\nO1000\nT1 M6\nG43 H1\nN10 G20 G91 G0 X1 Y1 Z1 (start)\nN20 G1 X1 F10 ; feed in inch/min\n"
+                       "Y-1\nM30\n%\n")
     assert [m.xyz_mm for m in moves] == [(25.4, 25.4, 25.4), (50.8, 25.4, 25.4), (50.8, 0.0, 25.4)]
     assert moves[1].feed_mm_min == pytest.approx(254.0) and not moves[2].rapid
 
@@ -60,6 +61,7 @@ def test_inch_incremental_and_modal_words_are_read():
     ("G0 X0 Y0 Z5\nG1 X1\n", "line 2: a G1 move with no feed"),
     ("G0 X0 Y0 Z5 #1=2\n", "is not a G-code word"),
     ("G18\nG0 X1\n", "G18 is refused"),
+    ("G54 G0 X1 Y1 Z1\n", "G54 is refused"),
 ])
 def test_programs_it_cannot_execute_are_refused(text, message):
     with pytest.raises(GCodeError, match=message.replace("(", r"\(")):

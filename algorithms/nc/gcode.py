@@ -7,9 +7,10 @@ where its value changes. Coordinates are printed
 with ``decimals`` digits in mm (3: 1 um, ten times finer than document 004's 0.01 mm).
 
 Read: the words of ISO 6983 that such a program holds: ``G0``/``G00``, ``G1``/``G01`` (modal),
-``G20``/``G21``, ``G90``/``G91``, ``G17``, ``G94``, ``G40``/``G49``/``G80`` (cancels), ``X Y Z F``,
-``N`` line numbers, ``S``, ``T``, ``M`` (spindle, coolant, tool change, end), comments in
-parentheses or after ``;``, ``%`` tape marks. A word it cannot execute as a straight 3-axis
+``G20``/``G21``, ``G90``/``G91``, ``G17``, ``G94``, ``G40``/``G49``/``G80`` (cancels), ``G43`` with
+its ``H`` (tool length compensation: the program's coordinates stay those of the tool tip),
+``X Y Z F``, ``N`` line numbers, ``O`` program numbers, ``S``, ``T``, ``M`` (spindle, coolant, tool
+change, end), comments in parentheses or after ``;``, ``%`` tape marks. A word it cannot execute as a straight 3-axis
 move (arcs ``G2``/``G3``, other planes, cutter compensation on, canned cycles, axes A-C or U-W)
 is refused with its line: a program run half-understood would be a wrong program.
 """
@@ -24,8 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
-_IGNORED_G = {17.0, 40.0, 49.0, 80.0, 94.0}
-_ALLOWED_LETTERS = set("GXYZFNSTM")
+_IGNORED_G = {17.0, 40.0, 43.0, 49.0, 80.0, 94.0}
+_ALLOWED_LETTERS = set("GXYZFNOSTMH")
 
 
 class GCodeError(ValueError):
@@ -56,7 +57,8 @@ def write_gcode(passes_mm: Sequence[ArrayLike], *, feed_mm_min: float = 1000.0, 
 
     Args:
         passes_mm: each an (N, 3) array of tool-tip positions [mm], machine frame.
-        feed_mm_min, plunge_feed_mm_min: the cutting and plunging feeds [mm/min].
+        feed_mm_min: the cutting feed [mm/min].
+        plunge_feed_mm_min: the plunging feed [mm/min].
         safe_z_mm: the rapid height [mm]; must be above every point.
         decimals: digits after the point of every coordinate.
         title: a comment line (parentheses are removed from it).
@@ -151,5 +153,5 @@ def _g_word(value: float, number: int, mm: float, absolute: bool, rapid: bool) -
         return mm, value == 90.0, rapid
     if value in _IGNORED_G:
         return mm, absolute, rapid
-    raise GCodeError(f"line {number}: G{value:g} is refused: only G0, G1, G17, G20, G21, G40, G49, G80, G90, G91 "
-                     "and G94 are read (no arcs, other planes, compensation or cycles)")
+    raise GCodeError(f"line {number}: G{value:g} is refused: only G0, G1, G17, G20, G21, G40, G43, G49, G80, G90, "
+                     "G91 and G94 are read (no arcs, other planes, cutter compensation, work offsets or cycles)")

@@ -210,7 +210,8 @@ def claims_markdown(document: str, path: Path = CLAIMS) -> str:
         ours = values(c, "ours") if "ours" in c else []
         unit = c.get("unit", "")
         where = "; ".join(_stamped(r) for r in reports(c)) + f": `{c['command']}`"
-        what = f"{c['column']} {c['holds']}{' ' + unit if unit else ''}"
+        quantity = f"the ratio of {c['column']}" if "over" in c["printed"] else c["column"]
+        what = f"{quantity} {c['holds']}{' ' + unit if unit else ''}"
         why = f"; {c['why']}" if c.get("why") else ""
         ours_cell = shown(ours, unit) if "ours" in c else f"n/a: {c['no_ours']}"
         rows.append(f"| {c['claim']} | {c['document_value']} | {shown(printed, unit)} | {ours_cell} | "
