@@ -156,7 +156,8 @@ def report(rows: list[dict], setup: dict, trials: int, seconds: float) -> str:
         stock = np.array([x["min_stock_mm"] for x in r])
         right = sum(x["min_stock_mm"] >= 0 and x["datum_um"] <= DATUM_TOLERANCE_M * 1e6 for x in r)
         out.append(f"| {name} | {len(r)} | {sum(x['status'] == 'ok' for x in r)} of {len(r)} | "
-                   f"{int(np.sum(stock >= 0))} of {len(r)} | {right} of {len(r)} | {stock.min():+.3f} | {np.median(stock):+.3f} | "
+                   f"{int(np.sum(stock >= 0))} of {len(r)} | {right} of {len(r)} | {stock.min():+.3f} | "
+                   f"{np.median(stock):+.3f} | "
                    f"{max(x['datum_um'] for x in r):.1f} | {np.median([x['angle_deg'] for x in r]):.3f} / "
                    f"{np.median([x['distance_mm'] for x in r]):.3f} | {max(x['read_back_um'] for x in r):.2f} | "
                    f"{r[0]['lines']} | {np.median([x['time_s'] for x in r]):.2f} |")
