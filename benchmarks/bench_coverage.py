@@ -50,12 +50,14 @@ def label(name: str, resolution_m: float | None) -> str:
 
 
 def determined_error(res, T_true: np.ndarray) -> np.ndarray:
-    """The error's coordinates along the result's determined directions: the estimate first
-    moved along its free directions to the pose nearest the truth (where the points leave it),
-    then the free part of the remaining twist split off."""
+    """The error's coordinates along the result's determined directions: the truth first moved
+    along the free directions (the part's symmetry, the same twists in its own frame) to the pose
+    nearest the estimate, so that the error twist is taken in the frame the covariance was
+    stated in (moving the estimate instead turns that frame by the free rotation, up to tens of
+    degrees, and mixes the determined coordinates); then the free part of the twist split off."""
     D = np.asarray(res.determined_directions, dtype=np.float64).reshape(-1, 6)
     F = np.asarray(res.free_directions, dtype=np.float64).reshape(-1, 6)
-    xi = pose_error_twist(nearest_along_free(res.T_world_workpiece, F, T_true), T_true)
+    xi = pose_error_twist(res.T_world_workpiece, nearest_along_free(T_true, F, res.T_world_workpiece))
     return np.linalg.lstsq(np.vstack([D, F]).T, xi, rcond=None)[0][: len(D)]
 
 
@@ -125,8 +127,8 @@ def markdown(results: list[dict], command: str, wall_s: float) -> str:
         "Each fit is on a new scan of the scenario: the sensor's noise redrawn and the linearity curve that of a new",
         "sensor unit (`linearity_phase_deg = \"random\"`, a phase uniform in [0, 360) deg), localized from the nominal",
         "pose as `twin localize --scan DIR --init NOMINAL` does (sigma from the scan's sensor and encoders, the",
-        "rejection review and the profile check on). Where the fit leaves directions free, the estimate is first moved",
-        "along them to the pose nearest the truth.",
+        "rejection review and the profile check on). Where the fit leaves directions free, the truth is first moved",
+        "along them to the pose nearest the estimate (the error then lies in the frame the covariance is stated in).",
         "`inside` counts the fits whose true error (along the determined directions) lies inside the stated 95 %",
         "region `m^T C^-1 m <= r2`, `r2` the 95 % quantile of the propagated distribution (JCGM 101 Monte Carlo: the",
         "random part Gaussian, the linearity curve's phase uniform; what the command prints as `mahalanobis2_max`);",
