@@ -134,6 +134,28 @@ def test_rays_do_not_slip_through_shared_edges_and_vertices():
     assert hit.all() and np.allclose(P[:, 2], 0.0) and (face >= 0).all()
     hit, _, _ = raycast_parallel(V, np.array(F), [[2.0, 2.0, 1.0]], [0, 0, -1])
     assert not hit.any()
+    # a handful of rays takes the bounding-box path: the same edges and vertices hit
+    for o in origins:
+        hit, P, face = raycast_parallel(V, np.array(F), o[None], [0, 0, -1])
+        assert hit.all() and np.allclose(P[:, 2], 0.0) and (face >= 0).all()
+
+
+def test_few_rays_hit_what_the_centroid_trees_hit():
+    """The path for a handful of rays (bounding boxes, no trees) finds the same first hit, face
+    and point, as the trees' path, rays through a sphere from every side."""
+    import algorithms.geometry.raycast as raycast
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        origins = rng.uniform(-0.06, 0.06, (raycast.FEW_RAYS, 3)) - 0.3 * d
+        few = raycast_parallel(mesh.vertices, mesh.faces, origins, d)
+        many = raycast_parallel(mesh.vertices, mesh.faces, np.vstack([origins, origins]), d)
+        assert few[0].any() and np.array_equal(few[0], many[0][: len(origins)])
+        assert np.array_equal(few[2], many[2][: len(origins)])
+        assert np.array_equal(few[1], many[1][: len(origins)], equal_nan=True)
 
 
 def test_cad_raster_on_the_s_surface():
