@@ -178,7 +178,8 @@ def test_the_contact_gaps_are_exact_where_they_decide(cube_probe):
 def _every_sample_exactly(prog, t, ball_w, module_w, phase):
     """probe_contacts with every sample's gap computed (the reference)."""
     out, clearance = [], np.inf
-    for name, pts, radius, check, _ in prog.probe_samples(ball_w, module_w, phase)[1]:
+    for name, samples, radius, check, _ in prog.probe_samples(ball_w, module_w, phase)[1]:
+        pts = np.asarray(samples)
         k = pts.shape[1]
         d = prog.obstacles.distance(pts.reshape(-1, 3), reach_m=radius + 0.01).reshape(-1, k).min(axis=1) - radius
         if name != "probe_ball":

@@ -219,10 +219,18 @@ def line_profile(p0: np.ndarray, p1: np.ndarray, speed: float, accel: float, dt:
 def ball_pose(position_world: np.ndarray, spin_rad: float = 0.0) -> np.ndarray:
     """(4, 4) target of the ball site: at ``position_world``, stylus straight down, turned by
     ``spin_rad`` about it."""
-    c, s = np.cos(spin_rad), np.sin(spin_rad)
-    T = np.eye(4)
-    T[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.diag([1.0, -1.0, -1.0])
-    T[:3, 3] = position_world
+    return ball_poses(np.asarray(position_world, dtype=np.float64)[None], np.array([spin_rad]))[0]
+
+
+def ball_poses(positions_world: np.ndarray, spins_rad: np.ndarray) -> np.ndarray:
+    """(m, 4, 4) :func:`ball_pose` of positions (m, 3) and spins (m,): ``Rz(spin) diag(1, -1, -1)``."""
+    c, s = np.cos(spins_rad), np.sin(spins_rad)
+    T = np.zeros((len(c), 4, 4))
+    T[:, 0, 0], T[:, 0, 1] = c, s
+    T[:, 1, 0], T[:, 1, 1] = s, -c
+    T[:, 2, 2] = -1.0
+    T[:, 3, 3] = 1.0
+    T[:, :3, 3] = positions_world
     return T
 
 
@@ -290,7 +298,7 @@ class ProbingProgram:
         spin1 = spin0 if spin_to is None else spin0 + np.angle(np.exp(1j * (spin_to - spin0)))
         travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P_world, axis=0), axis=1))])
         frac = travel / travel[-1] if travel[-1] > 0 else np.linspace(0.0, 1.0, k)
-        T_world_ball = np.stack([ball_pose(P_world[j], spin0 + frac[j] * (spin1 - spin0)) for j in knots])
+        T_world_ball = ball_poses(P_world[knots], spin0 + frac[knots] * (spin1 - spin0))
         q = self._closed_form_knots(T_world_ball)
         if q is None:
             q = self._mink_knots(T_world_ball)
@@ -544,8 +552,8 @@ class ProbingProgram:
         n_stem = max(int(np.ceil(stem / CONTACT_SAMPLE_M)), 2)
         n_body = max(int(np.ceil(p.body_length_m / CONTACT_SAMPLE_M)), 2)
         every = np.ones(len(phase), bool)
-        stylus = module_w[:, None, :] + axis[:, None, :] * np.linspace(0, stem, n_stem)[None, :, None]
-        body = module_w[:, None, :] - axis[:, None, :] * np.linspace(0, p.body_length_m, n_body)[None, :, None]
+        stylus = AxisPoints(module_w, axis, np.linspace(0, stem, n_stem))
+        body = AxisPoints(module_w, -axis, np.linspace(0, p.body_length_m, n_body))
         return axis, (("probe_ball", ball_w[:, None, :], p.ball_radius_m, phase == 0, None),
                       ("probe_stylus", stylus, p.stylus_radius_m, every, stem),
                       ("probe_body", body, p.body_radius_m, every, p.body_length_m))
@@ -587,6 +595,25 @@ class ProbingProgram:
         if len(todo):
             d[todo] = gap(todo)[0]
         return d
+
+
+class AxisPoints:
+    """Points along the probe's axis at every sample, made only for the samples asked for:
+    ``origin`` (n, 3) plus ``direction`` (n, 3) times each of ``offsets`` (k,) [m]; indexing
+    by rows gives (rows, k, 3), ``np.asarray`` all of them."""
+
+    def __init__(self, origin: np.ndarray, direction: np.ndarray, offsets: np.ndarray):
+        self.origin, self.direction, self.offsets = origin, direction, offsets
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return len(self.origin), len(self.offsets), 3
+
+    def __getitem__(self, rows) -> np.ndarray:
+        return self.origin[rows][:, None, :] + self.direction[rows][:, None, :] * self.offsets[None, :, None]
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return self[slice(None)] if dtype is None else self[slice(None)].astype(dtype)
 
 
 class _ArmProbingLine:
