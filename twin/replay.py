@@ -31,6 +31,7 @@ uses :func:`twin.sim.simulate` (``mujoco.rollout`` in chunks).
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import mujoco
@@ -101,9 +102,23 @@ class HeightField:
     z0_m: float
 
 
+#: Height fields made so far, per mesh (with the mesh's hash: a mesh changed since is cast again).
+_HEIGHT_FIELDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def height_field(mesh: trimesh.Trimesh) -> HeightField:
     """Cast vertical rays over the part's footprint (one sample beyond it on every side, so the
-    walls drop to the table)."""
+    walls drop to the table). The field is in the part's own frame, so it is cast once per
+    mesh (a new episode or trial of the same part reuses it)."""
+    key = hash(mesh)
+    kept = _HEIGHT_FIELDS.get(mesh)
+    if kept is None or kept[0] != key:
+        kept = (key, _cast_height_field(mesh))
+        _HEIGHT_FIELDS[mesh] = kept
+    return kept[1]
+
+
+def _cast_height_field(mesh: trimesh.Trimesh) -> HeightField:
     lo, hi = mesh.bounds
     res = HFIELD_RES_M
     nx = int(np.ceil((hi[0] - lo[0]) / res)) + 3
