@@ -153,6 +153,11 @@ def speed_section(env_kind: str, scenario: str, steps: int) -> str:
         t0 = time.perf_counter()
         env = _make_env(env_kind, scenario, 30)
         builds.append(time.perf_counter() - t0)
+    resets = []
+    for seed in range(5):   # the first reset in the process compiles the cell's kernels: timed apart
+        t0 = time.perf_counter()
+        env.reset(seed=seed)
+        resets.append(time.perf_counter() - t0)
     rows = []
     for name in ("random", "greedy"):
         policy = _policy(env_kind, name, env, 0)
@@ -178,7 +183,8 @@ def speed_section(env_kind: str, scenario: str, steps: int) -> str:
         "| actions of | steps | steps/s | steps that measured | their steps/s | median ms per measuring step |",
         "|---|---|---|---|---|---|", *rows, "",
         f"Building an instance (imports done): {builds[0]:.1f} s the first in the process, {builds[1]:.1f} s "
-        "another of the same scenario."]) + "\n"
+        f"another of the same scenario. A reset: {resets[0]:.2f} s the first, then median "
+        f"{np.median(resets[1:]):.3f} s."]) + "\n"
 
 
 def main() -> None:
