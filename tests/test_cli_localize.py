@@ -186,3 +186,33 @@ def test_errors_are_one_line_and_exit_2(scene, argv, message):
     rc, out, err = localize_cli(*[a.format(d=d) for a in argv])
     assert rc == 2 and out == ""
     assert len(err.strip().splitlines()) == 1 and message in err
+
+
+def test_a_fit_with_free_directions_says_its_covariance_leaves_out_the_facets(tmp_path):
+    """A tessellated cylinder's turn about its axis is free: the uncertainty's note says the
+    facets along it are not in the covariance (as text and in the JSON); a box, whose points fix
+    every direction, says nothing of the kind."""
+    import trimesh
+
+    mesh = trimesh.creation.cylinder(radius=0.02, height=0.05, sections=48)
+    rng = np.random.default_rng(3)
+    X, _ = sample_surface(mesh, 400, rng)
+    side = X[np.abs(X[:, 2]) < 0.02]
+    mesh.export(tmp_path / "cyl.stl")
+    write_points_ply(tmp_path / "side.ply", side)
+    (tmp_path / "identity.json").write_text(json.dumps(np.eye(4).tolist()))
+    rc, out, err = localize_cli("--model", tmp_path / "cyl.stl", "--points", tmp_path / "side.ply",
+                                "--init", tmp_path / "identity.json", "--json")
+    res = json.loads(out)
+    assert res["free_dofs"] >= 1, res["message"]
+    assert "facets along the free directions" in res["uncertainty"]["note"]
+    rc, out, err = localize_cli("--model", tmp_path / "cyl.stl", "--points", tmp_path / "side.ply",
+                                "--init", tmp_path / "identity.json")
+    assert "not in the covariance:" in out and "facets along the free directions" in out
+    box = trimesh.creation.box(extents=[0.04, 0.03, 0.02])
+    box.export(tmp_path / "box.stl")
+    write_points_ply(tmp_path / "box.ply", sample_surface(box, 400, rng)[0])
+    rc, out, err = localize_cli("--model", tmp_path / "box.stl", "--points", tmp_path / "box.ply",
+                                "--init", tmp_path / "identity.json", "--json")
+    res = json.loads(out)
+    assert res["free_dofs"] == 0 and "facets" not in res["uncertainty"]["note"]

@@ -14,7 +14,9 @@ sensor's linearity curve as a systematic effect of unknown phase
 ``m^T C^-1 m <= mahalanobis2_max``: from a scan, the propagated distribution's 95 % quantile
 (JCGM 101 Monte Carlo, :func:`twin.scan_uncertainty.coverage_region_m2`); from bare points,
 ``chi2_0.95(q)``. How often it holds the true error is measured by
-``benchmarks/bench_coverage.py``.
+``benchmarks/bench_coverage.py``. Its ``note`` says what the covariance leaves out: robot-side
+errors and, where the points leave directions free, the model's facets along them (the line
+``not in the covariance:`` in the text output).
 
 ``--nc PROGRAM --nc-out FILE --tool-radius VALUE`` is document 003's last step: the CAM
 program's cutter locations (G-code in the model's frame, a ball-end tool) moved to the found
@@ -412,7 +414,8 @@ def _with_uncertainty(res, readings, index: MeshIndex, sigma: float | None, sigm
         kind = "random only" if res.covariance is not None else "none"
         words = ("the residuals taken as independent white noise: correlated errors (a sensor's linearity curve, "
                  "robot-side errors) are not in it; from a scan folder (--scan) the sensor's are")
-        return res, {"kind": kind, "sources": ["white noise (fit sigma)"], "note": words, "coverage_region": region}
+        return res, {"kind": kind, "sources": ["white noise (fit sigma)"], "note": words + _free_facets_note(res),
+                     "coverage_region": region}
     from dataclasses import replace
 
     region.update(mahalanobis2_max=scan.region_m2,
@@ -420,9 +423,20 @@ def _with_uncertainty(res, readings, index: MeshIndex, sigma: float | None, sigm
                        "probability under the propagated distribution (JCGM 101 Monte Carlo: the random part "
                        "Gaussian, the linearity curve's phase uniform)")
     out = {"kind": scan.kind, "sources": list(scan.sources), "covariance_random": scan.random.tolist(),
-           "note": "robot-side systematic errors (kinematics, hand-eye, time skew) are not in it",
+           "note": "robot-side systematic errors (kinematics, hand-eye, time skew) are not in it"
+                   + _free_facets_note(res),
            "coverage_region": region}
     return replace(res, covariance=scan.total), out
+
+
+def _free_facets_note(res) -> str:
+    """What a fit with free directions leaves out of its covariance ('' when none are free)."""
+    if not len(np.asarray(res.free_directions).reshape(-1, 6)):
+        return ""
+    return ("; nor the model's facets along the free directions: a tessellated surface is not quite invariant "
+            "under the motions the points leave free, the estimate keeps the start's position along them, and "
+            "where the model's facets then sit against the part's moves the determined coordinates, on a "
+            "tessellated sphere or bore beyond the stated region (benchmarks/results_coverage.md)")
 
 
 def _print(res, out: dict, as_json: bool) -> None:
@@ -456,6 +470,8 @@ def _print(res, out: dict, as_json: bool) -> None:
         print(f"1-sigma (workpiece frame; {kind}): rotation [urad] "
               + " ".join(f"{v * 1e6:.3f}" for v in sd[:3])
               + ", translation [um] " + " ".join(f"{v * 1e6:.3f}" for v in sd[3:]))
+        if out["free_dofs"] and "uncertainty" in out:
+            print(f"not in the covariance: {out['uncertainty']['note']}")
     n = len(out["solutions"])
     for k, S in enumerate(out["solutions"]):
         title = "T_world_workpiece [m]:" if k == 0 else f"equally good pose {k + 1} of {n} [m]:"
