@@ -56,3 +56,19 @@ def test_scenario_cells_compile_and_step(path: Path):
         # hold the home posture with the servos (position and velocity references)
         cell.data.ctrl[:] = np.concatenate([HOME_Q, np.zeros(6)])
         _step_without_warnings(cell.model, cell.data, f"{path.name} ({which} cell)")
+
+
+def test_a_height_field_is_cast_once_per_mesh_and_again_when_the_mesh_changes():
+    """The part's collision height field (its own frame) is cast once per mesh: a second cell of
+    the same part reuses it; a mesh moved since is cast again, and its field moves with it."""
+    import trimesh
+
+    from twin.replay import height_field
+
+    mesh = trimesh.creation.box(extents=[0.04, 0.03, 0.02])
+    first = height_field(mesh)
+    assert height_field(mesh) is first
+    assert first.heights_m.max() == pytest.approx(0.02, abs=1e-9)
+    mesh.apply_translation([0.005, 0.0, 0.0])
+    moved = height_field(mesh)
+    assert moved is not first and moved.x_m[0] == pytest.approx(first.x_m[0] + 0.005, abs=1e-12)
