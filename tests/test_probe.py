@@ -150,7 +150,7 @@ def test_the_closed_form_knots_are_what_mink_converges_to(cube_probe):
     prog.solver.set_q(q_start)
     mink = prog._mink_knots(T_world_ball)
     assert closed is not None
-    assert np.abs(closed[0] - mink).max() < 2e-6       # rad: mink stops at 1e-7 m / 1e-6 rad
+    assert np.abs(closed - mink).max() < 2e-6          # rad: mink stops at 1e-7 m / 1e-6 rad
 
 
 def test_the_contact_gaps_are_exact_where_they_decide(cube_probe):

@@ -271,7 +271,6 @@ class ProbingProgram:
         self.joint_range = nominal.model.jnt_range[:6].copy()
         self.near_table = TableCheck(nominal, TABLE_DETECTION_DISTANCE_M)
         self.spin = 0.0
-        self._branch_memo: tuple[bytes, int] | None = None   # (joints, the UR branch they lie on)
         self.T_world_base = cell.T_world_base
         self.T_base_world = inv_pose(cell.T_world_base)
         model = cell.model
@@ -300,11 +299,10 @@ class ProbingProgram:
         travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P_world, axis=0), axis=1))])
         frac = travel / travel[-1] if travel[-1] > 0 else np.linspace(0.0, 1.0, k)
         T_world_ball = ball_poses(P_world[knots], spin0 + frac[knots] * (spin1 - spin0))
-        closed = self._closed_form_knots(T_world_ball)
-        q = self._mink_knots(T_world_ball) if closed is None else closed[0]
+        q = self._closed_form_knots(T_world_ball)
+        if q is None:
+            q = self._mink_knots(T_world_ball)
         self.solver.set_q(q[-1])
-        # a closed-form move ends on the branch it was solved on: the next move starts from it
-        self._branch_memo = None if closed is None else (self.solver.q.tobytes(), closed[1])
         self.spin = spin1
         t = np.arange(k) * self.dt
         if len(knots) == 1:
@@ -313,17 +311,15 @@ class ProbingProgram:
         spline = CubicSpline(t[knots], q, axis=0, bc_type=(start, (1, np.zeros(6))))
         return spline(t), spline(t, 1)
 
-    def _closed_form_knots(self, T_world_ball: np.ndarray) -> tuple[np.ndarray, int] | None:
+    def _closed_form_knots(self, T_world_ball: np.ndarray) -> np.ndarray | None:
         """Joint angles (m, 6) of ball poses (m, 4, 4) from the UR closed form, on the branch the
-        arm is on (returned with them), continuous from its configuration: what mink converges
-        to (to its tolerances, ``IK_POSITION_TOL_M``) where no link is within the
-        table-avoidance detection distance. None where the closed form cannot stand in for
-        mink: a pose out of reach or beyond the joint ranges, a joint that would move faster
-        than its velocity limit between knots (a wrist flip), a link near the table (mink's
-        avoidance acts there)."""
+        arm is on, continuous from its configuration: what mink converges to (to its
+        tolerances, ``IK_POSITION_TOL_M``) where no link is within the table-avoidance
+        detection distance. None where the closed form cannot stand in for mink: a pose out of
+        reach or beyond the joint ranges, a joint that would move faster than its velocity
+        limit between knots (a wrist flip), a link near the table (mink's avoidance acts there)."""
         q_now = self.solver.q
-        memo = self._branch_memo
-        branch = memo[1] if memo is not None and memo[0] == q_now.tobytes() else ur_branch(q_now, UR5E_DH)
+        branch = ur_branch(q_now, UR5E_DH)
         sol = ur_inverse(self.T_base_world @ T_world_ball @ self.T_ball_flange, UR5E_DH, branches=(branch,))
         if not sol.valid[:, branch].all():
             return None
@@ -335,7 +331,7 @@ class ProbingProgram:
             return None
         if any(self.near_table.nearest(qi) is not None for qi in q):
             return None
-        return q, branch
+        return q
 
     def _mink_knots(self, T_world_ball: np.ndarray) -> np.ndarray:
         """Joint angles (m, 6) of ball poses (m, 4, 4) by mink, each from the last."""
