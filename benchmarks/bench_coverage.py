@@ -6,11 +6,14 @@ true error's squared Mahalanobis distance against the stated covariance along th
 directions. A 95 % region that is right holds the error in 95 % of the fits.
 
     python -m benchmarks.bench_coverage [--fits 500] [--fits-for sphere=100 ...] [--scenarios cube sphere]
-                                        [--resolutions-m 0.001 0.0005] [--workers 2]
-                                        [--out benchmarks/results_coverage.md]
+                                        [--resolutions-m 0.001 0.0005] [--noise linearity=off ...]
+                                        [--workers 2] [--out benchmarks/results_coverage.md]
 
 ``--resolutions-m`` runs each scenario once per tessellation of its generated part (the part's
 ``resolution_m``: its largest edge on curved surfaces), to show what the facets do.
+``--noise KEY=on|off`` switches a noise source in every scenario: with the linearity curve and
+the quantisation off, what remains is white noise, for which the fit's covariance is the
+Cramer-Rao bound, so any shortfall left is the fit's own (the facets along free directions).
 """
 
 from __future__ import annotations
@@ -36,13 +39,28 @@ from twin.studies.trials import noise_free_scan, scan_measurement
 
 P = 0.95
 CHUNK = 25
+#: The scenario's noise switches ``--noise`` may turn on or off.
+NOISE_SWITCHES = ("gaussian", "linearity", "quantization", "incidence", "occlusion")
 
 
-def scenario_of(name: str, resolution_m: float | None = None):
+def scenario_of(name: str, resolution_m: float | None = None, noise: dict | None = None):
     over: dict = {"sensor": {"linearity_phase_deg": "random"}}
     if resolution_m is not None:
         over["workpiece"] = {"params": {"resolution_m": resolution_m}}
+    if noise:
+        over["noise"] = dict(noise)
     return load_scenario(SCENARIOS / f"{name}.toml", over, machine="arm")
+
+
+def noise_switches(items: list[str]) -> dict:
+    """``--noise`` items ``KEY=on|off`` as the scenario's ``[noise]`` overrides."""
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in NOISE_SWITCHES or value not in ("on", "off"):
+            raise SystemExit(f"--noise takes KEY=on|off with KEY one of {', '.join(NOISE_SWITCHES)}, got {item!r}")
+        out[key] = value == "on"
+    return out
 
 
 def label(name: str, resolution_m: float | None) -> str:
@@ -61,10 +79,11 @@ def determined_error(res, T_true: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(np.vstack([D, F]).T, xi, rcond=None)[0][: len(D)]
 
 
-def fits(task: tuple[int, str, float | None, int, int]) -> list[dict]:
-    """Fits ``first .. first + count - 1`` of one part (at a tessellation, or the scenario's)."""
-    part, name, resolution_m, first, count = task
-    scenario = scenario_of(name, resolution_m)
+def fits(task: tuple[int, str, float | None, int, int, dict]) -> list[dict]:
+    """Fits ``first .. first + count - 1`` of one part (at a tessellation, or the scenario's;
+    with noise switches overridden, or as the scenario has them)."""
+    part, name, resolution_m, first, count, noise = task
+    scenario = scenario_of(name, resolution_m, noise)
     geo = noise_free_scan(scenario)
     index = geo.realized.workpiece.index
     T_true = evaluate.Evaluation(geo.realized).T_base_workpiece
@@ -116,7 +135,8 @@ def summary(name: str, rows: list[dict]) -> dict:
             "fit_s": float(np.median([r["wall_s"] for r in rows]))}
 
 
-def markdown(results: list[dict], command: str, wall_s: float) -> str:
+def markdown(results: list[dict], command: str, wall_s: float, noise: dict | None = None) -> str:
+    switched = "; ".join(f"{k} {'on' if v else 'off'}" for k, v in (noise or {}).items())
     lines = [
         "# Coverage of the stated 95 % region: `twin localize --scan` on every laser scenario",
         "",
@@ -124,6 +144,7 @@ def markdown(results: list[dict], command: str, wall_s: float) -> str:
         "",
         f"Command: `{command}` ({platform.machine()}, {wall_s:.0f} s wall).",
         "",
+        *([f"The scenarios' noise switched: {switched} (the others as each scenario has them).", ""] if noise else []),
         "Each fit is on a new scan of the scenario: the sensor's noise redrawn and the linearity curve that of a new",
         "sensor unit (`linearity_phase_deg = \"random\"`, a phase uniform in [0, 360) deg), localized from the nominal",
         "pose as `twin localize --scan DIR --init NOMINAL` does (sigma from the scan's sensor and encoders, the",
@@ -163,6 +184,8 @@ def main() -> None:
     ap.add_argument("--scenarios", nargs="*", default=None, help="scenario names (default: every laser scenario)")
     ap.add_argument("--resolutions-m", type=float, nargs="*", default=None,
                     help="run each scenario at each of these tessellations of its generated part [m]")
+    ap.add_argument("--noise", nargs="*", default=[], metavar="KEY=on|off",
+                    help=f"switch a noise source of every scenario ({', '.join(NOISE_SWITCHES)})")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results_coverage.md")
     args = ap.parse_args()
@@ -170,7 +193,8 @@ def main() -> None:
     counts = {name: args.fits for name in names}
     counts.update({k: int(v) for k, v in (item.split("=", 1) for item in args.fits_for)})
     runs = [(name, res) for name in names for res in (args.resolutions_m or [None])]
-    tasks = [(i, name, res, k, min(CHUNK, counts[name] - k)) for i, (name, res) in enumerate(runs)
+    noise = noise_switches(args.noise)
+    tasks = [(i, name, res, k, min(CHUNK, counts[name] - k), noise) for i, (name, res) in enumerate(runs)
              for k in range(0, counts[name], CHUNK)]
     t0 = time.perf_counter()
     with Pool(args.workers) as pool:
@@ -182,8 +206,9 @@ def main() -> None:
     command = "python -m benchmarks.bench_coverage" + (f" --fits {args.fits}" if args.fits != 500 else "") \
         + (f" --fits-for {' '.join(args.fits_for)}" if args.fits_for else "") \
         + (f" --scenarios {' '.join(names)}" if args.scenarios else "") \
-        + (f" --resolutions-m {' '.join(f'{r:g}' for r in args.resolutions_m)}" if args.resolutions_m else "")
-    text = markdown(results, command, time.perf_counter() - t0)
+        + (f" --resolutions-m {' '.join(f'{r:g}' for r in args.resolutions_m)}" if args.resolutions_m else "") \
+        + (f" --noise {' '.join(args.noise)}" if args.noise else "")
+    text = markdown(results, command, time.perf_counter() - t0, noise)
     args.out.write_text(text)
     print(text)
 

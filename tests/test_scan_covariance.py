@@ -160,7 +160,7 @@ def test_the_stated_region_covers_the_error_on_new_scans():
     white-noise covariance alone covers under half (the benchmark: 500 fits per part)."""
     from benchmarks.bench_coverage import fits
 
-    rows = fits((0, "s_surface", None, 0, 40))
+    rows = fits((0, "s_surface", None, 0, 40, {}))
     inside = sum(r["m2"] <= r["region_m2"] for r in rows)
     inside_random = sum(r["m2_random"] <= 12.5916 for r in rows)
     assert inside >= 34, [round(r["m2"], 1) for r in rows]
